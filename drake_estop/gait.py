@@ -1,0 +1,313 @@
+"""Nominal walking pattern that the emergency stop interrupts.
+
+Pure numpy. The ZMP reference is piecewise polynomial (constant at the support
+ankle in single support, a quintic smoothstep between the feet in double
+support) and the COG is its analytic LIPM solution (eq. 6-9), so the pattern
+satisfies eq. 4 exactly, to rounding. Boundedness: the initial weight shift
+carries one bump in the ZMP chosen so that the divergent component of the COG
+matches the future ZMP (backward recursion); the final double support is
+Harada's two-point boundary-value segment (eq. 27-28) that ends the walk at
+rest between the feet, exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drake_estop import lipm
+
+
+@dataclass(frozen=True)
+class Sole:
+    """Sole rectangle around the ankle, metres (HRP-2 class, models/README.md)."""
+
+    toe: float = 0.135
+    heel: float = 0.105
+    inner: float = 0.055
+    outer: float = 0.081
+
+    def corners(self, ankle_xy, side: str) -> np.ndarray:
+        """Corners (4, 2) of the sole of the ``side`` ('left'/'right') foot."""
+        x, y = ankle_xy
+        left_edge = self.outer if side == "left" else self.inner
+        right_edge = self.inner if side == "left" else self.outer
+        return np.array(
+            [
+                [x + self.toe, y + left_edge],
+                [x - self.heel, y + left_edge],
+                [x - self.heel, y - right_edge],
+                [x + self.toe, y - right_edge],
+            ]
+        )
+
+
+def _positive(name: str, value: float) -> float:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class GaitParameters:
+    """Nominal gait; defaults follow the paper's simulation (Section V)."""
+
+    com_height: float = 0.814  # HRP-2 walking pattern COG height [m]
+    step_length: float = 0.3  # [m]
+    step_width: float = 0.19  # lateral distance between the ankles [m]
+    step_time: float = 0.8  # one step: single + double support [s]
+    double_support_ratio: float = 0.2  # share of step_time in double support
+    num_steps: int = 8  # including the final step that closes the feet
+    initial_shift_time: float = 1.2  # weight shift before the first step [s]
+    final_shift_time: float = 1.0  # double support that ends the walk at rest [s]
+    lift_height: float = 0.05  # swing-foot apex above the floor [m]
+    arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
+    sole: Sole = field(default_factory=Sole)
+
+    def __post_init__(self):
+        for name in ("com_height", "step_time", "step_width", "initial_shift_time", "final_shift_time"):
+            _positive(name, getattr(self, name))
+        if not math.isfinite(self.step_length):
+            raise ValueError(f"step_length must be finite, got {self.step_length!r}")
+        if not 0.0 < self.double_support_ratio < 1.0:
+            raise ValueError(f"double_support_ratio must be in (0, 1), got {self.double_support_ratio!r}")
+        if int(self.num_steps) != self.num_steps or self.num_steps < 2:
+            raise ValueError(f"num_steps must be an integer >= 2, got {self.num_steps!r}")
+        if self.lift_height < 0 or not math.isfinite(self.lift_height):
+            raise ValueError(f"lift_height must be >= 0, got {self.lift_height!r}")
+        if self.step_width <= self.sole.inner * 2:
+            raise ValueError(
+                f"step_width {self.step_width} m makes the soles overlap (inner edges {self.sole.inner} m)"
+            )
+
+    @property
+    def single_support_time(self) -> float:
+        return self.step_time * (1.0 - self.double_support_ratio)
+
+    @property
+    def double_support_time(self) -> float:
+        return self.step_time * self.double_support_ratio
+
+    @property
+    def omega(self) -> float:
+        return lipm.omega(self.com_height)
+
+
+# Upper-body joints driven by the pattern (names as in models/humanoid.urdf).
+ARM_JOINTS = ("l_shoulder_pitch", "r_shoulder_pitch", "l_elbow", "r_elbow")
+ARM_NEUTRAL = np.array([0.0, 0.0, -0.3, -0.3])
+
+
+@dataclass
+class PatternState:
+    """Everything the stop planner reads from the pattern at one instant."""
+
+    time: float
+    support: str  # "single", "double" or "standing"
+    support_foot: str | None  # "left"/"right" in single support
+    com: np.ndarray  # (2,) x, y
+    com_vel: np.ndarray  # (2,)
+    zmp: np.ndarray  # (2,)
+    zmp_rate: np.ndarray  # (2,)
+    zmp_accel: np.ndarray  # (2,)
+    feet: dict  # side -> (3,) ankle position xyz (ankle height not included: z is lift)
+    feet_vel: dict
+    feet_acc: dict
+    next_landing: np.ndarray | None  # (2,) nominal landing of the swing foot
+    rear_foot: str | None  # in double support: the foot the ZMP leaves
+    step_index: int  # index of the current step (0 = initial shift)
+    upper_body: np.ndarray  # (len(ARM_JOINTS),)
+    upper_body_rate: np.ndarray
+
+
+class NominalPattern:
+    """A straight walk of ``num_steps`` steps from standing to standing.
+
+    Time 0 is the start of the initial weight shift; the robot stands still
+    before it and after :attr:`end_time`.
+    """
+
+    def __init__(self, params: GaitParameters | None = None):
+        self.params = params or GaitParameters()
+        p = self.params
+        self.w = p.omega
+        self._build_footsteps()
+        self._build_zmp_and_cog()
+
+    # -- footsteps --------------------------------------------------------
+    def _build_footsteps(self):
+        p = self.params
+        half = p.step_width / 2
+        feet = {"left": np.array([0.0, half]), "right": np.array([0.0, -half])}
+        self.initial_feet = {k: v.copy() for k, v in feet.items()}
+        self.steps = []  # (swing side, from xy, to xy, support side, t_liftoff, t_touchdown)
+        t = p.initial_shift_time
+        swing = "right"
+        for k in range(1, p.num_steps + 1):
+            support = "left" if swing == "right" else "right"
+            target_x = min(k, p.num_steps - 1) * p.step_length
+            target = np.array([target_x, feet[swing][1]])
+            self.steps.append(
+                dict(swing=swing, support=support, start=feet[swing].copy(), end=target,
+                     liftoff=t, touchdown=t + p.single_support_time,
+                     step_end=t + p.step_time)
+            )
+            feet[swing] = target
+            t += p.step_time
+            swing = support
+        self.final_feet = feet
+        self.walk_start = p.initial_shift_time
+        self.last_touchdown = self.steps[-1]["touchdown"]
+        self.end_time = self.last_touchdown + p.final_shift_time
+
+    # -- ZMP and COG -------------------------------------------------------
+    def _build_zmp_and_cog(self):
+        p = self.params
+        mid0 = 0.5 * (self.initial_feet["left"] + self.initial_feet["right"])
+        mid_end = 0.5 * (self.final_feet["left"] + self.final_feet["right"])
+        self.trajectories = []
+        for axis in (0, 1):
+            durations, coeffs = [], []
+            for i in range(len(self.steps)):
+                support_xy = self._support_xy(i)
+                durations.append(p.single_support_time)
+                coeffs.append(np.array([support_xy[axis]]))
+                if i + 1 < len(self.steps):
+                    nxt = self._support_xy(i + 1)
+                    durations.append(p.double_support_time)
+                    coeffs.append(lipm.transition_coeffs(support_xy[axis], nxt[axis], p.double_support_time))
+            first = self._support_xy(0)[axis]
+            dcm_needed = lipm.required_start_dcm(durations, coeffs, self._support_xy(len(self.steps) - 1)[axis], self.w)
+            base = np.eye(6)[0] * mid0[axis] + (first - mid0[axis]) * lipm.SMOOTHSTEP
+            init = lipm.solve_bump_coeffs(
+                base, [lipm.BUMP_A], p.initial_shift_time, mid0[axis], 0.0, self.w, [("dcm", dcm_needed)]
+            )
+            chain = lipm.LipmTrajectory.from_zmp(
+                0.0, [p.initial_shift_time] + durations, [init] + coeffs, mid0[axis], 0.0, self.w
+            )
+            x_end, v_end = (float(a[0]) for a in chain.evaluate(chain.end_time)[:2])
+            last = self._support_xy(len(self.steps) - 1)[axis]
+            base = np.eye(6)[0] * last + (mid_end[axis] - last) * lipm.SMOOTHSTEP
+            final = lipm.solve_bump_coeffs(
+                base, [lipm.BUMP_A, lipm.BUMP_B], p.final_shift_time, x_end, v_end, self.w,
+                [("x", mid_end[axis]), ("v", 0.0)],
+            )
+            hold = np.array([mid_end[axis]])
+            traj = lipm.LipmTrajectory.from_zmp(
+                0.0,
+                [p.initial_shift_time] + durations + [p.final_shift_time, 1.0],
+                [init] + coeffs + [final, hold],
+                mid0[axis], 0.0, self.w,
+            )
+            self.trajectories.append(traj)
+
+    def _support_xy(self, i) -> np.ndarray:
+        """Ankle xy of the support foot of step ``i`` (0-based)."""
+        step = self.steps[i]
+        side = step["support"]
+        # the support foot last moved in the previous step (or never)
+        for j in range(i - 1, -1, -1):
+            if self.steps[j]["swing"] == side:
+                return self.steps[j]["end"]
+        return self.initial_feet[side]
+
+    # -- queries -----------------------------------------------------------
+    def com(self, t):
+        """COG x, y position, velocity, acceleration and ZMP at times ``t``: 4 arrays (n, 2)."""
+        out = [traj.evaluate(t) for traj in self.trajectories]
+        return tuple(np.stack([out[0][i], out[1][i]], axis=-1) for i in range(4))
+
+    def feet_at(self, t: float):
+        """Ankle positions (x, y, lift) and their velocities/accelerations at time ``t``."""
+        p = self.params
+        pos = {k: np.array([*v, 0.0]) for k, v in self.initial_feet.items()}
+        vel = {k: np.zeros(3) for k in pos}
+        acc = {k: np.zeros(3) for k in pos}
+        for step in self.steps:
+            side = step["swing"]
+            if t >= step["touchdown"]:
+                pos[side] = np.array([*step["end"], 0.0])
+            elif t > step["liftoff"]:
+                pos[side], vel[side], acc[side] = swing_foot(
+                    step["start"], step["end"], t - step["liftoff"], p.single_support_time, p.lift_height
+                )
+                break
+            else:
+                break
+        return pos, vel, acc
+
+    def upper_body(self, t):
+        """Arm joint angles and rates (ARM_JOINTS order) at ``t``: arm swing against the legs."""
+        p = self.params
+        phase = math.pi * (t - self.walk_start) / p.step_time
+        envelope, envelope_rate = _window(t, self.walk_start - 0.5, self.walk_start,
+                                          self.last_touchdown, self.end_time)
+        swing = p.arm_swing * math.sin(phase)
+        swing_rate = p.arm_swing * math.cos(phase) * math.pi / p.step_time
+        sign = np.array([1.0, -1.0, 0.5, -0.5])
+        q = ARM_NEUTRAL + sign * swing * envelope
+        qd = sign * (swing_rate * envelope + swing * envelope_rate)
+        return q, qd
+
+    def support_at(self, t: float):
+        """('standing'|'double'|'single', step index, support side or None)."""
+        if t <= 0.0 or t >= self.end_time:
+            return "standing", -1, None
+        if t < self.walk_start:
+            return "double", 0, None
+        for i, step in enumerate(self.steps):
+            if t < step["touchdown"]:
+                return ("single" if t >= step["liftoff"] else "double"), i, step["support"]
+        return "double", len(self.steps), None
+
+    def state(self, t: float) -> PatternState:
+        pos, vel, acc, zmp = self.com(t)
+        rate = np.array([traj.zmp_derivatives(t)[0][0] for traj in self.trajectories])
+        accel = np.array([traj.zmp_derivatives(t)[1][0] for traj in self.trajectories])
+        support, index, side = self.support_at(t)
+        feet, feet_vel, feet_acc = self.feet_at(t)
+        next_landing, rear = None, None
+        if support == "single":
+            next_landing = self.steps[index]["end"].copy()
+        elif support == "double" and 0 < index < len(self.steps):
+            rear = self.steps[index - 1]["support"]
+        elif support == "double" and index == 0:
+            rear = None
+        q, qd = self.upper_body(t)
+        return PatternState(
+            time=float(t), support=support, support_foot=side if support == "single" else None,
+            com=pos[0], com_vel=vel[0], zmp=zmp[0], zmp_rate=rate, zmp_accel=accel,
+            feet=feet, feet_vel=feet_vel, feet_acc=feet_acc, next_landing=next_landing,
+            rear_foot=rear, step_index=index, upper_body=q, upper_body_rate=qd,
+        )
+
+
+def swing_foot(start_xy, end_xy, elapsed, duration, lift_height):
+    """Swing ankle (x, y, lift): quintic smoothstep in xy, 64 s^3 (1-s)^3 apex profile in lift."""
+    s = min(max(elapsed / duration, 0.0), 1.0)
+    start_xy, end_xy = np.asarray(start_xy, float), np.asarray(end_xy, float)
+    sigma = lipm.poly_eval(lipm.SMOOTHSTEP, s)
+    dsigma = lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration
+    ddsigma = lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2
+    lift = 64.0 * lift_height * lipm.BUMP_A
+    pos = np.array([*(start_xy + (end_xy - start_xy) * sigma), lipm.poly_eval(lift, s)])
+    vel = np.array([*((end_xy - start_xy) * dsigma), lipm.poly_eval(lift, s, 1) / duration])
+    acc = np.array([*((end_xy - start_xy) * ddsigma), lipm.poly_eval(lift, s, 2) / duration**2])
+    return pos, vel, acc
+
+
+def _window(t, rise_start, rise_end, fall_start, fall_end):
+    """Smooth 0-1-0 envelope and its rate (quintic smoothstep edges)."""
+    if t <= rise_start or t >= fall_end:
+        return 0.0, 0.0
+    if t < rise_end:
+        d = rise_end - rise_start
+        s = (t - rise_start) / d
+        return float(lipm.poly_eval(lipm.SMOOTHSTEP, s)), float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / d
+    if t > fall_start:
+        d = fall_end - fall_start
+        s = (t - fall_start) / d
+        return 1.0 - float(lipm.poly_eval(lipm.SMOOTHSTEP, s)), -float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / d
+    return 1.0, 0.0

@@ -1,0 +1,492 @@
+"""Fast warm-started whole-body inverse kinematics for the humanoid.
+
+``WholeBodyIkSolver`` is a pure (no-System) Levenberg-Marquardt / Newton
+solver; ``WholeBodyIK`` wraps it as a discrete Drake ``LeafSystem``.
+
+Formulation.  The unknowns are the 6 floating-base velocities of the pelvis
+and the 12 leg joints.  The tasks are the COG position (3), both sole poses
+(6 each) and the pelvis orientation (3): an 18x18 system that is square and
+regular away from stretched knees.  Upper-body joints are posture targets
+that are met exactly: they are written into q (clipped to their limits)
+before the legs are solved, so the COG task accounts for their mass.  Each
+iteration solves the damped normal equations of Sugihara (2011),
+``(J^T W J + (e^T W e + bias) I) dx = J^T W e``, integrates the floating-base
+rotation with the exponential map (Drake's quaternion floating joint uses the
+angular velocity expressed in the world frame), and clips the leg joints to
+their position limits; joints that sit on a limit and would be pushed
+further out are removed from the step.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
+
+from drake_estop.model import (ALL_JOINTS, FLOATING_BASE, LEFT_SOLE,
+                               LEG_JOINTS, RIGHT_SOLE, UPPER_BODY_JOINTS,
+                               joint_position_indices, joint_velocity_indices,
+                               nominal_standing_configuration)
+
+
+# --------------------------------------------------------------------------
+# Small rotation helpers in numpy (much cheaper than pydrake calls).
+
+
+def _skew(w):
+    """Cross-product matrix of w."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]],
+                     [-w[1], w[0], 0.0]])
+
+
+def rotation_log(rot):
+    """Rotation vector (axis * angle) of the 3x3 rotation matrix ``rot``."""
+    cos_angle = min(1.0, max(-1.0, 0.5 * (np.trace(rot) - 1.0)))
+    angle = math.acos(cos_angle)
+    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0],
+                     rot[1, 0] - rot[0, 1]])
+    if angle < 1e-6:
+        return 0.5 * axis
+    if math.pi - angle > 1e-4:
+        return axis * (0.5 * angle / math.sin(angle))
+    sym = 0.5 * (rot + np.eye(3))  # angle ~ pi: axis from the symmetric part.
+    k = int(np.argmax(np.diag(sym)))
+    axis = sym[:, k] / math.sqrt(max(sym[k, k], 1e-12))
+    return angle * axis / np.linalg.norm(axis)
+
+
+def rotation_exp(w):
+    """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-12:
+        return np.eye(3) + _skew(w)
+    k = _skew(w / angle)
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def quaternion_to_matrix(quat):
+    """3x3 rotation of the (w, x, y, z) quaternion (normalised here)."""
+    w, x, y, z = quat / np.linalg.norm(quat)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quaternion(rot):
+    """Unit (w, x, y, z) quaternion of a 3x3 rotation matrix, w >= 0."""
+    quat = RotationMatrix(rot).ToQuaternion().wxyz()
+    return quat if quat[0] >= 0 else -quat
+
+
+def yaw_of(rot):
+    """Heading angle of the rotation's x axis in the world x-y plane."""
+    return math.atan2(rot[1, 0], rot[0, 0])
+
+
+def mean_yaw_rotation(rot_a, rot_b):
+    """Yaw-only rotation at the circular mean of two frames' headings."""
+    ya, yb = yaw_of(rot_a), yaw_of(rot_b)
+    yaw = math.atan2(math.sin(ya) + math.sin(yb), math.cos(ya) + math.cos(yb))
+    return RotationMatrix.MakeZRotation(yaw).matrix()
+
+
+def _as_pose(pose):
+    """(R, p) numpy pair of a RigidTransform or a 7-vector xyz+wxyz."""
+    if isinstance(pose, RigidTransform):
+        return pose.rotation().matrix(), pose.translation()
+    pose = np.asarray(pose, dtype=float)
+    return quaternion_to_matrix(pose[3:7]), pose[:3].copy()
+
+
+def _as_matrix(rot):
+    """3x3 numpy matrix of a RotationMatrix or array."""
+    if isinstance(rot, RotationMatrix):
+        return rot.matrix()
+    return np.asarray(rot, dtype=float).reshape(3, 3)
+
+
+# --------------------------------------------------------------------------
+# Pure solver.
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """Outcome of one IK solve.  Errors are norms at the returned ``q``."""
+
+    q: np.ndarray
+    com_error: float
+    foot_position_error: float
+    foot_rotation_error: float
+    orientation_error: float
+    iterations: int
+    success: bool
+    joint_limit_ok: bool
+
+
+@dataclass(frozen=True)
+class _Errors:
+    """Task error vector (18) with the kinematics it was computed from."""
+
+    e: np.ndarray
+    jac: np.ndarray
+    com: float
+    foot_pos: float
+    foot_rot: float
+    orient: float
+
+
+class WholeBodyIkSolver:
+    """Damped-Newton whole-body IK on a finalized humanoid ``plant``.
+
+    Tolerances ``com_tolerance`` / ``foot_position_tolerance`` [m] and
+    ``foot_rotation_tolerance`` / ``orientation_tolerance`` [rad] decide
+    ``success``; iterations stop early once every error is below
+    ``convergence_ratio`` times its tolerance.
+    """
+
+    def __init__(self, plant, *, max_iterations=30, com_tolerance=1e-3,
+                 foot_position_tolerance=1e-3, foot_rotation_tolerance=1e-2,
+                 orientation_tolerance=1e-2, convergence_ratio=0.01,
+                 rotation_weight=0.3, damping_bias=1e-9):
+        self._plant = plant
+        self._context = plant.CreateDefaultContext()
+        self.max_iterations = max_iterations
+        self._tol = np.array([com_tolerance, foot_position_tolerance,
+                              foot_rotation_tolerance, orientation_tolerance])
+        self._stop = convergence_ratio * self._tol
+        self._bias = damping_bias
+        self._init_indices(plant)
+        self._init_weights(rotation_weight)
+
+    # -- set-up -------------------------------------------------------------
+
+    def _init_indices(self, plant):
+        """Cache frames and q/v indices used every iteration."""
+        base = plant.GetBodyByName(FLOATING_BASE)
+        self._base_q = base.floating_positions_start()
+        base_v = base.floating_velocities_start_in_v()
+        self._v_sel = np.concatenate([np.arange(base_v, base_v + 6),
+                                      joint_velocity_indices(plant, LEG_JOINTS)])
+        self._leg_q = joint_position_indices(plant, LEG_JOINTS)
+        self._upper_q = dict(zip(UPPER_BODY_JOINTS, joint_position_indices(
+            plant, UPPER_BODY_JOINTS)))
+        self._lower = plant.GetPositionLowerLimits()
+        self._upper = plant.GetPositionUpperLimits()
+        self._all_q = joint_position_indices(plant, ALL_JOINTS)
+        self._world = plant.world_frame()
+        self._soles = (plant.GetFrameByName(LEFT_SOLE),
+                       plant.GetFrameByName(RIGHT_SOLE))
+        self._base_frame = base.body_frame()
+        self._nv = plant.num_velocities()
+
+    def _init_weights(self, rotation_weight):
+        """Row weights: metres count 1, radians count ``rotation_weight``."""
+        w_rot = rotation_weight ** 2
+        self._w = np.array([1, 1, 1] + [w_rot] * 3 + [1] * 3 + [w_rot] * 3
+                           + [1] * 3 + [w_rot] * 3)
+
+    @property
+    def plant(self):
+        """The MultibodyPlant this solver works on."""
+        return self._plant
+
+    # -- kinematics ---------------------------------------------------------
+
+    def _errors(self, context, q, targets):
+        """Task errors and the 18x18 task Jacobian at ``q``."""
+        plant, world, kv = self._plant, self._world, JacobianWrtVariable.kV
+        plant.SetPositions(context, q)
+        com_t, feet_t, rot_base_t = targets
+        e = np.empty(18)
+        jac = np.empty((18, self._nv))
+        e[0:3] = com_t - plant.CalcCenterOfMassPositionInWorld(context)
+        jac[0:3] = plant.CalcJacobianCenterOfMassTranslationalVelocity(
+            context, kv, world, world)
+        rot_err, pos_err = 0.0, 0.0
+        for k, (frame, (rot_t, p_t)) in enumerate(zip(self._soles, feet_t)):
+            pose = frame.CalcPoseInWorld(context)
+            rows = slice(3 + 6 * k, 9 + 6 * k)
+            e[rows] = np.concatenate([
+                rotation_log(rot_t @ pose.rotation().matrix().T),
+                p_t - pose.translation()])
+            jac[rows] = plant.CalcJacobianSpatialVelocity(
+                context, kv, frame, np.zeros(3), world, world)
+            rot_err = max(rot_err, np.linalg.norm(e[rows][:3]))
+            pos_err = max(pos_err, np.linalg.norm(e[rows][3:]))
+        rot_base = quaternion_to_matrix(q[self._base_q:self._base_q + 4])
+        e[15:18] = rotation_log(rot_base_t @ rot_base.T)
+        jac[15:18] = plant.CalcJacobianAngularVelocity(
+            context, kv, self._base_frame, world, world)
+        return _Errors(e, jac[:, self._v_sel], np.linalg.norm(e[0:3]),
+                       pos_err, rot_err, np.linalg.norm(e[15:18]))
+
+    # -- stepping -----------------------------------------------------------
+
+    def _step(self, err, q):
+        """Damped least-squares step dx (18) honouring active joint limits."""
+        jw = err.jac.T * self._w
+        hess = jw @ err.jac
+        grad = jw @ err.e
+        hess[np.diag_indices(18)] += err.e @ (self._w * err.e) + self._bias
+        free = self._free_mask(q, np.linalg.solve(hess, grad))
+        dx = np.zeros(18)
+        dx[free] = np.linalg.solve(hess[np.ix_(free, free)], grad[free])
+        return dx
+
+    def _free_mask(self, q, dx):
+        """Variables not blocked by a leg joint already at a limit."""
+        legs = q[self._leg_q]
+        eps = 1e-9
+        blocked = (((legs <= self._lower[self._leg_q] + eps) & (dx[6:] < 0))
+                   | ((legs >= self._upper[self._leg_q] - eps) & (dx[6:] > 0)))
+        return np.concatenate([np.ones(6, dtype=bool), ~blocked])
+
+    def _integrate(self, q, dx):
+        """q advanced by the velocity-space step dx (exact base rotation)."""
+        q = q.copy()
+        b = self._base_q
+        rot = rotation_exp(dx[0:3]) @ quaternion_to_matrix(q[b:b + 4])
+        q[b:b + 4] = matrix_to_quaternion(rot)
+        q[b + 4:b + 7] += dx[3:6]
+        q[self._leg_q] = np.clip(q[self._leg_q] + dx[6:],
+                                 self._lower[self._leg_q],
+                                 self._upper[self._leg_q])
+        return q
+
+    # -- public API ---------------------------------------------------------
+
+    def prepare_guess(self, q_guess, upper_body_targets=None):
+        """Copy of ``q_guess`` with upper-body targets written in, clipped."""
+        q = np.array(q_guess, dtype=float)
+        if q.shape != (self._plant.num_positions(),):
+            raise ValueError(f"q_guess must have {self._plant.num_positions()}"
+                             f" entries, got shape {q.shape}")
+        for name, angle in (upper_body_targets or {}).items():
+            if name not in self._upper_q:
+                raise ValueError(f"unknown upper-body joint {name!r}")
+            q[self._upper_q[name]] = angle
+        b = self._base_q
+        q[b:b + 4] /= np.linalg.norm(q[b:b + 4])
+        q[self._all_q] = np.clip(q[self._all_q], self._lower[self._all_q],
+                                 self._upper[self._all_q])
+        return q
+
+    def solve(self, q_guess, com_target, left_foot_pose, right_foot_pose,
+              base_rotation=None, upper_body_targets=None, *, context=None):
+        """Solve the whole-body IK, warm-started from ``q_guess``.
+
+        Foot poses are RigidTransforms of the sole frames (or 7-vectors
+        xyz + quaternion wxyz); ``base_rotation`` is the pelvis orientation
+        (RotationMatrix or 3x3; default: level, heading at the feet's mean
+        yaw); ``upper_body_targets`` maps upper-body joint names to angles.
+        ``context`` is an optional scratch context of the plant.  Never
+        raises for unreachable targets: returns the best q found with
+        ``success=False``.  Raises ValueError for non-finite inputs.
+        """
+        targets = self._targets(com_target, left_foot_pose, right_foot_pose,
+                                base_rotation)
+        context = context if context is not None else self._context
+        q = self.prepare_guess(q_guess, upper_body_targets)
+        if not np.all(np.isfinite(q)):
+            raise ValueError("q_guess contains non-finite values")
+        best_q, best = q, self._errors(context, q, targets)
+        err, iterations = best, 0
+        while iterations < self.max_iterations and not self._converged(err):
+            q_new = self._integrate(q, self._step(err, q))
+            iterations += 1
+            if not np.all(np.isfinite(q_new)):
+                break
+            q, err = q_new, self._errors(context, q_new, targets)
+            if self._cost(err) < self._cost(best):
+                best_q, best = q, err
+        return self._result(best_q, best, iterations)
+
+    # -- helpers for solve --------------------------------------------------
+
+    def _targets(self, com_target, left_foot_pose, right_foot_pose,
+                 base_rotation):
+        """Validated numpy targets (com, ((R, p), (R, p)), R_base)."""
+        com = np.asarray(com_target, dtype=float).reshape(3)
+        feet = (_as_pose(left_foot_pose), _as_pose(right_foot_pose))
+        if base_rotation is None:
+            rot_base = mean_yaw_rotation(feet[0][0], feet[1][0])
+        else:
+            rot_base = _as_matrix(base_rotation)
+        values = [com, rot_base] + [a for pose in feet for a in pose]
+        if not all(np.all(np.isfinite(v)) for v in values):
+            raise ValueError("IK targets contain non-finite values")
+        return com, feet, rot_base
+
+    def _converged(self, err):
+        """True once every error is far below its tolerance."""
+        return bool(np.all(self._error_vector(err) <= self._stop))
+
+    def _cost(self, err):
+        """Weighted squared task error (for keeping the best iterate)."""
+        return float(err.e @ (self._w * err.e))
+
+    @staticmethod
+    def _error_vector(err):
+        """(com, foot position, foot rotation, base orientation) errors."""
+        return np.array([err.com, err.foot_pos, err.foot_rot, err.orient])
+
+    def _result(self, q, err, iterations):
+        """Package an IkResult for ``q``."""
+        idx = self._all_q
+        limits_ok = bool(np.all(q[idx] >= self._lower[idx] - 1e-12)
+                         and np.all(q[idx] <= self._upper[idx] + 1e-12))
+        within = bool(np.all(self._error_vector(err) <= self._tol))
+        return IkResult(q=q, com_error=err.com,
+                        foot_position_error=err.foot_pos,
+                        foot_rotation_error=err.foot_rot,
+                        orientation_error=err.orient, iterations=iterations,
+                        success=within and limits_ok,
+                        joint_limit_ok=limits_ok)
+
+
+# --------------------------------------------------------------------------
+# Drake System wrapper.
+
+
+class WholeBodyIK(LeafSystem):
+    """Discrete whole-body IK: COG / sole-pose / posture targets -> q.
+
+    Every ``servo_period`` seconds the IK is solved, warm-started from the
+    previous solution held in the discrete state, and the new solution and
+    its diagnostics are stored in the state.  Outputs depend on the state
+    only (no direct feedthrough).
+
+    .. pydrake_system::
+
+        name: WholeBodyIK
+        input_ports:
+        - com
+        - left_foot
+        - right_foot
+        - upper_body
+        output_ports:
+        - q
+        - ik_com_error
+        - ik_foot_error
+        - velocity_limit_violations
+
+    Ports:
+      - ``com`` (3): COG target in world [m].
+      - ``left_foot`` / ``right_foot`` (7): sole-frame pose in world as
+        ``[x, y, z, qw, qx, qy, qz]`` (quaternion normalised internally).
+      - ``upper_body`` (18): joint targets in ``UPPER_BODY_JOINTS`` order.
+      - ``q`` (plant.num_positions()): full plant positions.
+      - ``ik_com_error`` (1): COG error norm of the last solve [m].
+      - ``ik_foot_error`` (1): worst sole position error of the last solve
+        [m] (``inf`` if the last inputs were not finite).
+      - ``velocity_limit_violations`` (1): number of joints whose
+        (q_new - q_old) / servo_period exceeded the URDF velocity limit at
+        the last update.
+
+    The pelvis orientation target is level with the feet's mean heading.
+    Non-finite inputs keep the previous q and report infinite errors.
+    The solver's scratch plant context lives in a per-Context cache entry.
+    """
+
+    def __init__(self, *, plant, servo_period=0.005, initial_q=None,
+                 solver=None):
+        super().__init__()
+        self._solver = solver or WholeBodyIkSolver(plant)
+        self._plant = plant
+        self._period = servo_period
+        self._declare_indices(plant)
+        q0 = (nominal_standing_configuration(plant) if initial_q is None
+              else np.asarray(initial_q, dtype=float))
+        self._q_state = self.DeclareDiscreteState(q0)
+        self._diag_state = self.DeclareDiscreteState(3)
+        self._declare_ports(plant)
+        self._scratch = self.DeclareCacheEntry(
+            "IK scratch plant context",
+            ValueProducer(allocate=self._allocate_scratch,
+                          calc=lambda context, value: None),
+            {self.nothing_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(servo_period, 0.0,
+                                                self._update)
+
+    def _declare_indices(self, plant):
+        """Joint indices and velocity limits used by the limit check."""
+        self._joint_q = joint_position_indices(plant, ALL_JOINTS)
+        v_idx = joint_velocity_indices(plant, ALL_JOINTS)
+        self._vel_limit = np.minimum(-plant.GetVelocityLowerLimits()[v_idx],
+                                     plant.GetVelocityUpperLimits()[v_idx])
+
+    def _declare_ports(self, plant):
+        """Declare input and output ports, keeping their handles."""
+        self.com_port = self.DeclareVectorInputPort("com", 3)
+        self.left_foot_port = self.DeclareVectorInputPort("left_foot", 7)
+        self.right_foot_port = self.DeclareVectorInputPort("right_foot", 7)
+        self.upper_body_port = self.DeclareVectorInputPort(
+            "upper_body", len(UPPER_BODY_JOINTS))
+        self.q_port = self.DeclareStateOutputPort("q", self._q_state)
+        self.com_error_port = self._declare_diag_output("ik_com_error", 0)
+        self.foot_error_port = self._declare_diag_output("ik_foot_error", 1)
+        self.violations_port = self._declare_diag_output(
+            "velocity_limit_violations", 2)
+
+    def _declare_diag_output(self, name, index):
+        """Scalar output port reading entry ``index`` of the diagnostics."""
+        def calc(context, output):
+            value = context.get_discrete_state(self._diag_state).value()[index]
+            output.SetAtIndex(0, value)
+        return self.DeclareVectorOutputPort(
+            name, 1, calc, prerequisites_of_calc={self.xd_ticket()})
+
+    def _allocate_scratch(self):
+        """A fresh plant context, boxed for the cache."""
+        return AbstractValue.Make(self._plant.CreateDefaultContext())
+
+    @property
+    def solver(self):
+        """The underlying WholeBodyIkSolver."""
+        return self._solver
+
+    @property
+    def servo_period(self):
+        """Update period [s]."""
+        return self._period
+
+    def _scratch_context(self, context):
+        """This Context's scratch plant context (workspace, no state)."""
+        value = self._scratch.get_mutable_cache_entry_value(context)
+        return value.GetMutableValueOrThrow()
+
+    def _update(self, context, discrete_state):
+        """Solve the IK and store q plus diagnostics in the state."""
+        q_old = context.get_discrete_state(self._q_state).value()
+        inputs = [port.Eval(context) for port in (
+            self.com_port, self.left_foot_port, self.right_foot_port,
+            self.upper_body_port)]
+        if not all(np.all(np.isfinite(x)) for x in inputs):
+            discrete_state.set_value(self._diag_state,
+                                     [np.inf, np.inf, 0.0])
+            return EventStatus.Succeeded()
+        com, left, right, upper = inputs
+        result = self._solver.solve(
+            q_old, com, left, right, None,
+            dict(zip(UPPER_BODY_JOINTS, upper)),
+            context=self._scratch_context(context))
+        discrete_state.set_value(self._q_state, result.q)
+        discrete_state.set_value(self._diag_state, [
+            result.com_error, result.foot_position_error,
+            float(self._count_violations(q_old, result.q))])
+        return EventStatus.Succeeded()
+
+    def _count_violations(self, q_old, q_new):
+        """Joints whose implied velocity exceeds its limit."""
+        rate = np.abs(q_new[self._joint_q] - q_old[self._joint_q]) / self._period
+        return int(np.sum(rate > self._vel_limit * (1 + 1e-9)))
+
+
+def pose_vector(pose):
+    """7-vector ``[x, y, z, qw, qx, qy, qz]`` of a RigidTransform."""
+    return np.concatenate([pose.translation(),
+                           pose.rotation().ToQuaternion().wxyz()])

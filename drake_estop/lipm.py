@@ -1,0 +1,231 @@
+"""Analytic linear-inverted-pendulum (LIPM) solutions for polynomial ZMP segments.
+
+Pure numpy; no Drake import. Used for the sagittal (x) and lateral (y) axes alike.
+
+Paper: Morisawa et al., "Emergency Stop Algorithm for Walking Humanoid Robots",
+IROS 2005. Equation numbers in comments refer to it.
+
+Conventions
+-----------
+A segment ``k`` starts at ``start_times[k]`` and lasts ``durations[k]``; on it the
+ZMP is ``sum_i a_i tau^i`` with ``tau = t - start_times[k]`` (eq. 1). The COG is
+
+    x(tau) = V cosh(w tau) + W sinh(w tau) + sum_i A_i tau^i            (eq. 6)
+
+with ``A`` from the ZMP coefficients by the recursion of eq. 7-8 and ``V, W``
+from the COG state at the segment start. Chaining segments with the COG state at
+each boundary enforces the continuity conditions of eq. 10-11; the ZMP
+polynomials are built to be continuous (eq. 12-14) by the callers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+GRAVITY = 9.80665
+POLY_DEGREE = 7  # highest ZMP degree used anywhere (halt BVP: 3 + 2 bumps)
+N_COEFFS = POLY_DEGREE + 1
+
+
+def omega(com_height: float) -> float:
+    """Natural frequency sqrt(g / z) of the LIPM (eq. 6)."""
+    return math.sqrt(GRAVITY / com_height)
+
+
+def cog_particular_coeffs(zmp_coeffs: np.ndarray, w: float) -> np.ndarray:
+    """Polynomial part ``A`` of the COG from the ZMP coefficients ``a`` (eq. 7-8).
+
+    ``a_i = A_i - (i+1)(i+2) A_{i+2} / w^2``, solved backwards from the top
+    degree where ``A_n = a_n`` and ``A_{n-1} = a_{n-1}``.
+    """
+    a = np.asarray(zmp_coeffs, dtype=float)
+    big_a = a.copy()
+    for i in range(len(a) - 3, -1, -1):
+        big_a[i] = a[i] + (i + 1) * (i + 2) * big_a[i + 2] / (w * w)
+    return big_a
+
+
+def poly_eval(coeffs: np.ndarray, tau, derivative: int = 0):
+    """Evaluate ``sum_i c_i tau^i`` or its derivative (coefficients low to high)."""
+    c = np.asarray(coeffs, dtype=float)
+    for _ in range(derivative):
+        c = c[1:] * np.arange(1, len(c))
+    if len(c) == 0:
+        return np.zeros_like(np.asarray(tau, dtype=float))
+    return np.polynomial.polynomial.polyval(tau, c)
+
+
+def pad(coeffs, n: int = N_COEFFS) -> np.ndarray:
+    out = np.zeros(n)
+    c = np.atleast_1d(np.asarray(coeffs, dtype=float))
+    out[: len(c)] = c
+    return out
+
+
+def segment_end_state(zmp_coeffs, duration, x0, v0, w):
+    """COG position and velocity at the end of one segment (eq. 6, 9)."""
+    big_a = cog_particular_coeffs(zmp_coeffs, w)
+    v_coef = x0 - big_a[0]
+    w_coef = (v0 - (big_a[1] if len(big_a) > 1 else 0.0)) / w
+    ch, sh = math.cosh(w * duration), math.sinh(w * duration)
+    x = v_coef * ch + w_coef * sh + float(poly_eval(big_a, duration))
+    v = w * v_coef * sh + w * w_coef * ch + float(poly_eval(big_a, duration, 1))
+    return x, v
+
+
+# ---------------------------------------------------------------------------
+# ZMP shape functions on the unit interval s in [0, 1]. Each has zero first and
+# second derivatives at both ends unless stated, so joined segments meet eq. 14.
+# ---------------------------------------------------------------------------
+
+# quintic smoothstep 10 s^3 - 15 s^4 + 6 s^5: 0 -> 1, zero vel./acc. at both ends
+SMOOTHSTEP = np.array([0.0, 0.0, 0.0, 10.0, -15.0, 6.0])
+# quintic Hermite bases carrying an initial first / second derivative to zero
+HERMITE_D1 = np.array([0.0, 1.0, 0.0, -6.0, 8.0, -3.0])
+HERMITE_D2 = np.array([0.0, 0.0, 0.5, -1.5, 1.5, -0.5])
+# bumps: zero value, first and second derivative at both ends
+BUMP_A = np.polynomial.polynomial.polymul([0, 0, 0, 1], np.polynomial.polynomial.polypow([1, -1], 3))
+BUMP_B = np.polynomial.polynomial.polymul([0, 0, 0, 0, 1], np.polynomial.polynomial.polypow([1, -1], 3))
+
+
+def scale_unit_poly(unit_coeffs, duration: float) -> np.ndarray:
+    """Coefficients in tau = s * duration of a polynomial given in s."""
+    c = np.asarray(unit_coeffs, dtype=float)
+    return c / duration ** np.arange(len(c))
+
+
+def transition_coeffs(start, end, duration, start_rate=0.0, start_accel=0.0):
+    """ZMP transition (eq. 1) from (start, rate, accel) to ``end`` at rest (eq. 14)."""
+    unit = (
+        start * np.eye(6)[0]
+        + (end - start) * SMOOTHSTEP
+        + start_rate * duration * HERMITE_D1
+        + start_accel * duration**2 * HERMITE_D2
+    )
+    return scale_unit_poly(unit, duration)
+
+
+@dataclass
+class LipmTrajectory:
+    """A chain of LIPM segments for one horizontal axis.
+
+    Build with :meth:`from_zmp` from the COG state at the first breakpoint and
+    the ZMP polynomials; evaluate with :meth:`evaluate` at any times (arrays).
+    Before the first breakpoint and after the last the trajectory is held by
+    extrapolating the first/last segment (the last ZMP is constant when the
+    robot is at rest, so the hold is exact).
+    """
+
+    breaks: np.ndarray  # (n+1,)
+    zmp: np.ndarray  # (n, N_COEFFS)
+    cog_poly: np.ndarray  # (n, N_COEFFS) particular solution A
+    cosh_coef: np.ndarray  # (n,) V
+    sinh_coef: np.ndarray  # (n,) W
+    w: float
+
+    @classmethod
+    def from_zmp(cls, start_time, durations, zmp_coeffs, x0, v0, w):
+        durations = np.asarray(durations, dtype=float)
+        breaks = start_time + np.concatenate([[0.0], np.cumsum(durations)])
+        zmp = np.array([pad(c) for c in zmp_coeffs])
+        cog_poly = np.array([cog_particular_coeffs(c, w) for c in zmp])
+        n = len(durations)
+        big_v, big_w = np.zeros(n), np.zeros(n)
+        x, v = float(x0), float(v0)
+        for k in range(n):
+            big_v[k] = x - cog_poly[k, 0]
+            big_w[k] = (v - cog_poly[k, 1]) / w
+            ch, sh = math.cosh(w * durations[k]), math.sinh(w * durations[k])
+            x = big_v[k] * ch + big_w[k] * sh + float(poly_eval(cog_poly[k], durations[k]))
+            v = w * (big_v[k] * sh + big_w[k] * ch) + float(poly_eval(cog_poly[k], durations[k], 1))
+        return cls(breaks, zmp, cog_poly, big_v, big_w, w)
+
+    @property
+    def start_time(self) -> float:
+        return float(self.breaks[0])
+
+    @property
+    def end_time(self) -> float:
+        return float(self.breaks[-1])
+
+    def _locate(self, t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        k = np.clip(np.searchsorted(self.breaks, t, side="right") - 1, 0, len(self.zmp) - 1)
+        return k, t - self.breaks[k]
+
+    def evaluate(self, t):
+        """COG position, velocity, acceleration and ZMP at times ``t`` (eq. 4, 6, 9)."""
+        k, tau = self._locate(t)
+        w = self.w
+        ch, sh = np.cosh(w * tau), np.sinh(w * tau)
+        powers = tau[:, None] ** np.arange(N_COEFFS)
+        d1 = np.arange(N_COEFFS)
+        d2 = d1 * (d1 - 1)
+        poly = self.cog_poly[k]
+        pos = self.cosh_coef[k] * ch + self.sinh_coef[k] * sh + np.sum(poly * powers, axis=1)
+        vel = w * (self.cosh_coef[k] * sh + self.sinh_coef[k] * ch) + np.sum(
+            poly[:, 1:] * d1[1:] * powers[:, :-1], axis=1
+        )
+        acc = w * w * (self.cosh_coef[k] * ch + self.sinh_coef[k] * sh) + np.sum(
+            poly[:, 2:] * d2[2:] * powers[:, :-2], axis=1
+        )
+        zmp = np.sum(self.zmp[k] * powers, axis=1)
+        return pos, vel, acc, zmp
+
+    def zmp_derivatives(self, t):
+        """ZMP rate and acceleration at ``t`` (for a planner starting mid-transition)."""
+        k, tau = self._locate(t)
+        rate = np.array([poly_eval(self.zmp[i], s, 1) for i, s in zip(k, tau)])
+        accel = np.array([poly_eval(self.zmp[i], s, 2) for i, s in zip(k, tau)])
+        return rate, accel
+
+
+def required_start_dcm(durations, zmp_coeffs, final_zmp, w):
+    """DCM x + v/w at the start of a chain whose COG stays bounded afterwards.
+
+    Backward recursion on the divergent component: after the chain the ZMP rests
+    at ``final_zmp`` and the bounded solution has DCM equal to it. On a segment,
+    ``xi(tau) - A(tau) - A'(tau)/w`` grows like ``exp(w tau)`` (from eq. 6, 9).
+    """
+    dcm = final_zmp
+    for duration, coeffs in zip(reversed(list(durations)), reversed(list(zmp_coeffs))):
+        big_a = cog_particular_coeffs(coeffs, w)
+        at_end = float(poly_eval(big_a, duration) + poly_eval(big_a, duration, 1) / w)
+        at_start = big_a[0] + (big_a[1] if len(big_a) > 1 else 0.0) / w
+        dcm = (dcm - at_end) * math.exp(-w * duration) + at_start
+    return dcm
+
+
+def solve_bump_coeffs(base_unit, bumps_unit, duration, x0, v0, w, targets):
+    """Coefficients of ZMP bumps so that the COG meets end conditions exactly.
+
+    The ZMP on the segment is ``base + sum_j c_j bump_j`` (unit-interval
+    polynomials, scaled to ``duration``). ``targets`` is a list of
+    ``(kind, value)`` with kind ``"x"``, ``"v"`` or ``"dcm"`` at the segment
+    end. The LIPM is linear, so this is a small linear solve (Harada's
+    two-point boundary-value method, eq. 27-28). Returns the ZMP coefficients.
+    """
+    base = scale_unit_poly(base_unit, duration)
+    cols = [scale_unit_poly(b, duration) for b in bumps_unit]
+
+    def end_values(zmp, x_init, v_init):
+        x, v = segment_end_state(pad(zmp), duration, x_init, v_init, w)
+        return {"x": x, "v": v, "dcm": x + v / w}
+
+    free = end_values(base, x0, v0)
+    matrix = np.zeros((len(targets), len(cols)))
+    rhs = np.zeros(len(targets))
+    for j, col in enumerate(cols):
+        unit_response = end_values(col, 0.0, 0.0)
+        for i, (kind, _) in enumerate(targets):
+            matrix[i, j] = unit_response[kind]
+    for i, (kind, value) in enumerate(targets):
+        rhs[i] = value - free[kind]
+    coeffs = np.linalg.solve(matrix, rhs)
+    out = pad(base)
+    for c, col in zip(coeffs, cols):
+        out = out + c * pad(col)
+    return out

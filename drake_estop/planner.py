@@ -1,0 +1,683 @@
+"""The four-phase emergency-stop planner (paper Sections II-IV), pure numpy.
+
+``plan_stop(pattern, signal_time, params)`` returns a :class:`StopPlan` that
+starts from the nominal pattern's state at the servo tick of the signal and
+brings the COG to rest, exactly, at the midpoint between the feet:
+
+* single support (III.A): landing time, transition end and slowdown end from
+  J_ss (eq. 24) by a barrier Newton method (eq. 25-26, :mod:`drake_estop.newton`);
+  the step length from the stop condition (eq. 22);
+* double support (III.B): transition end and slowdown end from J_ds (eq. 30-31);
+  ZMP_max from the stop condition (eq. 29);
+* marginal case (III.C): no feasible one-step plan -> the robot finishes the
+  nominal step and stops at the next support phase;
+* halt (eq. 27-28): a two-point boundary-value ZMP segment, duration chosen so
+  the ZMP stays inside the support polygon;
+* lateral plane: the sagittal phase times;
+* crouch (IV.A) and upper-body halt (IV.B, eq. 32-33).
+
+Servo-cycle quantisation: every phase boundary falls on a servo tick. After
+snapping the durations to the grid the planner re-solves the ZMP value (step
+length or ZMP_max) from the stop condition with the snapped times, so the COG
+velocity at the end of the slowdown is zero to rounding (the paper's Fig. 12
+overshoot came from rounding the times alone; ``quantisation="round"``
+reproduces that for comparison).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drake_estop import lipm
+from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
+from drake_estop.geometry import SupportPolygon
+from drake_estop.newton import barrier_newton
+from drake_estop.stop_condition import StopStart, target_zmp, target_zmp_grid
+
+PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
+
+
+@dataclass(frozen=True)
+class StopParameters:
+    """Weights and limits of the stop planner. Defaults reproduce the paper (V-VI)."""
+
+    a_ss: float = 5.0  # weight of the mean swing speed in J_ss (eq. 24)
+    b_ss: float = 1000.0  # weight of the double-support time in J_ss
+    a_ds: float = 50.0  # weight of the ZMP displacement in J_ds (eq. 30)
+    b_ds: float = 1000.0  # weight of the double-support time in J_ds
+    servo_period: float = 0.005  # HRP-2 control period [s]
+    max_step_length: float = 0.4  # [m] from the support ankle, sagittal
+    min_step_length: float = 0.0  # [m] no stepping backwards
+    min_landing_time: float = 0.1  # minimum time to touchdown [s]
+    max_landing_time: float = 1.0
+    min_transition_time: float = 0.1  # minimum double-support ZMP transition [s]
+    max_transition_time: float = 0.8
+    min_slowdown_time: float = 0.005
+    max_slowdown_time: float = 1.5
+    max_swing_speed: float = 1.2  # mean swing-ankle speed to the landing point [m/s]
+    zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
+    crouch: bool = True
+    crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
+    halt_durations: tuple = (0.8, 1.0, 1.2, 1.5, 2.0, 2.5)  # candidates, shortest first [s]
+    quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
+    cost_tolerance: float = 1e-7  # relative suboptimality of the barrier solution
+
+    def __post_init__(self):
+        for name in ("a_ss", "b_ss", "a_ds", "b_ds", "servo_period", "max_step_length",
+                     "min_landing_time", "max_landing_time", "min_transition_time",
+                     "max_transition_time", "min_slowdown_time", "max_slowdown_time",
+                     "max_swing_speed", "cost_tolerance"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        for low, high in (("min_landing_time", "max_landing_time"),
+                          ("min_transition_time", "max_transition_time"),
+                          ("min_slowdown_time", "max_slowdown_time"),
+                          ("min_step_length", "max_step_length")):
+            if getattr(self, low) >= getattr(self, high):
+                raise ValueError(f"{low} must be below {high}")
+        if self.zmp_margin < 0 or self.crouch_depth < 0:
+            raise ValueError("zmp_margin and crouch_depth must be >= 0")
+        if self.quantisation not in ("resolve", "round"):
+            raise ValueError(f"quantisation must be 'resolve' or 'round', got {self.quantisation!r}")
+        if not self.halt_durations or min(self.halt_durations) <= 0:
+            raise ValueError("halt_durations must be positive")
+
+
+@dataclass
+class PhaseSolution:
+    """Solved durations and ZMP value of phases (i)-(iii)."""
+
+    landing: float
+    transition: float
+    slowdown: float
+    target: float  # Z relative to the start ZMP: step length (single) or ZMP_max (double)
+    cost: float
+    iterations: int
+    continuous: tuple  # durations and target before quantisation
+
+
+@dataclass
+class StopPlan:
+    """A planned stop. Times are absolute (pattern clock)."""
+
+    signal_time: float
+    start_time: float  # where the stop motion leaves the nominal pattern
+    case: str  # "one-step", "next-step", "standing", "already-stopping"
+    support: str  # support at the signal: "single", "double" or "standing"
+    start_support: str  # support where the planned motion starts
+    landing_time: float
+    transition_end: float
+    slowdown_end: float
+    halt_end: float
+    step_length: float | None  # single-support stops: sagittal, from the support ankle
+    zmp_max: float | None  # double-support stops: ZMP displacement from the start
+    landing_foot: str | None
+    landing_position: np.ndarray | None
+    final_feet: dict
+    x: lipm.LipmTrajectory | None
+    y: lipm.LipmTrajectory | None
+    pattern: NominalPattern
+    params: StopParameters
+    start_state: PatternState
+    newton_iterations: int = 0
+    compute_time: float = 0.0
+    solve_time: float = 0.0
+    cost: float = float("nan")
+    min_zmp_margin: float = float("nan")
+    upper_body_peak: np.ndarray | None = None  # eq. 33
+    swing_start: dict = field(default_factory=dict)
+    continuous_solution: tuple | None = None
+
+    # -- evaluation -----------------------------------------------------
+    def phase(self, t: float) -> str:
+        if t < self.signal_time:
+            return "walking"
+        if self.case == "standing" or t >= self.halt_end:
+            return "stopped"
+        if t < self.start_time:
+            return "landing"  # finishing the nominal step (marginal case)
+        if t < self.landing_time:
+            return "landing"
+        if t < self.transition_end:
+            return "transition"
+        if t < self.slowdown_end:
+            return "slowdown"
+        return "halt"
+
+    def com(self, times):
+        """COG xy position, velocity, acceleration and ZMP, (n, 2) each, nominal before the start."""
+        times = np.atleast_1d(np.asarray(times, float))
+        out = [np.zeros((len(times), 2)) for _ in range(4)]
+        before = times < self.start_time
+        if np.any(before) or self.x is None:
+            nominal = self.pattern.com(times)
+            for o, n in zip(out, nominal):
+                o[:] = n
+        if self.x is not None and np.any(~before):
+            for axis, traj in enumerate((self.x, self.y)):
+                values = traj.evaluate(times[~before])
+                for o, v in zip(out, values):
+                    o[~before, axis] = v
+        return tuple(out)
+
+    def com_height(self, times):
+        """COG height, vertical velocity and acceleration: quintic crouch (IV.A)."""
+        times = np.atleast_1d(np.asarray(times, float))
+        z0 = self.pattern.params.com_height
+        depth = self.params.crouch_depth if (self.params.crouch and self.x is not None) else 0.0
+        if depth == 0.0:
+            zeros = np.zeros_like(times)
+            return z0 + zeros, zeros, zeros.copy()
+        duration = self.halt_end - self.start_time
+        s = np.clip((times - self.start_time) / duration, 0.0, 1.0)
+        inside = (times > self.start_time) & (times < self.halt_end)
+        z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
+        zd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside
+        zdd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside
+        return z, zd, zdd
+
+    def feet(self, t: float):
+        """Ankle (x, y, lift) of each foot at ``t``."""
+        if t < self.start_time or self.x is None:
+            return self.pattern.feet_at(t)[0]
+        feet = {side: np.array([*xy[:2], 0.0]) for side, xy in self.final_feet.items()}
+        if self.landing_foot is not None and t < self.landing_time:
+            s = self.swing_start
+            feet[self.landing_foot] = landing_swing(
+                s["pos"], s["vel"], s["acc"], self.landing_position, t - self.start_time,
+                self.landing_time - self.start_time, self.pattern.params.lift_height)
+        return feet
+
+    def upper_body(self, t: float):
+        """Arm joints: cubic slowdown (eq. 32) to ``slowdown_end``, then quintic halt to neutral."""
+        if t < self.start_time or self.x is None:
+            return self.pattern.upper_body(t)
+        q0, qd0 = self.start_state.upper_body, self.start_state.upper_body_rate
+        span = self.slowdown_end - self.start_time
+        if t <= self.slowdown_end:
+            tau = t - self.start_time
+            q = q0 + qd0 * tau - qd0 / span * tau**2 + qd0 / (3 * span**2) * tau**3  # eq. 32
+            qd = qd0 * (1.0 - tau / span) ** 2
+            return q, qd
+        peak = self.upper_body_peak
+        s = min((t - self.slowdown_end) / (self.halt_end - self.slowdown_end), 1.0)
+        sigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s))
+        dsigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / (self.halt_end - self.slowdown_end)
+        return peak + (ARM_NEUTRAL - peak) * sigma, (ARM_NEUTRAL - peak) * dsigma
+
+    def polygon(self, t: float) -> SupportPolygon:
+        """Support polygon at ``t`` (soles on the ground)."""
+        sole = self.pattern.params.sole
+        feet = self.feet(t)
+        on_ground = [side for side, p in feet.items() if p[2] <= 1e-9]
+        if t < self.start_time:
+            support, _, side = self.pattern.support_at(t)
+            if support == "single":
+                on_ground = [side]
+        elif self.landing_foot is not None and t < self.landing_time:
+            on_ground = [s for s in feet if s != self.landing_foot]
+        corners = np.vstack([sole.corners(feet[s][:2], s) for s in on_ground])
+        return SupportPolygon(corners)
+
+    def summary(self) -> dict:
+        sole = self.pattern.params.sole
+        return {
+            "estop_time": self.signal_time,
+            "support": self.support,
+            "case": self.case,
+            "plan_start_time": self.start_time,
+            "phase_times": {
+                "landing_end": self.landing_time,
+                "transition_end": self.transition_end,
+                "slowdown_end": self.slowdown_end,
+                "halt_end": self.halt_end,
+            },
+            "step_length": self.step_length,
+            "zmp_max": self.zmp_max,
+            "landing_foot": self.landing_foot,
+            "landing_position": None if self.landing_position is None else list(map(float, self.landing_position)),
+            "final_feet": {k: [float(v[0]), float(v[1])] for k, v in self.final_feet.items()},
+            "sole": {"toe": sole.toe, "heel": sole.heel, "inner": sole.inner, "outer": sole.outer},
+            "newton_iterations": self.newton_iterations,
+            "plan_compute_time_s": self.compute_time,
+            "parameter_solve_time_s": self.solve_time,
+            "cost": self.cost,
+            "min_zmp_margin_m": self.min_zmp_margin,
+            "upper_body_peak_rad": None if self.upper_body_peak is None else list(map(float, self.upper_body_peak)),
+            "crouch": bool(self.params.crouch),
+            "servo_period": self.params.servo_period,
+        }
+
+
+class InfeasibleStop(Exception):
+    """No one-step plan satisfies the limits from this state."""
+
+
+# ---------------------------------------------------------------------------
+# swing foot
+# ---------------------------------------------------------------------------
+
+def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
+    """Swing ankle from its current state to the landing point, at rest, over ``duration``.
+
+    Quintic Hermite per axis (zero velocity and acceleration at touchdown); the
+    lift gets an extra apex bump when the Hermite part alone would dip below
+    the floor or the foot starts on it.
+    """
+    s = min(max(elapsed / duration, 0.0), 1.0)
+    target = np.array([target_xy[0], target_xy[1], 0.0])
+    unit = [
+        np.eye(6)[0] * pos[i] + (target[i] - pos[i]) * lipm.SMOOTHSTEP
+        + vel[i] * duration * lipm.HERMITE_D1 + acc[i] * duration**2 * lipm.HERMITE_D2
+        for i in range(3)
+    ]
+    grid = np.linspace(0, 1, 41)
+    lowest = float(np.min(lipm.poly_eval(unit[2], grid)))
+    apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if pos[2] < 0.5 * lift_height else max(0.0, -lowest)
+    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
+    return np.array([float(lipm.poly_eval(u, s)) for u in unit])
+
+
+# ---------------------------------------------------------------------------
+# phase-parameter solvers
+# ---------------------------------------------------------------------------
+
+@dataclass
+class _SingleSupportProblem:
+    start: StopStart
+    w: float
+    params: StopParameters
+    support_x: float  # sagittal ZMP at the start (support ankle)
+    swing_xy: np.ndarray  # current swing ankle
+    landing_y: float  # lateral landing (nominal step width)
+
+    def bounds(self):
+        p = self.params
+        return np.array([[p.min_landing_time, p.max_landing_time],
+                         [p.min_transition_time, p.max_transition_time],
+                         [p.min_slowdown_time, p.max_slowdown_time]])
+
+    def _distance(self, step):
+        dx = self.support_x + step - self.swing_xy[0]
+        dy = self.landing_y - self.swing_xy[1]
+        return np.sqrt(dx * dx + dy * dy), dx, dy
+
+    def constraints_grid(self, t1, t2, t3, step):
+        p = self.params
+        dist = self._distance(step)[0]
+        return [p.max_step_length - step, step - p.min_step_length,
+                p.max_swing_speed * t1 - dist]
+
+    def cost_grid(self, t1, t2, t3, step):
+        p = self.params
+        return p.a_ss * (step / t1) ** 2 + p.b_ss * (t2 + t3) ** 2  # eq. 24
+
+    def target(self, x):
+        return target_zmp(self.start, self.w, x[0], x[1], x[2], derivatives=False)
+
+    def evaluate(self, x):
+        p = self.params
+        t1, t2, t3 = x
+        step, sg, sh = target_zmp(self.start, self.w, t1, t2, t3)
+        # J_ss = a (l/t1)^2 + b (t2 + t3)^2, eq. 24 with eq. 22 substituted (eq. 25)
+        u = step / t1
+        ug = sg / t1
+        ug[0] -= step / t1**2
+        uh = sh / t1
+        uh[0, :] -= sg / t1**2
+        uh[:, 0] -= sg / t1**2
+        uh[0, 0] += 2 * step / t1**3
+        span = t2 + t3
+        cost = p.a_ss * u * u + p.b_ss * span * span
+        grad = 2 * p.a_ss * u * ug + 2 * p.b_ss * span * np.array([0.0, 1.0, 1.0])
+        hess = 2 * p.a_ss * (np.outer(ug, ug) + u * uh)
+        hess[1:, 1:] += 2 * p.b_ss
+        dist, dx, dy = self._distance(step)
+        ddist = dx / dist
+        dddist = dy * dy / dist**3
+        lo, hi = self.bounds().T
+        g = np.array([p.max_step_length - step, step - p.min_step_length,
+                      p.max_swing_speed * t1 - dist,
+                      t1 - lo[0], hi[0] - t1, t2 - lo[1], hi[1] - t2, t3 - lo[2], hi[2] - t3])
+        gg = np.zeros((9, 3))
+        gg[0], gg[1] = -sg, sg
+        gg[2] = -ddist * sg
+        gg[2, 0] += p.max_swing_speed
+        for k in range(3):
+            gg[3 + 2 * k, k], gg[4 + 2 * k, k] = 1.0, -1.0
+        gh = np.zeros((9, 3, 3))
+        gh[0], gh[1] = -sh, sh
+        gh[2] = -(dddist * np.outer(sg, sg) + ddist * sh)
+        return cost, grad, hess, g, gg, gh
+
+
+@dataclass
+class _DoubleSupportProblem:
+    start: StopStart
+    w: float
+    params: StopParameters
+    zmp_low: float  # allowed range of Z, relative to the start ZMP
+    zmp_high: float
+
+    def bounds(self):
+        p = self.params
+        return np.array([[0.0, 0.0],
+                         [p.min_transition_time, p.max_transition_time],
+                         [p.min_slowdown_time, p.max_slowdown_time]])
+
+    def constraints_grid(self, t1, t2, t3, z):
+        return [self.zmp_high - z, z - self.zmp_low]
+
+    def cost_grid(self, t1, t2, t3, z):
+        p = self.params
+        return p.a_ds * z * z + p.b_ds * (t2 + t3) ** 2  # eq. 30 (t_i = signal time)
+
+    def target(self, x):
+        return target_zmp(self.start, self.w, 0.0, x[1], x[2], derivatives=False)
+
+    def evaluate(self, x2):
+        p = self.params
+        t2, t3 = x2
+        z, zg3, zh3 = target_zmp(self.start, self.w, 0.0, t2, t3)
+        zg, zh = zg3[1:], zh3[1:, 1:]
+        span = t2 + t3
+        cost = p.a_ds * z * z + p.b_ds * span * span
+        grad = 2 * p.a_ds * z * zg + 2 * p.b_ds * span
+        hess = 2 * p.a_ds * (np.outer(zg, zg) + z * zh) + 2 * p.b_ds
+        lo, hi = self.bounds()[1:].T
+        g = np.array([self.zmp_high - z, z - self.zmp_low,
+                      t2 - lo[0], hi[0] - t2, t3 - lo[1], hi[1] - t3])
+        gg = np.zeros((6, 2))
+        gg[0], gg[1] = -zg, zg
+        gg[2, 0], gg[3, 0], gg[4, 1], gg[5, 1] = 1.0, -1.0, 1.0, -1.0
+        gh = np.zeros((6, 2, 2))
+        gh[0], gh[1] = -zh, zh
+        return cost, grad, hess, g, gg, gh
+
+
+_GRID = {"single": (10, 4, 10), "double": (1, 8, 12)}
+
+
+def _grid_start(problem, kind):
+    """Cheapest strictly feasible point of a coarse grid (vectorised), or None."""
+    bounds = problem.bounds()
+    axes = []
+    for (lo, hi), count in zip(bounds, _GRID[kind]):
+        inset = 1e-3 * (hi - lo)
+        axes.append(np.array([lo]) if count == 1 else np.linspace(lo + inset, hi - inset, count))
+    t1, t2, t3 = np.meshgrid(*axes, indexing="ij")
+    z = target_zmp_grid(problem.start, problem.w, t1, t2, t3)
+    ok = np.ones(z.shape, bool)
+    for g in problem.constraints_grid(t1, t2, t3, z):
+        ok &= g > 1e-9
+    if not np.any(ok):
+        return None
+    cost = np.where(ok, problem.cost_grid(t1, t2, t3, z), np.inf)
+    i = np.unravel_index(np.argmin(cost), cost.shape)
+    return np.array([t1[i], t2[i], t3[i]]), float(cost[i])
+
+
+def _feasible_exact(problem, x, z):
+    bounds = problem.bounds()
+    if np.any(x < bounds[:, 0] - 1e-12) or np.any(x > bounds[:, 1] + 1e-12):
+        return False
+    return all(g >= -1e-12 for g in problem.constraints_grid(*x, z))
+
+
+def _solve(problem, kind) -> PhaseSolution:
+    start = _grid_start(problem, kind)
+    if start is None:
+        raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
+    x0, cost0 = start
+    free = slice(0, 3) if kind == "single" else slice(1, 3)
+    scale = max(cost0, 1.0)
+    m = 9 if kind == "single" else 6
+    result = barrier_newton(problem.evaluate, x0[free], mu0=1e-2 * scale / m,
+                            mu_final=problem.params.cost_tolerance * scale / m)
+    x = x0.copy()
+    x[free] = result.x
+    z_cont = problem.target(x)
+    return _quantise(problem, kind, x, z_cont, result.iterations)
+
+
+def _quantise(problem, kind, x, z_cont, iterations) -> PhaseSolution:
+    """Snap the durations to servo ticks; re-solve Z so eq. 17 holds exactly."""
+    dt = problem.params.servo_period
+    bounds = problem.bounds()
+    options = []
+    for k, value in enumerate(x):
+        if kind == "double" and k == 0:
+            options.append([0])
+            continue
+        lo = math.ceil(bounds[k, 0] / dt - 1e-9)
+        hi = math.floor(bounds[k, 1] / dt + 1e-9)
+        base = math.floor(value / dt)
+        options.append(sorted({min(max(n, lo), hi) for n in (base - 1, base, base + 1, base + 2)}))
+    best = None
+    for ticks in itertools.product(*options):
+        xq = np.array(ticks, float) * dt
+        if problem.params.quantisation == "resolve":
+            z = problem.target(xq)
+        else:
+            z = z_cont
+        if not _feasible_exact(problem, xq, z):
+            continue
+        cost = float(problem.cost_grid(*xq, z))
+        if best is None or cost < best[0]:
+            best = (cost, xq, z)
+    if best is None:
+        raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
+    cost, xq, z = best
+    return PhaseSolution(xq[0], xq[1], xq[2], float(z), cost, iterations, (*x, z_cont))
+
+
+# ---------------------------------------------------------------------------
+# planning
+# ---------------------------------------------------------------------------
+
+def _halt_segment(x3, v3, zmp3, target, duration, w):
+    """Halt ZMP (eq. 27-28): quintic base to the target plus two bumps; COG ends at rest on it."""
+    base = np.eye(6)[0] * zmp3 + (target - zmp3) * lipm.SMOOTHSTEP
+    return lipm.solve_bump_coeffs(base, [lipm.BUMP_A, lipm.BUMP_B], duration, x3, v3, w,
+                                  [("x", target), ("v", 0.0)])
+
+
+def _build_axis(start_time, durations, coeffs, x0, v0, w, halt_duration, halt_target):
+    pre = lipm.LipmTrajectory.from_zmp(start_time, durations, coeffs, x0, v0, w)
+    pos, vel, _, zmp = pre.evaluate(pre.end_time)
+    halt = _halt_segment(float(pos[0]), float(vel[0]), float(zmp[0]), halt_target, halt_duration, w)
+    hold = lipm.pad([halt_target])
+    return lipm.LipmTrajectory.from_zmp(start_time, list(durations) + [halt_duration, 1.0],
+                                        list(coeffs) + [halt, hold], x0, v0, w)
+
+
+def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
+    """Lateral ZMP of phases (ii)-(iii): the sagittal phase times, and the value
+    that also zeroes the lateral COG velocity at the slowdown end (same stop
+    condition, eq. 17), clipped to the fore sole."""
+    rate = float(state.zmp_rate[1]) if kind == "double" else 0.0
+    accel = float(state.zmp_accel[1]) if kind == "double" else 0.0
+    start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
+    wanted = state.zmp[1] + target_zmp(start, w, solution.landing, solution.transition,
+                                       solution.slowdown, derivatives=False)
+    outer, inner = (sole.outer, sole.inner) if fore_side == "left" else (sole.inner, sole.outer)
+    return float(np.clip(wanted, fore_xy[1] - inner + margin, fore_xy[1] + outer - margin))
+
+
+def _zmp_segments(state, solution, targets, kind):
+    """Sagittal and lateral ZMP polynomials of phases (i)-(iii)."""
+    segs = []
+    for axis in (0, 1):
+        p0, end = float(state.zmp[axis]), float(targets[axis])
+        if kind == "single":
+            coeffs = [lipm.pad([p0]), lipm.transition_coeffs(p0, end, solution.transition), lipm.pad([end])]
+            durations = [solution.landing, solution.transition, solution.slowdown]
+        else:
+            coeffs = [lipm.transition_coeffs(p0, end, solution.transition,
+                                             float(state.zmp_rate[axis]), float(state.zmp_accel[axis])),
+                      lipm.pad([end])]
+            durations = [solution.transition, solution.slowdown]
+        segs.append((durations, coeffs))
+    return segs
+
+
+def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case):
+    w = pattern.w
+    sole = pattern.params.sole
+    kind = state.support
+    start = StopStart.from_state(state.com[0], state.com_vel[0], state.zmp[0], w,
+                                 state.zmp_rate[0] if kind == "double" else 0.0,
+                                 state.zmp_accel[0] if kind == "double" else 0.0)
+    t_solve = time.perf_counter()
+    if kind == "single":
+        support = state.support_foot
+        swing = "right" if support == "left" else "left"
+        problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
+                                        state.feet[swing][:2].copy(), float(state.next_landing[1]))
+        solution = _solve(problem, "single")
+        landing_xy = np.array([state.zmp[0] + solution.target, state.next_landing[1]])
+        final_feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
+        fore_xy, fore_side = landing_xy, swing
+        landing_foot = swing
+    else:
+        rear = state.rear_foot or "right"
+        fore = "left" if rear == "right" else "right"
+        fore_xy, fore_side = state.feet[fore][:2].copy(), fore
+        low = fore_xy[0] - sole.heel + params.zmp_margin - state.zmp[0]
+        high = fore_xy[0] + sole.toe - params.zmp_margin - state.zmp[0]
+        problem = _DoubleSupportProblem(start, w, params, low, high)
+        solution = _solve(problem, "double")
+        final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
+        landing_xy, landing_foot = None, None
+    solve_time = time.perf_counter() - t_solve
+
+    t0 = state.time
+    landing_time = t0 + solution.landing
+    transition_end = landing_time + solution.transition
+    slowdown_end = transition_end + solution.slowdown
+    midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
+    sagittal_target = state.zmp[0] + solution.target
+    lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin)
+    segs = _zmp_segments(state, solution, (sagittal_target, lateral_target), kind)
+    polygon = SupportPolygon(np.vstack([sole.corners(final_feet[s], s) for s in ("left", "right")]))
+    chosen = None
+    for halt in params.halt_durations:
+        halt = round(halt / params.servo_period) * params.servo_period
+        axes = [_build_axis(t0, d, c, state.com[a], state.com_vel[a], w, halt, midpoint[a])
+                for a, (d, c) in enumerate(segs)]
+        probe = np.linspace(slowdown_end, slowdown_end + halt, 60)
+        zmp_probe = np.stack([axes[0].evaluate(probe)[3], axes[1].evaluate(probe)[3]], axis=1)
+        margin = float(polygon.margin(zmp_probe).min())
+        if chosen is None or margin > chosen[0]:
+            chosen = (margin, halt, axes)
+        if margin >= params.zmp_margin:
+            break
+    margin, halt, (x_traj, y_traj) = chosen
+    if margin < 0:
+        raise InfeasibleStop("halt ZMP leaves the support polygon for every halt duration")
+    plan = StopPlan(
+        signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
+        start_support=kind, landing_time=landing_time, transition_end=transition_end,
+        slowdown_end=slowdown_end, halt_end=slowdown_end + halt,
+        step_length=solution.target if kind == "single" else None,
+        zmp_max=solution.target if kind == "double" else None,
+        landing_foot=landing_foot, landing_position=landing_xy, final_feet=final_feet,
+        x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
+        newton_iterations=solution.iterations, solve_time=solve_time, cost=solution.cost,
+        continuous_solution=solution.continuous,
+    )
+    if landing_foot is not None:
+        plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
+                            "acc": state.feet_acc[landing_foot]}
+    span = slowdown_end - t0
+    plan.upper_body_peak = state.upper_body + state.upper_body_rate * span / 3.0  # eq. 33
+    plan.min_zmp_margin = _verify_zmp(plan)
+    if plan.min_zmp_margin < -1e-9:
+        raise InfeasibleStop(f"planned ZMP leaves the support polygon by {-plan.min_zmp_margin:.4f} m")
+    return plan
+
+
+def _verify_zmp(plan: StopPlan) -> float:
+    """Smallest ZMP margin to the support polygon over every servo tick of the stop."""
+    dt = plan.params.servo_period
+    ticks = plan.start_time + dt * np.arange(int(round((plan.halt_end - plan.start_time) / dt)) + 1)
+    zmp = plan.com(ticks)[3]
+    worst = np.inf
+    pre = ticks < plan.landing_time
+    if np.any(pre):
+        worst = min(worst, float(plan.polygon(plan.start_time).margin(zmp[pre]).min()))
+    if np.any(~pre):
+        worst = min(worst, float(plan.polygon(plan.halt_end).margin(zmp[~pre]).min()))
+    return worst
+
+
+def _trivial_plan(pattern, state, params, signal_time, case):
+    end = state.time if case == "standing" else pattern.end_time
+    feet = pattern.feet_at(end)[0]
+    return StopPlan(
+        signal_time=signal_time, start_time=end, case=case, support=pattern.support_at(signal_time)[0],
+        start_support="standing", landing_time=end, transition_end=end, slowdown_end=end, halt_end=end,
+        step_length=None, zmp_max=None, landing_foot=None, landing_position=None,
+        final_feet={k: v[:2].copy() for k, v in feet.items()}, x=None, y=None, pattern=pattern,
+        params=params, start_state=state, cost=0.0,
+    )
+
+
+def snap_to_tick(t: float, servo_period: float) -> float:
+    """The servo tick at or after ``t`` (the stop is sampled by the servo loop)."""
+    return math.ceil(t / servo_period - 1e-9) * servo_period
+
+
+def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None) -> StopPlan:
+    """Plan the stop for a signal at ``signal_time`` (snapped to the next servo tick)."""
+    params = params or StopParameters()
+    if not math.isfinite(signal_time):
+        raise ValueError(f"estop_time must be finite, got {signal_time!r}")
+    wall = time.perf_counter()
+    dt = params.servo_period
+    t0 = snap_to_tick(signal_time, dt)
+    support, index, _ = pattern.support_at(t0)
+    state = pattern.state(t0)
+    if support == "standing":
+        return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
+    if index >= len(pattern.steps):
+        return _finish(_trivial_plan(pattern, state, params, t0, "already-stopping"), wall)
+    t = t0
+    case = "one-step"
+    horizon = t0 + 2.0 * pattern.params.step_time
+    while t <= horizon:
+        support, index, _ = pattern.support_at(t)
+        if support == "standing" or index >= len(pattern.steps):
+            return _finish(_trivial_plan(pattern, pattern.state(t), params, t0, "already-stopping"), wall)
+        try:
+            plan = _plan_from(pattern, pattern.state(t), params, t0, case)
+            return _finish(plan, wall)
+        except InfeasibleStop:
+            t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
+            case = "next-step"
+    raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s")
+
+
+def _next_try(pattern, t, dt, support, index, first):
+    """Marginal case (III.C): after the signal's own phase fails, jump to the
+    next support phase, then advance tick by tick."""
+    if not first:
+        return t + dt
+    step = pattern.steps[index]
+    boundary = step["touchdown"] if support == "single" else step["liftoff"]
+    return max(snap_to_tick(boundary, dt), t + dt)
+
+
+def _finish(plan: StopPlan, wall_start: float) -> StopPlan:
+    plan.compute_time = time.perf_counter() - wall_start
+    return plan
+
+
+def with_quantisation(params: StopParameters, mode: str) -> StopParameters:
+    return replace(params, quantisation=mode)
