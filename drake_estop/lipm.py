@@ -229,3 +229,32 @@ def solve_bump_coeffs(base_unit, bumps_unit, duration, x0, v0, w, targets):
     for c, col in zip(coeffs, cols):
         out = out + c * pad(col)
     return out
+
+
+def chain_end_state(durations, coeffs, x0, v0, w):
+    """COG position and velocity after a chain of ZMP segments (eq. 6, 9-11)."""
+    x, v = x0, v0
+    for duration, c in zip(durations, coeffs):
+        x, v = segment_end_state(pad(c), duration, x, v, w)
+    return x, v
+
+
+def solve_chain_bvp(durations, base, unknowns, x0, v0, w, target_x, target_v=0.0, weights=None):
+    """Least-norm unknowns so a chain of ZMP segments ends with the COG at (x, v).
+
+    ``base`` holds the ZMP coefficients of every segment; each entry of
+    ``unknowns`` holds the coefficients (per segment) that one unknown scales.
+    The LIPM is linear, so the end state is affine in the unknowns; with more
+    unknowns than the two end conditions the weighted least-norm solution
+    ``min sum (u_k / weight_k)^2`` is taken. Returns the segments' coefficients.
+    """
+    free = np.array(chain_end_state(durations, base, x0, v0, w))
+    matrix = np.array([chain_end_state(durations, cols, 0.0, 0.0, w) for cols in unknowns]).T  # (2, k)
+    rhs = np.array([target_x, target_v]) - free
+    scale = np.ones(len(unknowns)) if weights is None else np.asarray(weights, float)
+    scaled = matrix * scale
+    u = scale * (scaled.T @ np.linalg.solve(scaled @ scaled.T, rhs))
+    out = [pad(b) for b in base]
+    for value, cols in zip(u, unknowns):
+        out = [o + value * pad(c) for o, c in zip(out, cols)]
+    return out

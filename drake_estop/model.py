@@ -173,6 +173,7 @@ def nominal_standing_configuration(plant, com_height=WALKING_COM_HEIGHT,
     lean.  Raises ValueError if ``com_height`` is not reachable.
     """
     context = plant.CreateDefaultContext()
+    knee_max = plant.GetJointByName("l_knee").position_upper_limits()[0]
     x = np.array([0.8, 0.0])
     for _ in range(iterations):
         r, q = _com_residual(plant, context, x, com_height)
@@ -185,7 +186,7 @@ def nominal_standing_configuration(plant, com_height=WALKING_COM_HEIGHT,
             jac[:, k] = (_com_residual(plant, context, x + dx, com_height)[0]
                          - r) / 1e-6
         x = x - np.linalg.solve(jac, r)
-        x[0] = np.clip(x[0], 1e-3, 2.3)
+        x[0] = np.clip(x[0], 1e-3, knee_max)
     r, q = _com_residual(plant, context, x, com_height)
     if np.max(np.abs(r)) > 1e-6:
         raise ValueError(f"COG height {com_height} m is not reachable by "

@@ -37,7 +37,7 @@ from drake_estop import lipm
 from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
 from drake_estop.geometry import SupportPolygon
 from drake_estop.newton import barrier_newton
-from drake_estop.stop_condition import StopStart, target_zmp, target_zmp_grid
+from drake_estop.stop_condition import StopStart, slowdown_time, slowdown_time_grid, target_zmp
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 
@@ -63,7 +63,7 @@ class StopParameters:
     zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
     crouch: bool = True
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
-    halt_durations: tuple = (0.8, 1.0, 1.2, 1.5, 2.0, 2.5)  # candidates, shortest first [s]
+    halt_durations: tuple = (0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2, 1.5)  # settle-segment candidates [s]
     quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
     cost_tolerance: float = 1e-7  # relative suboptimality of the barrier solution
 
@@ -288,193 +288,229 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
 # phase-parameter solvers
 # ---------------------------------------------------------------------------
 
+class _StopProblem:
+    """Shared parts of the single- and double-support problems.
+
+    Decision variables ``y = (landing, transition, target)`` (the landing
+    duration is fixed at zero in double support). The stop condition (eq. 21)
+    is solved for the slowdown duration, ``T3 = f(y)`` (closed form, see
+    :func:`slowdown_time`), which makes the step-length and ZMP limits simple
+    bounds; it is the same equation the paper solves for ``l_s`` (eq. 22).
+    """
+
+    free: tuple  # indices of y that are decision variables
+
+    def bounds(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def target_bounds(self):
+        raise NotImplementedError
+
+    def slowdown(self, y):
+        return slowdown_time_grid(self.start, self.w, y[0], y[1], y[2])
+
+    def constraints_grid(self, y, t3):
+        p = self.params
+        with np.errstate(invalid="ignore"):
+            return [np.nan_to_num(t3 - p.min_slowdown_time, nan=-1.0),
+                    np.nan_to_num(p.max_slowdown_time - t3, nan=-1.0)] + self.extra_constraints(y)[0]
+
+    def extra_constraints(self, y):
+        return [], [], []
+
+    def evaluate(self, x):
+        """Cost, constraints and their analytic derivatives over the free variables."""
+        y = self.full(x)
+        t3, tg, th = slowdown_time(self.start, self.w, y[0], y[1], y[2])
+        cost, cg, ch = self.cost_terms(y, t3, tg, th)
+        p = self.params
+        bounds = self.bounds()
+        values, grads, hessians = [], [], []
+        for k in self.free:
+            unit = np.zeros(3)
+            unit[k] = 1.0
+            values += [y[k] - bounds[k, 0], bounds[k, 1] - y[k]]
+            grads += [unit, -unit]
+            hessians += [np.zeros((3, 3))] * 2
+        if math.isfinite(t3):
+            values += [t3 - p.min_slowdown_time, p.max_slowdown_time - t3]
+        else:
+            values += [-1.0, -1.0]
+        grads += [tg, -tg]
+        hessians += [th, -th]
+        ev, eg, eh = self.extra_constraints(y)
+        values += list(ev)
+        grads += list(eg)
+        hessians += list(eh)
+        idx = list(self.free)
+        g = np.array(values, float)
+        gg = np.array(grads)[:, idx]
+        gh = np.array(hessians)[:, idx][:, :, idx]
+        return cost, cg[idx], ch[np.ix_(idx, idx)], g, gg, gh
+
+    def full(self, x):
+        y = np.zeros(3)
+        y[list(self.free)] = x
+        return y
+
+
 @dataclass
-class _SingleSupportProblem:
+class _SingleSupportProblem(_StopProblem):
     start: StopStart
     w: float
     params: StopParameters
     support_x: float  # sagittal ZMP at the start (support ankle)
     swing_xy: np.ndarray  # current swing ankle
     landing_y: float  # lateral landing (nominal step width)
+    free: tuple = (0, 1, 2)
 
     def bounds(self):
         p = self.params
         return np.array([[p.min_landing_time, p.max_landing_time],
                          [p.min_transition_time, p.max_transition_time],
-                         [p.min_slowdown_time, p.max_slowdown_time]])
+                         [p.min_step_length, p.max_step_length]])
 
     def _distance(self, step):
         dx = self.support_x + step - self.swing_xy[0]
         dy = self.landing_y - self.swing_xy[1]
         return np.sqrt(dx * dx + dy * dy), dx, dy
 
-    def constraints_grid(self, t1, t2, t3, step):
+    def extra_constraints(self, y):
+        """Mean swing-ankle speed to the landing point: v_max t_i - distance >= 0."""
         p = self.params
-        dist = self._distance(step)[0]
-        return [p.max_step_length - step, step - p.min_step_length,
-                p.max_swing_speed * t1 - dist]
+        dist, dx, dy = self._distance(y[2])
+        value = p.max_swing_speed * y[0] - dist
+        grad = np.array([p.max_swing_speed, 0.0, -dx / dist]) if np.ndim(dist) == 0 else None
+        hess = np.zeros((3, 3))
+        if grad is not None:
+            hess[2, 2] = -dy * dy / dist**3
+        return [value], [grad], [hess]
 
-    def cost_grid(self, t1, t2, t3, step):
+    def cost_grid(self, y, t3):
         p = self.params
-        return p.a_ss * (step / t1) ** 2 + p.b_ss * (t2 + t3) ** 2  # eq. 24
+        return p.a_ss * (y[2] / y[0]) ** 2 + p.b_ss * (y[1] + t3) ** 2  # eq. 24
 
-    def target(self, x):
-        return target_zmp(self.start, self.w, x[0], x[1], x[2], derivatives=False)
-
-    def evaluate(self, x):
+    def cost_terms(self, y, t3, tg, th):
+        """J_ss (eq. 24) and its gradient and Hessian in (t_i, t_ii, l_s)."""
         p = self.params
-        t1, t2, t3 = x
-        step, sg, sh = target_zmp(self.start, self.w, t1, t2, t3)
-        # J_ss = a (l/t1)^2 + b (t2 + t3)^2, eq. 24 with eq. 22 substituted (eq. 25)
+        t1, t2, step = y
         u = step / t1
-        ug = sg / t1
-        ug[0] -= step / t1**2
-        uh = sh / t1
-        uh[0, :] -= sg / t1**2
-        uh[:, 0] -= sg / t1**2
-        uh[0, 0] += 2 * step / t1**3
+        ug = np.array([-step / t1**2, 0.0, 1.0 / t1])
+        uh = np.array([[2 * step / t1**3, 0.0, -1.0 / t1**2], [0.0, 0.0, 0.0], [-1.0 / t1**2, 0.0, 0.0]])
         span = t2 + t3
+        sg = tg + np.array([0.0, 1.0, 0.0])
         cost = p.a_ss * u * u + p.b_ss * span * span
-        grad = 2 * p.a_ss * u * ug + 2 * p.b_ss * span * np.array([0.0, 1.0, 1.0])
-        hess = 2 * p.a_ss * (np.outer(ug, ug) + u * uh)
-        hess[1:, 1:] += 2 * p.b_ss
-        dist, dx, dy = self._distance(step)
-        ddist = dx / dist
-        dddist = dy * dy / dist**3
-        lo, hi = self.bounds().T
-        g = np.array([p.max_step_length - step, step - p.min_step_length,
-                      p.max_swing_speed * t1 - dist,
-                      t1 - lo[0], hi[0] - t1, t2 - lo[1], hi[1] - t2, t3 - lo[2], hi[2] - t3])
-        gg = np.zeros((9, 3))
-        gg[0], gg[1] = -sg, sg
-        gg[2] = -ddist * sg
-        gg[2, 0] += p.max_swing_speed
-        for k in range(3):
-            gg[3 + 2 * k, k], gg[4 + 2 * k, k] = 1.0, -1.0
-        gh = np.zeros((9, 3, 3))
-        gh[0], gh[1] = -sh, sh
-        gh[2] = -(dddist * np.outer(sg, sg) + ddist * sh)
-        return cost, grad, hess, g, gg, gh
+        grad = 2 * p.a_ss * u * ug + 2 * p.b_ss * span * sg
+        hess = 2 * p.a_ss * (np.outer(ug, ug) + u * uh) + 2 * p.b_ss * (np.outer(sg, sg) + span * th)
+        return cost, grad, hess
 
 
 @dataclass
-class _DoubleSupportProblem:
+class _DoubleSupportProblem(_StopProblem):
     start: StopStart
     w: float
     params: StopParameters
     zmp_low: float  # allowed range of Z, relative to the start ZMP
     zmp_high: float
+    free: tuple = (1, 2)
 
     def bounds(self):
         p = self.params
         return np.array([[0.0, 0.0],
                          [p.min_transition_time, p.max_transition_time],
-                         [p.min_slowdown_time, p.max_slowdown_time]])
+                         [self.zmp_low, self.zmp_high]])
 
-    def constraints_grid(self, t1, t2, t3, z):
-        return [self.zmp_high - z, z - self.zmp_low]
-
-    def cost_grid(self, t1, t2, t3, z):
+    def cost_grid(self, y, t3):
         p = self.params
-        return p.a_ds * z * z + p.b_ds * (t2 + t3) ** 2  # eq. 30 (t_i = signal time)
+        return p.a_ds * y[2] ** 2 + p.b_ds * (y[1] + t3) ** 2  # eq. 30 (t_i = signal time)
 
-    def target(self, x):
-        return target_zmp(self.start, self.w, 0.0, x[1], x[2], derivatives=False)
-
-    def evaluate(self, x2):
+    def cost_terms(self, y, t3, tg, th):
+        """J_ds (eq. 30) with ZMP_max = target, in (t_ii, ZMP_max) (eq. 31)."""
         p = self.params
-        t2, t3 = x2
-        z, zg3, zh3 = target_zmp(self.start, self.w, 0.0, t2, t3)
-        zg, zh = zg3[1:], zh3[1:, 1:]
-        span = t2 + t3
-        cost = p.a_ds * z * z + p.b_ds * span * span
-        grad = 2 * p.a_ds * z * zg + 2 * p.b_ds * span
-        hess = 2 * p.a_ds * (np.outer(zg, zg) + z * zh) + 2 * p.b_ds
-        lo, hi = self.bounds()[1:].T
-        g = np.array([self.zmp_high - z, z - self.zmp_low,
-                      t2 - lo[0], hi[0] - t2, t3 - lo[1], hi[1] - t3])
-        gg = np.zeros((6, 2))
-        gg[0], gg[1] = -zg, zg
-        gg[2, 0], gg[3, 0], gg[4, 1], gg[5, 1] = 1.0, -1.0, 1.0, -1.0
-        gh = np.zeros((6, 2, 2))
-        gh[0], gh[1] = -zh, zh
-        return cost, grad, hess, g, gg, gh
+        span = y[1] + t3
+        sg = tg + np.array([0.0, 1.0, 0.0])
+        zg = np.array([0.0, 0.0, 1.0])
+        cost = p.a_ds * y[2] ** 2 + p.b_ds * span * span
+        grad = 2 * p.a_ds * y[2] * zg + 2 * p.b_ds * span * sg
+        hess = 2 * p.a_ds * np.outer(zg, zg) + 2 * p.b_ds * (np.outer(sg, sg) + span * th)
+        return cost, grad, hess
 
 
-_GRID = {"single": (10, 4, 10), "double": (1, 8, 12)}
+_GRID = {"single": (10, 4, 12), "double": (1, 8, 16)}
 
 
 def _grid_start(problem, kind):
     """Cheapest strictly feasible point of a coarse grid (vectorised), or None."""
-    bounds = problem.bounds()
     axes = []
-    for (lo, hi), count in zip(bounds, _GRID[kind]):
+    for (lo, hi), count in zip(problem.bounds(), _GRID[kind]):
         inset = 1e-3 * (hi - lo)
         axes.append(np.array([lo]) if count == 1 else np.linspace(lo + inset, hi - inset, count))
-    t1, t2, t3 = np.meshgrid(*axes, indexing="ij")
-    z = target_zmp_grid(problem.start, problem.w, t1, t2, t3)
-    ok = np.ones(z.shape, bool)
-    for g in problem.constraints_grid(t1, t2, t3, z):
+    y = np.meshgrid(*axes, indexing="ij")
+    t3 = problem.slowdown(y)
+    ok = np.ones(t3.shape, bool)
+    for g in problem.constraints_grid(y, t3):
         ok &= g > 1e-9
     if not np.any(ok):
         return None
-    cost = np.where(ok, problem.cost_grid(t1, t2, t3, z), np.inf)
+    cost = np.where(ok, problem.cost_grid(y, np.nan_to_num(t3)), np.inf)
     i = np.unravel_index(np.argmin(cost), cost.shape)
-    return np.array([t1[i], t2[i], t3[i]]), float(cost[i])
+    return np.array([axis[i] for axis in y]), float(cost[i])
 
 
-def _feasible_exact(problem, x, z):
+def _feasible_exact(problem, y, t3):
     bounds = problem.bounds()
-    if np.any(x < bounds[:, 0] - 1e-12) or np.any(x > bounds[:, 1] + 1e-12):
+    if not math.isfinite(t3) or np.any(y < bounds[:, 0] - 1e-12) or np.any(y > bounds[:, 1] + 1e-12):
         return False
-    return all(g >= -1e-12 for g in problem.constraints_grid(*x, z))
+    return all(np.all(np.asarray(g) >= -1e-12) for g in problem.constraints_grid(y, t3))
 
 
 def _solve(problem, kind) -> PhaseSolution:
     start = _grid_start(problem, kind)
     if start is None:
         raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
-    x0, cost0 = start
-    free = slice(0, 3) if kind == "single" else slice(1, 3)
+    y0, cost0 = start
+    free = list(problem.free)
     scale = max(cost0, 1.0)
-    m = 9 if kind == "single" else 6
-    result = barrier_newton(problem.evaluate, x0[free], mu0=1e-2 * scale / m,
+    m = 2 * len(free) + 2 + (1 if kind == "single" else 0)
+    result = barrier_newton(problem.evaluate, y0[free], mu0=1e-1 * scale / m,
                             mu_final=problem.params.cost_tolerance * scale / m)
-    x = x0.copy()
-    x[free] = result.x
-    z_cont = problem.target(x)
-    return _quantise(problem, kind, x, z_cont, result.iterations)
+    y = problem.full(result.x)
+    t3 = float(problem.slowdown(y))
+    return _quantise(problem, kind, y, t3, result.iterations)
 
 
-def _quantise(problem, kind, x, z_cont, iterations) -> PhaseSolution:
+def _quantise(problem, kind, y, t3, iterations) -> PhaseSolution:
     """Snap the durations to servo ticks; re-solve Z so eq. 17 holds exactly."""
     dt = problem.params.servo_period
+    p = problem.params
     bounds = problem.bounds()
+    limits = [bounds[0], bounds[1], (p.min_slowdown_time, p.max_slowdown_time)]
     options = []
-    for k, value in enumerate(x):
+    for k, value in enumerate((y[0], y[1], t3)):
         if kind == "double" and k == 0:
             options.append([0])
             continue
-        lo = math.ceil(bounds[k, 0] / dt - 1e-9)
-        hi = math.floor(bounds[k, 1] / dt + 1e-9)
-        base = math.floor(value / dt)
+        lo = math.ceil(limits[k][0] / dt - 1e-9)
+        hi = math.floor(limits[k][1] / dt + 1e-9)
+        base = math.floor(value / dt + 1e-9)
         options.append(sorted({min(max(n, lo), hi) for n in (base - 1, base, base + 1, base + 2)}))
     best = None
     for ticks in itertools.product(*options):
-        xq = np.array(ticks, float) * dt
-        if problem.params.quantisation == "resolve":
-            z = problem.target(xq)
+        t1, t2, t3q = np.array(ticks, float) * dt
+        if p.quantisation == "resolve":
+            z = target_zmp(problem.start, problem.w, t1, t2, t3q, derivatives=False)
         else:
-            z = z_cont
-        if not _feasible_exact(problem, xq, z):
+            z = y[2]
+        yq = np.array([t1, t2, z])
+        if not _feasible_exact(problem, yq, t3q):
             continue
-        cost = float(problem.cost_grid(*xq, z))
+        cost = float(problem.cost_grid(yq, t3q))
         if best is None or cost < best[0]:
-            best = (cost, xq, z)
+            best = (cost, yq, t3q)
     if best is None:
         raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
-    cost, xq, z = best
-    return PhaseSolution(xq[0], xq[1], xq[2], float(z), cost, iterations, (*x, z_cont))
+    cost, yq, t3q = best
+    return PhaseSolution(yq[0], yq[1], t3q, float(yq[2]), cost, iterations, (y[0], y[1], t3, y[2]))
 
 
 # ---------------------------------------------------------------------------
@@ -488,13 +524,53 @@ def _halt_segment(x3, v3, zmp3, target, duration, w):
                                   [("x", target), ("v", 0.0)])
 
 
-def _build_axis(start_time, durations, coeffs, x0, v0, w, halt_duration, halt_target):
-    pre = lipm.LipmTrajectory.from_zmp(start_time, durations, coeffs, x0, v0, w)
-    pos, vel, _, zmp = pre.evaluate(pre.end_time)
-    halt = _halt_segment(float(pos[0]), float(vel[0]), float(zmp[0]), halt_target, halt_duration, w)
-    hold = lipm.pad([halt_target])
-    return lipm.LipmTrajectory.from_zmp(start_time, list(durations) + [halt_duration, 1.0],
-                                        list(coeffs) + [halt, hold], x0, v0, w)
+_HALT_PROBE = np.linspace(0.0, 1.0, 41)
+
+
+def _halt_candidates(params):
+    dt = params.servo_period
+    ticks = lambda t: max(1, round(t / dt)) * dt  # noqa: E731
+    shifts = sorted({ticks(params.min_transition_time), ticks(2 * params.min_transition_time)})
+    pairs = [(a, ticks(b)) for a in shifts for b in params.halt_durations]
+    return sorted(pairs, key=lambda pair: (pair[0] + pair[1], pair[0]))
+
+
+def _halt_axis(x3, v3, zmp3, target, shift, settle, w):
+    """Halt ZMP of one axis (eq. 27-28): a quick shift from the slowdown ZMP to a
+    free point ``q``, then a settle segment from ``q`` to ``target`` with two
+    bumps. ``q`` and the bump heights solve Harada's two-point boundary-value
+    problem (COG at ``target`` at rest) in the least-norm sense, bumps
+    penalised, so the ZMP moves as little as the COG allows."""
+    zero = np.zeros(1)
+    rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, shift))  # 0 -> 1 over the shift
+    settle_rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, settle))
+    base = [zmp3 * (lipm.pad([1.0]) - rise), target * settle_rise]
+    unknowns = [
+        [rise, lipm.pad([1.0]) - settle_rise],  # q
+        [zero, lipm.scale_unit_poly(lipm.BUMP_A, settle)],
+        [zero, lipm.scale_unit_poly(lipm.BUMP_B, settle)],
+    ]
+    coeffs = lipm.solve_chain_bvp([shift, settle], base, unknowns, x3, v3, w, target, 0.0,
+                                  weights=[10.0, 1.0, 1.0])
+    return [shift, settle], coeffs
+
+
+def _choose_halt(pre, midpoint, polygon, params, w):
+    """Shortest halt whose ZMP keeps ``zmp_margin`` inside the support polygon;
+    else the one with the largest margin. Returns (durations, coeffs per axis, margin)."""
+    ends = [traj.evaluate(traj.end_time) for traj in pre]
+    best = None
+    for shift, settle in _halt_candidates(params):
+        axes = [_halt_axis(float(e[0][0]), float(e[1][0]), float(e[3][0]), midpoint[a], shift, settle, w)
+                for a, e in enumerate(ends)]
+        zmp = np.stack([np.concatenate([lipm.poly_eval(c, _HALT_PROBE * d) for d, c in zip(*axis)])
+                        for axis in axes], axis=1)
+        margin = float(polygon.margin(zmp).min())
+        if best is None or margin > best[2]:
+            best = ([shift, settle], [axis[1] for axis in axes], margin)
+        if margin >= params.zmp_margin:
+            break
+    return best
 
 
 def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
@@ -566,21 +642,17 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin)
     segs = _zmp_segments(state, solution, (sagittal_target, lateral_target), kind)
     polygon = SupportPolygon(np.vstack([sole.corners(final_feet[s], s) for s in ("left", "right")]))
-    chosen = None
-    for halt in params.halt_durations:
-        halt = round(halt / params.servo_period) * params.servo_period
-        axes = [_build_axis(t0, d, c, state.com[a], state.com_vel[a], w, halt, midpoint[a])
-                for a, (d, c) in enumerate(segs)]
-        probe = np.linspace(slowdown_end, slowdown_end + halt, 60)
-        zmp_probe = np.stack([axes[0].evaluate(probe)[3], axes[1].evaluate(probe)[3]], axis=1)
-        margin = float(polygon.margin(zmp_probe).min())
-        if chosen is None or margin > chosen[0]:
-            chosen = (margin, halt, axes)
-        if margin >= params.zmp_margin:
-            break
-    margin, halt, (x_traj, y_traj) = chosen
+    pre = [lipm.LipmTrajectory.from_zmp(t0, d, c, state.com[a], state.com_vel[a], w)
+           for a, (d, c) in enumerate(segs)]
+    halt_durations, halt_coeffs, margin = _choose_halt(pre, midpoint, polygon, params, w)
     if margin < 0:
         raise InfeasibleStop("halt ZMP leaves the support polygon for every halt duration")
+    halt = sum(halt_durations)
+    x_traj, y_traj = (
+        lipm.LipmTrajectory.from_zmp(t0, list(d) + halt_durations + [1.0],
+                                     list(c) + list(hc) + [lipm.pad([midpoint[a]])],
+                                     state.com[a], state.com_vel[a], w)
+        for a, ((d, c), hc) in enumerate(zip(segs, halt_coeffs)))
     plan = StopPlan(
         signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
         start_support=kind, landing_time=landing_time, transition_end=transition_end,

@@ -159,3 +159,50 @@ def target_zmp_grid(start: StopStart, w: float, landing, transition, slowdown) -
     big_a = e12 * start.dcm - c1 * kappa * lm[..., 1] - c2 * kappa**2 * lm[..., 2]
     big_b = start.ccm / e12 + c1 * kappa * rm[..., 1] + c2 * kappa**2 * rm[..., 2]
     return (e3sq * big_a - big_b) / (e3sq * (lm[..., 0] + 1.0) + rm[..., 0] - 1.0)
+
+
+def _terms_grid(start: StopStart, w: float, landing, transition):
+    """A, B, F = L_sigma + 1, G = R_sigma of the closed form, vectorised."""
+    kappa = w * np.asarray(transition, float)
+    grow = np.exp(kappa[..., None] * _U)
+    lm = kappa[..., None] * (grow @ _BASIS.T)
+    rm = kappa[..., None] * ((1.0 / grow) @ _BASIS.T)
+    e12 = np.exp(w * (np.asarray(landing, float) + np.asarray(transition, float)))
+    c1, c2 = start.zmp_rate / w, start.zmp_accel / (w * w)
+    big_a = e12 * start.dcm - c1 * kappa * lm[..., 1] - c2 * kappa**2 * lm[..., 2]
+    big_b = start.ccm / e12 + c1 * kappa * rm[..., 1] + c2 * kappa**2 * rm[..., 2]
+    return big_a, big_b, lm[..., 0] + 1.0, rm[..., 0]
+
+
+def slowdown_time_grid(start: StopStart, w: float, landing, transition, target):
+    """Slowdown duration that meets the stop condition (eq. 21) for a given ZMP target.
+
+    The same closed form solved for ``exp(2 w T3) = (B + Z (G - 1)) / (A - Z F)``;
+    NaN where no non-negative duration stops the COG with that target.
+    """
+    landing, transition, target = np.broadcast_arrays(
+        np.asarray(landing, float), np.asarray(transition, float), np.asarray(target, float))
+    big_a, big_b, f, g = _terms_grid(start, w, landing, transition)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (big_b + target * (g - 1.0)) / (big_a - target * f)
+        return np.where(ratio >= 1.0, np.log(np.where(ratio > 0, ratio, 1.0)) / (2.0 * w), np.nan)
+
+
+def slowdown_time(start: StopStart, w: float, landing: float, transition: float, target: float):
+    """:func:`slowdown_time_grid` at one point, with gradient and Hessian in
+    (landing, transition, target) by implicit differentiation of Z(T1, T2, T3) = target.
+
+    Returns ``(T3, grad, hess)``; ``T3`` is NaN (and the derivatives zero) where infeasible.
+    """
+    t3 = float(slowdown_time_grid(start, w, landing, transition, target))
+    if not math.isfinite(t3):
+        return t3, np.zeros(3), np.zeros((3, 3))
+    _, zg, zh = target_zmp(start, w, landing, transition, t3)
+    z3 = zg[2]
+    fg = np.array([zg[0], zg[1], -1.0])
+    f3 = np.array([zh[0, 2], zh[1, 2], 0.0])
+    fh = np.zeros((3, 3))
+    fh[:2, :2] = zh[:2, :2]
+    grad = -fg / z3
+    hess = -(fh + np.outer(f3, grad) + np.outer(grad, f3) + zh[2, 2] * np.outer(grad, grad)) / z3
+    return t3, grad, hess
