@@ -264,8 +264,9 @@ class NominalPattern:
 
     def state(self, t: float) -> PatternState:
         pos, vel, acc, zmp = self.com(t)
-        rate = np.array([traj.zmp_derivatives(t)[0][0] for traj in self.trajectories])
-        accel = np.array([traj.zmp_derivatives(t)[1][0] for traj in self.trajectories])
+        derivatives = [traj.zmp_derivatives(t) for traj in self.trajectories]
+        rate = np.array([d[0][0] for d in derivatives])
+        accel = np.array([d[1][0] for d in derivatives])
         support, index, side = self.support_at(t)
         feet, feet_vel, feet_acc = self.feet_at(t)
         next_landing, rear = None, None

@@ -41,22 +41,56 @@ Evaluator = Callable[[np.ndarray], tuple]
 """x -> (J, grad J, hess J, g (m,), grad g (m, n), hess g (m, n, n))."""
 
 
+def _cholesky_solve(matrix, rhs):
+    """Solve a small symmetric positive-definite system (plain floats; None if not PD).
+
+    numpy.linalg costs microseconds per call on 2x2 / 3x3 systems; this is the
+    planner's inner loop.
+    """
+    n = len(rhs)
+    a = matrix.tolist()
+    low = [[0.0] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = a[i][j] - sum(low[i][k] * low[j][k] for k in range(j))
+            if i == j:
+                if acc <= 0.0:
+                    return None
+                low[i][i] = acc**0.5
+            else:
+                low[i][j] = acc / low[j][j]
+    b = rhs.tolist()
+    y = [0.0] * n
+    for i in range(n):
+        y[i] = (b[i] - sum(low[i][k] * y[k] for k in range(i))) / low[i][i]
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        x[i] = (y[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))) / low[i][i]
+    return np.array(x)
+
+
 def _newton_direction(hess, rhs):
+    """Newton step; the Hessian is shifted until positive definite (descent direction)."""
     shift = 0.0
     scale = max(1e-12, float(np.abs(np.diag(hess)).max()))
     eye = np.eye(len(rhs))
-    for _ in range(30):
-        try:
-            chol = np.linalg.cholesky(hess + shift * eye)
-            return np.linalg.solve(chol.T, np.linalg.solve(chol, rhs))
-        except np.linalg.LinAlgError:
-            shift = max(2.0 * shift, 1e-8 * scale)
+    for _ in range(40):
+        step = _cholesky_solve(hess + shift * eye if shift else hess, rhs)
+        if step is not None:
+            return step
+        shift = max(2.0 * shift, 1e-8 * scale)
     return rhs / scale
 
 
 def barrier_newton(evaluate: Evaluator, x0: np.ndarray, *, mu0: float, mu_final: float,
-                   sigma: float = 0.1, max_iterations: int = 100, grad_tol: float = 1e-8) -> NewtonResult:
-    """Minimise J subject to g(x) > 0 from a strictly feasible ``x0``."""
+                   values: Callable | None = None, sigma: float = 0.1, max_iterations: int = 100,
+                   grad_tol: float = 1e-8) -> NewtonResult:
+    """Minimise J subject to g(x) > 0 from a strictly feasible ``x0``.
+
+    ``values(x) -> (J, g)`` is an optional cheaper evaluator for line-search
+    trial points (no derivatives); ``evaluate`` runs once per accepted step.
+    """
+    values = values or (lambda point: evaluate(point)[::3][:2])
     x = np.array(x0, dtype=float)
     j, jg, jh, g, gg, gh = evaluate(x)
     if np.any(g <= 0):
@@ -71,7 +105,7 @@ def barrier_newton(evaluate: Evaluator, x0: np.ndarray, *, mu0: float, mu_final:
             return NewtonResult(x, j, iteration - 1, True)
         mu = max(min(mu, sigma * gap), 0.1 * mu_final)
         ratio = lam / g
-        hess = jh - np.tensordot(lam, gh, axes=1) + (gg.T * ratio) @ gg
+        hess = jh - np.einsum("k,kij->ij", lam, gh) + (gg.T * ratio) @ gg
         rhs = -(jg - (mu / g) @ gg)
         dx = _newton_direction(hess, rhs)
         dlam = mu / g - lam - ratio * (gg @ dx)
@@ -80,9 +114,9 @@ def barrier_newton(evaluate: Evaluator, x0: np.ndarray, *, mu0: float, mu_final:
         merit = j - mu * np.sum(np.log(g))
         slope = -(rhs @ dx)
         while alpha > 1e-14:
-            out = evaluate(x + alpha * dx)
-            if np.all(out[3] > 0.005 * g):
-                merit_new = out[0] - mu * np.sum(np.log(out[3]))
+            trial_cost, trial_g = values(x + alpha * dx)
+            if np.all(trial_g > 0.005 * g):
+                merit_new = trial_cost - mu * np.sum(np.log(trial_g))
                 if merit_new <= merit + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(merit):
                     break
             alpha *= 0.5
@@ -90,5 +124,5 @@ def barrier_newton(evaluate: Evaluator, x0: np.ndarray, *, mu0: float, mu_final:
             return NewtonResult(x, j, iteration, False)
         x = x + alpha * dx
         lam = np.maximum(lam + alpha * dlam, 1e-16)
-        j, jg, jh, g, gg, gh = out
+        j, jg, jh, g, gg, gh = evaluate(x)
     return NewtonResult(x, j, max_iterations, False)

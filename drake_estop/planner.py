@@ -26,7 +26,7 @@ reproduces that for comparison).
 
 from __future__ import annotations
 
-import itertools
+import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -37,7 +37,7 @@ from drake_estop import lipm
 from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
 from drake_estop.geometry import SupportPolygon
 from drake_estop.newton import barrier_newton
-from drake_estop.stop_condition import StopStart, slowdown_time, slowdown_time_grid, target_zmp
+from drake_estop.stop_condition import StopStart, slowdown_time, slowdown_time_grid, target_zmp, target_zmp_grid
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 
@@ -65,7 +65,7 @@ class StopParameters:
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
     halt_durations: tuple = (0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2, 1.5)  # settle-segment candidates [s]
     quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
-    cost_tolerance: float = 1e-7  # relative suboptimality of the barrier solution
+    cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
     def __post_init__(self):
         for name in ("a_ss", "b_ss", "a_ds", "b_ds", "servo_period", "max_step_length",
@@ -319,34 +319,57 @@ class _StopProblem:
         return [], [], []
 
     def evaluate(self, x):
-        """Cost, constraints and their analytic derivatives over the free variables."""
+        """Cost, constraints and their analytic derivatives over the free variables.
+
+        Constraint order: lower/upper bound of each free variable, slowdown
+        duration above its minimum and below its maximum, then the extras.
+        """
+        idx = list(self.free)
         y = self.full(x)
         t3, tg, th = slowdown_time(self.start, self.w, y[0], y[1], y[2])
         cost, cg, ch = self.cost_terms(y, t3, tg, th)
         p = self.params
-        bounds = self.bounds()
-        values, grads, hessians = [], [], []
-        for k in self.free:
-            unit = np.zeros(3)
-            unit[k] = 1.0
-            values += [y[k] - bounds[k, 0], bounds[k, 1] - y[k]]
-            grads += [unit, -unit]
-            hessians += [np.zeros((3, 3))] * 2
-        if math.isfinite(t3):
-            values += [t3 - p.min_slowdown_time, p.max_slowdown_time - t3]
-        else:
-            values += [-1.0, -1.0]
-        grads += [tg, -tg]
-        hessians += [th, -th]
+        bounds = self.bounds()[idx]
         ev, eg, eh = self.extra_constraints(y)
-        values += list(ev)
-        grads += list(eg)
-        hessians += list(eh)
-        idx = list(self.free)
-        g = np.array(values, float)
-        gg = np.array(grads)[:, idx]
-        gh = np.array(hessians)[:, idx][:, :, idx]
-        return cost, cg[idx], ch[np.ix_(idx, idx)], g, gg, gh
+        n = len(idx)
+        g = np.empty(2 * n + 2 + len(ev))
+        g[0:2 * n:2] = x - bounds[:, 0]
+        g[1:2 * n:2] = bounds[:, 1] - x
+        g[2 * n] = t3 - p.min_slowdown_time if math.isfinite(t3) else -1.0
+        g[2 * n + 1] = p.max_slowdown_time - t3 if math.isfinite(t3) else -1.0
+        g[2 * n + 2:] = ev
+        gg = np.zeros((len(g), n))
+        gg[0:2 * n:2] = np.eye(n)
+        gg[1:2 * n:2] = -np.eye(n)
+        gg[2 * n] = tg[idx]
+        gg[2 * n + 1] = -tg[idx]
+        gh = np.zeros((len(g), n, n))
+        square = self._square
+        sub = th[square]
+        gh[2 * n] = sub
+        gh[2 * n + 1] = -sub
+        for k, (grad, hess) in enumerate(zip(eg, eh)):
+            gg[2 * n + 2 + k] = grad[idx]
+            gh[2 * n + 2 + k] = hess[square]
+        return cost, cg[idx], ch[square], g, gg, gh
+
+    @property
+    def _square(self):
+        return np.ix_(self.free, self.free)
+
+    def values(self, x):
+        """Cost and constraint values only (line-search trial points)."""
+        y = self.full(x)
+        t3 = slowdown_time(self.start, self.w, y[0], y[1], y[2], derivatives=False)
+        bounds = self.bounds()[list(self.free)]
+        p = self.params
+        g = [v for pair in zip(x - bounds[:, 0], bounds[:, 1] - x) for v in pair]
+        if math.isfinite(t3):
+            g += [t3 - p.min_slowdown_time, p.max_slowdown_time - t3]
+        else:
+            return math.inf, np.full(len(g) + 2 + len(self.extra_constraints(y)[0]), -1.0)
+        g += self.extra_constraints(y)[0]
+        return self.cost_grid(y, t3), np.array(g, dtype=float)
 
     def full(self, x):
         y = np.zeros(3)
@@ -457,13 +480,6 @@ def _grid_start(problem, kind):
     return np.array([axis[i] for axis in y]), float(cost[i])
 
 
-def _feasible_exact(problem, y, t3):
-    bounds = problem.bounds()
-    if not math.isfinite(t3) or np.any(y < bounds[:, 0] - 1e-12) or np.any(y > bounds[:, 1] + 1e-12):
-        return False
-    return all(np.all(np.asarray(g) >= -1e-12) for g in problem.constraints_grid(y, t3))
-
-
 def _solve(problem, kind) -> PhaseSolution:
     start = _grid_start(problem, kind)
     if start is None:
@@ -472,7 +488,7 @@ def _solve(problem, kind) -> PhaseSolution:
     free = list(problem.free)
     scale = max(cost0, 1.0)
     m = 2 * len(free) + 2 + (1 if kind == "single" else 0)
-    result = barrier_newton(problem.evaluate, y0[free], mu0=1e-1 * scale / m,
+    result = barrier_newton(problem.evaluate, y0[free], values=problem.values, mu0=1e-1 * scale / m,
                             mu_final=problem.params.cost_tolerance * scale / m)
     y = problem.full(result.x)
     t3 = float(problem.slowdown(y))
@@ -480,7 +496,13 @@ def _solve(problem, kind) -> PhaseSolution:
 
 
 def _quantise(problem, kind, y, t3, iterations) -> PhaseSolution:
-    """Snap the durations to servo ticks; re-solve Z so eq. 17 holds exactly."""
+    """Snap the durations to servo ticks; re-solve Z so eq. 17 holds exactly.
+
+    Tries floor-1 .. ceil+1 ticks of each duration (vectorised) and keeps the
+    cheapest combination that meets every limit with the re-solved Z. With
+    ``quantisation="round"`` Z keeps its continuous value (the paper's
+    behaviour, for comparison): the stop condition then no longer holds.
+    """
     dt = problem.params.servo_period
     p = problem.params
     bounds = problem.bounds()
@@ -488,41 +510,34 @@ def _quantise(problem, kind, y, t3, iterations) -> PhaseSolution:
     options = []
     for k, value in enumerate((y[0], y[1], t3)):
         if kind == "double" and k == 0:
-            options.append([0])
+            options.append(np.zeros(1))
             continue
         lo = math.ceil(limits[k][0] / dt - 1e-9)
         hi = math.floor(limits[k][1] / dt + 1e-9)
         base = math.floor(value / dt + 1e-9)
-        options.append(sorted({min(max(n, lo), hi) for n in (base - 1, base, base + 1, base + 2)}))
-    best = None
-    for ticks in itertools.product(*options):
-        t1, t2, t3q = np.array(ticks, float) * dt
-        if p.quantisation == "resolve":
-            z = target_zmp(problem.start, problem.w, t1, t2, t3q, derivatives=False)
-        else:
-            z = y[2]
-        yq = np.array([t1, t2, z])
-        if not _feasible_exact(problem, yq, t3q):
-            continue
-        cost = float(problem.cost_grid(yq, t3q))
-        if best is None or cost < best[0]:
-            best = (cost, yq, t3q)
-    if best is None:
+        options.append(np.array(sorted({min(max(n, lo), hi) for n in range(base - 1, base + 3)}), float) * dt)
+    t1, t2, t3q = (a.ravel() for a in np.meshgrid(*options, indexing="ij"))
+    if p.quantisation == "resolve":
+        z = target_zmp_grid(problem.start, problem.w, t1, t2, t3q)
+    else:
+        z = np.full(t1.shape, y[2])
+    yq = [t1, t2, z]
+    ok = np.ones(t1.shape, bool)
+    for k in range(3):
+        ok &= (yq[k] >= bounds[k, 0] - 1e-12) & (yq[k] <= bounds[k, 1] + 1e-12)
+    for g in problem.constraints_grid(yq, t3q):
+        ok &= g >= -1e-12
+    if not np.any(ok):
         raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
-    cost, yq, t3q = best
-    return PhaseSolution(yq[0], yq[1], t3q, float(yq[2]), cost, iterations, (y[0], y[1], t3, y[2]))
+    cost = np.where(ok, problem.cost_grid(yq, t3q), np.inf)
+    i = int(np.argmin(cost))
+    return PhaseSolution(float(t1[i]), float(t2[i]), float(t3q[i]), float(z[i]), float(cost[i]),
+                         iterations, (y[0], y[1], t3, y[2]))
 
 
 # ---------------------------------------------------------------------------
 # planning
 # ---------------------------------------------------------------------------
-
-def _halt_segment(x3, v3, zmp3, target, duration, w):
-    """Halt ZMP (eq. 27-28): quintic base to the target plus two bumps; COG ends at rest on it."""
-    base = np.eye(6)[0] * zmp3 + (target - zmp3) * lipm.SMOOTHSTEP
-    return lipm.solve_bump_coeffs(base, [lipm.BUMP_A, lipm.BUMP_B], duration, x3, v3, w,
-                                  [("x", target), ("v", 0.0)])
-
 
 _HALT_PROBE = np.linspace(0.0, 1.0, 41)
 
@@ -535,24 +550,52 @@ def _halt_candidates(params):
     return sorted(pairs, key=lambda pair: (pair[0] + pair[1], pair[0]))
 
 
+@functools.lru_cache(maxsize=256)
+def _halt_basis(w: float, shift: float, settle: float):
+    """Unit responses of the halt ZMP shapes (cached: they depend on durations only).
+
+    Shapes over the two halt segments: [from the slowdown ZMP, to the target,
+    free point q, bump A, bump B]. Returns their ZMP coefficients per segment,
+    the COG end state each produces from rest, the homogeneous transition
+    matrix and the shapes sampled at the probe points.
+    """
+    zero = lipm.pad(np.zeros(1))
+    one = lipm.pad([1.0])
+    rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, shift))
+    settle_rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, settle))
+    shapes = [
+        [one - rise, zero],
+        [zero, settle_rise],
+        [rise, one - settle_rise],
+        [zero, lipm.pad(lipm.scale_unit_poly(lipm.BUMP_A, settle))],
+        [zero, lipm.pad(lipm.scale_unit_poly(lipm.BUMP_B, settle))],
+    ]
+    durations = (shift, settle)
+    responses = np.array([lipm.chain_end_state(durations, shape, 0.0, 0.0, w) for shape in shapes])
+    total = shift + settle
+    ch, sh = math.cosh(w * total), math.sinh(w * total)
+    homogeneous = np.array([[ch, sh / w], [w * sh, ch]])
+    samples = np.array([np.concatenate([lipm.poly_eval(c, _HALT_PROBE * d) for d, c in zip(durations, shape)])
+                        for shape in shapes])
+    return np.array(shapes), responses, homogeneous, samples
+
+
+_HALT_WEIGHTS = np.array([10.0, 1.0, 1.0])  # q, bump A, bump B: bumps penalised
+
+
 def _halt_axis(x3, v3, zmp3, target, shift, settle, w):
     """Halt ZMP of one axis (eq. 27-28): a quick shift from the slowdown ZMP to a
     free point ``q``, then a settle segment from ``q`` to ``target`` with two
     bumps. ``q`` and the bump heights solve Harada's two-point boundary-value
-    problem (COG at ``target`` at rest) in the least-norm sense, bumps
-    penalised, so the ZMP moves as little as the COG allows."""
-    zero = np.zeros(1)
-    rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, shift))  # 0 -> 1 over the shift
-    settle_rise = lipm.pad(lipm.scale_unit_poly(lipm.SMOOTHSTEP, settle))
-    base = [zmp3 * (lipm.pad([1.0]) - rise), target * settle_rise]
-    unknowns = [
-        [rise, lipm.pad([1.0]) - settle_rise],  # q
-        [zero, lipm.scale_unit_poly(lipm.BUMP_A, settle)],
-        [zero, lipm.scale_unit_poly(lipm.BUMP_B, settle)],
-    ]
-    coeffs = lipm.solve_chain_bvp([shift, settle], base, unknowns, x3, v3, w, target, 0.0,
-                                  weights=[10.0, 1.0, 1.0])
-    return [shift, settle], coeffs
+    problem (COG at ``target`` at rest) in the weighted least-norm sense, so
+    the ZMP moves as little as the COG allows. Returns (coefficients per
+    segment, ZMP samples at the probe points)."""
+    shapes, responses, homogeneous, samples = _halt_basis(w, shift, settle)
+    free = homogeneous @ np.array([x3, v3]) + zmp3 * responses[0] + target * responses[1]
+    scaled = responses[2:].T * _HALT_WEIGHTS
+    u = _HALT_WEIGHTS * (scaled.T @ np.linalg.solve(scaled @ scaled.T, np.array([target, 0.0]) - free))
+    mix = np.concatenate([[zmp3, target], u])
+    return np.tensordot(mix, shapes, axes=1), mix @ samples
 
 
 def _choose_halt(pre, midpoint, polygon, params, w):
@@ -563,11 +606,9 @@ def _choose_halt(pre, midpoint, polygon, params, w):
     for shift, settle in _halt_candidates(params):
         axes = [_halt_axis(float(e[0][0]), float(e[1][0]), float(e[3][0]), midpoint[a], shift, settle, w)
                 for a, e in enumerate(ends)]
-        zmp = np.stack([np.concatenate([lipm.poly_eval(c, _HALT_PROBE * d) for d, c in zip(*axis)])
-                        for axis in axes], axis=1)
-        margin = float(polygon.margin(zmp).min())
+        margin = float(polygon.margin(np.stack([axes[0][1], axes[1][1]], axis=1)).min())
         if best is None or margin > best[2]:
-            best = ([shift, settle], [axis[1] for axis in axes], margin)
+            best = ([shift, settle], [list(axis[0]) for axis in axes], margin)
         if margin >= params.zmp_margin:
             break
     return best
@@ -714,22 +755,18 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     wall = time.perf_counter()
     dt = params.servo_period
     t0 = snap_to_tick(signal_time, dt)
-    support, index, _ = pattern.support_at(t0)
-    state = pattern.state(t0)
-    if support == "standing":
-        return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
-    if index >= len(pattern.steps):
-        return _finish(_trivial_plan(pattern, state, params, t0, "already-stopping"), wall)
     t = t0
     case = "one-step"
     horizon = t0 + 2.0 * pattern.params.step_time
     while t <= horizon:
         support, index, _ = pattern.support_at(t)
+        state = pattern.state(t)
+        if support == "standing" and t == t0:
+            return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
         if support == "standing" or index >= len(pattern.steps):
-            return _finish(_trivial_plan(pattern, pattern.state(t), params, t0, "already-stopping"), wall)
+            return _finish(_trivial_plan(pattern, state, params, t0, "already-stopping"), wall)
         try:
-            plan = _plan_from(pattern, pattern.state(t), params, t0, case)
-            return _finish(plan, wall)
+            return _finish(_plan_from(pattern, state, params, t0, case), wall)
         except InfeasibleStop:
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"

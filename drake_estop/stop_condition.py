@@ -59,30 +59,80 @@ class StopStart:
         return cls(com + com_vel / w - zmp, com - com_vel / w - zmp, zmp_rate, zmp_accel)
 
 
-def _moments(kappa: float) -> np.ndarray:
-    """Rows: basis; columns: L, L', L'', R, R', R'' (derivatives in kappa)."""
+# moments of the three shapes against u^k, k = 0, 1, 2 (rows: 3 shapes x 3 powers)
+_STACK = np.vstack([_BASIS, _BASIS * _U, _BASIS * _U * _U])
+
+
+def _terms(start: StopStart, w: float, landing: float, transition: float):
+    """Scalars of the closed form at (landing, transition), with the partials the
+    derivatives need: ``(A, A_1, A_2, A_11, A_12, A_22, B, ..., F, F', F'', G, G', G'')``.
+
+    Index 1 is the landing duration, 2 the transition duration; F and G depend
+    on the transition only (primes: d/dT2).
+    """
+    kappa = w * transition
     grow = np.exp(kappa * _U)
-    decay = 1.0 / grow
-    cols = np.stack([grow, grow * _U, grow * _U * _U, decay, decay * _U, decay * _U * _U], axis=1)
-    m = _BASIS @ cols  # (3, 6): M0 M1 M2 P0 P1 P2
-    out = np.empty((3, 6))
-    out[:, 0] = kappa * m[:, 0]
-    out[:, 1] = m[:, 0] + kappa * m[:, 1]
-    out[:, 2] = 2.0 * m[:, 1] + kappa * m[:, 2]
-    out[:, 3] = kappa * m[:, 3]
-    out[:, 4] = m[:, 3] - kappa * m[:, 4]
-    out[:, 5] = -2.0 * m[:, 4] + kappa * m[:, 5]
-    return out
+    mp = (_STACK @ grow).tolist()  # M0(sigma,h1,h2), M1(...), M2(...)
+    mm = (_STACK @ (1.0 / grow)).tolist()
+    ww = w * w
+    # L_b = k M0, L' = M0 + k M1, L'' = 2 M1 + k M2 ; R_b = k P0, R' = P0 - k P1, R'' = -2 P1 + k P2
+    lval = [kappa * mp[b] for b in range(3)]
+    ld1 = [mp[b] + kappa * mp[3 + b] for b in range(3)]
+    ld2 = [2.0 * mp[3 + b] + kappa * mp[6 + b] for b in range(3)]
+    rval = [kappa * mm[b] for b in range(3)]
+    rd1 = [mm[b] - kappa * mm[3 + b] for b in range(3)]
+    rd2 = [-2.0 * mm[3 + b] + kappa * mm[6 + b] for b in range(3)]
+    sl0 = sl1 = sl2 = sr0 = sr1 = sr2 = 0.0
+    # transition responses to the initial ZMP rate / acceleration (rate T2 h1 + accel T2^2 h2)
+    for b, coef, power in ((1, start.zmp_rate / w, 1), (2, start.zmp_accel / ww, 2)):
+        if coef != 0.0:
+            k_p = kappa**power
+            k_p1 = power * kappa ** (power - 1)
+            k_p2 = 2.0 if power == 2 else 0.0
+            sl0 += coef * k_p * lval[b]
+            sl1 += coef * (k_p1 * lval[b] + k_p * ld1[b])
+            sl2 += coef * (k_p2 * lval[b] + 2 * k_p1 * ld1[b] + k_p * ld2[b])
+            sr0 += coef * k_p * rval[b]
+            sr1 += coef * (k_p1 * rval[b] + k_p * rd1[b])
+            sr2 += coef * (k_p2 * rval[b] + 2 * k_p1 * rd1[b] + k_p * rd2[b])
+    e12 = math.exp(w * (landing + transition))
+    p_fwd = e12 * start.dcm
+    p_bwd = start.ccm / e12
+    big_a = (p_fwd - sl0, w * p_fwd, w * p_fwd - w * sl1, ww * p_fwd, ww * p_fwd, ww * p_fwd - ww * sl2)
+    big_b = (p_bwd + sr0, -w * p_bwd, -w * p_bwd + w * sr1, ww * p_bwd, ww * p_bwd, ww * p_bwd + ww * sr2)
+    f = (lval[0] + 1.0, w * ld1[0], ww * ld2[0])
+    g = (rval[0], w * rd1[0], ww * rd2[0])
+    return big_a, big_b, f, g
 
 
-def _scaled(value, d1, d2, kappa, power):
-    """kappa^power * f and its first two kappa-derivatives."""
-    if power == 0:
-        return value, d1, d2
-    k_p = kappa**power
-    k_p1 = power * kappa ** (power - 1)
-    k_p2 = power * (power - 1) * kappa ** (power - 2) if power > 1 else 0.0
-    return k_p * value, k_p1 * value + k_p * d1, k_p2 * value + 2 * k_p1 * d1 + k_p * d2
+def _zmp_from_terms(terms, w: float, slowdown: float, derivatives: bool):
+    big_a, big_b, f, g = terms
+    e3sq = math.exp(2.0 * w * slowdown)
+    num = e3sq * big_a[0] - big_b[0]
+    den = e3sq * f[0] + g[0] - 1.0
+    z = num / den
+    if not derivatives:
+        return z
+    e_1 = 2.0 * w * e3sq
+    e_2 = 2.0 * w * e_1
+    a0, a1, a2, a11, a12, a22 = big_a
+    b0, b1, b2, b11, b12, b22 = big_b
+    num_g = np.array([e3sq * a1 - b1, e3sq * a2 - b2, e_1 * a0])
+    num_h = np.array([
+        [e3sq * a11 - b11, e3sq * a12 - b12, e_1 * a1],
+        [e3sq * a12 - b12, e3sq * a22 - b22, e_1 * a2],
+        [e_1 * a1, e_1 * a2, e_2 * a0],
+    ])
+    den_g = np.array([0.0, e3sq * f[1] + g[1], e_1 * f[0]])
+    den_h = np.array([
+        [0.0, 0.0, 0.0],
+        [0.0, e3sq * f[2] + g[2], e_1 * f[1]],
+        [0.0, e_1 * f[1], e_2 * f[0]],
+    ])
+    grad = (num_g - z * den_g) / den
+    cross = np.outer(grad, den_g)
+    hess = (num_h - cross - cross.T - z * den_h) / den
+    return z, grad, hess
 
 
 def target_zmp(start: StopStart, w: float, landing: float, transition: float, slowdown: float,
@@ -92,55 +142,7 @@ def target_zmp(start: StopStart, w: float, landing: float, transition: float, sl
     Returns ``(Z, grad, hess)`` over (landing, transition, slowdown); with
     ``derivatives=False`` returns ``Z`` only.
     """
-    kappa = w * transition
-    mom = _moments(kappa)
-    e12 = math.exp(w * (landing + transition))
-    e3sq = math.exp(2.0 * w * slowdown)
-    p_fwd = e12 * start.dcm
-    p_bwd = start.ccm / e12
-    # transition responses to the initial ZMP rate / acceleration (rate * T2 * h1 + accel * T2^2 * h2)
-    c1, c2 = start.zmp_rate / w, start.zmp_accel / (w * w)
-    sl = [0.0, 0.0, 0.0]
-    sr = [0.0, 0.0, 0.0]
-    for row, coef, power in ((1, c1, 1), (2, c2, 2)):
-        if coef != 0.0:
-            lv = _scaled(mom[row, 0], mom[row, 1], mom[row, 2], kappa, power)
-            rv = _scaled(mom[row, 3], mom[row, 4], mom[row, 5], kappa, power)
-            for i in range(3):
-                sl[i] += coef * lv[i]
-                sr[i] += coef * rv[i]
-    big_a = p_fwd - sl[0]
-    big_b = p_bwd + sr[0]
-    f0, f1, f2 = mom[0, 0] + 1.0, mom[0, 1], mom[0, 2]
-    g0, g1, g2 = mom[0, 3], mom[0, 4], mom[0, 5]
-    num = e3sq * big_a - big_b
-    den = e3sq * f0 + g0 - 1.0
-    z = num / den
-    if not derivatives:
-        return z
-    ww = w * w
-    # partials of A, B: index 0 landing, 1 transition (d/dT2 = w d/dkappa)
-    a_1 = [w * p_fwd, w * p_fwd - w * sl[1]]
-    a_2 = [[ww * p_fwd, ww * p_fwd], [ww * p_fwd, ww * p_fwd - ww * sl[2]]]
-    b_1 = [-w * p_bwd, -w * p_bwd + w * sr[1]]
-    b_2 = [[ww * p_bwd, ww * p_bwd], [ww * p_bwd, ww * p_bwd + ww * sr[2]]]
-    e_1 = 2.0 * w * e3sq
-    e_2 = 4.0 * ww * e3sq
-    num_g = np.array([e3sq * a_1[0] - b_1[0], e3sq * a_1[1] - b_1[1], e_1 * big_a])
-    num_h = np.array([
-        [e3sq * a_2[0][0] - b_2[0][0], e3sq * a_2[0][1] - b_2[0][1], e_1 * a_1[0]],
-        [e3sq * a_2[1][0] - b_2[1][0], e3sq * a_2[1][1] - b_2[1][1], e_1 * a_1[1]],
-        [e_1 * a_1[0], e_1 * a_1[1], e_2 * big_a],
-    ])
-    den_g = np.array([0.0, e3sq * w * f1 + w * g1, e_1 * f0])
-    den_h = np.array([
-        [0.0, 0.0, 0.0],
-        [0.0, e3sq * ww * f2 + ww * g2, e_1 * w * f1],
-        [0.0, e_1 * w * f1, e_2 * f0],
-    ])
-    grad = (num_g - z * den_g) / den
-    hess = (num_h - np.outer(grad, den_g) - np.outer(den_g, grad) - z * den_h) / den
-    return z, grad, hess
+    return _zmp_from_terms(_terms(start, w, landing, transition), w, slowdown, derivatives)
 
 
 def target_zmp_grid(start: StopStart, w: float, landing, transition, slowdown) -> np.ndarray:
@@ -188,21 +190,30 @@ def slowdown_time_grid(start: StopStart, w: float, landing, transition, target):
         return np.where(ratio >= 1.0, np.log(np.where(ratio > 0, ratio, 1.0)) / (2.0 * w), np.nan)
 
 
-def slowdown_time(start: StopStart, w: float, landing: float, transition: float, target: float):
+def slowdown_time(start: StopStart, w: float, landing: float, transition: float, target: float,
+                  derivatives: bool = True):
     """:func:`slowdown_time_grid` at one point, with gradient and Hessian in
     (landing, transition, target) by implicit differentiation of Z(T1, T2, T3) = target.
 
-    Returns ``(T3, grad, hess)``; ``T3`` is NaN (and the derivatives zero) where infeasible.
+    Returns ``(T3, grad, hess)`` (``T3`` alone with ``derivatives=False``);
+    ``T3`` is NaN (and the derivatives zero) where infeasible.
     """
-    t3 = float(slowdown_time_grid(start, w, landing, transition, target))
-    if not math.isfinite(t3):
-        return t3, np.zeros(3), np.zeros((3, 3))
-    _, zg, zh = target_zmp(start, w, landing, transition, t3)
+    terms = _terms(start, w, landing, transition)
+    big_a, big_b, f, g = terms
+    denominator = big_a[0] - target * f[0]
+    ratio = (big_b[0] + target * (g[0] - 1.0)) / denominator if denominator != 0.0 else -1.0
+    if not ratio >= 1.0:
+        return float("nan") if not derivatives else (float("nan"), np.zeros(3), np.zeros((3, 3)))
+    t3 = math.log(ratio) / (2.0 * w)
+    if not derivatives:
+        return t3
+    _, zg, zh = _zmp_from_terms(terms, w, t3, True)
     z3 = zg[2]
     fg = np.array([zg[0], zg[1], -1.0])
     f3 = np.array([zh[0, 2], zh[1, 2], 0.0])
     fh = np.zeros((3, 3))
     fh[:2, :2] = zh[:2, :2]
     grad = -fg / z3
-    hess = -(fh + np.outer(f3, grad) + np.outer(grad, f3) + zh[2, 2] * np.outer(grad, grad)) / z3
+    cross = np.outer(f3, grad)
+    hess = -(fh + cross + cross.T + zh[2, 2] * np.outer(grad, grad)) / z3
     return t3, grad, hess
