@@ -480,7 +480,8 @@ def _grid_start(problem, kind):
     return np.array([axis[i] for axis in y]), float(cost[i])
 
 
-def _solve(problem, kind) -> PhaseSolution:
+def solve_continuous(problem, kind):
+    """Interior-point Newton optimum before quantisation: ``(y, t3, cost, iterations)``."""
     start = _grid_start(problem, kind)
     if start is None:
         raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
@@ -492,7 +493,12 @@ def _solve(problem, kind) -> PhaseSolution:
                             mu_final=problem.params.cost_tolerance * scale / m)
     y = problem.full(result.x)
     t3 = float(problem.slowdown(y))
-    return _quantise(problem, kind, y, t3, result.iterations)
+    return y, t3, float(problem.cost_grid(y, t3)), result.iterations
+
+
+def _solve(problem, kind) -> PhaseSolution:
+    y, t3, _, iterations = solve_continuous(problem, kind)
+    return _quantise(problem, kind, y, t3, iterations)
 
 
 def _quantise(problem, kind, y, t3, iterations) -> PhaseSolution:
@@ -644,32 +650,47 @@ def _zmp_segments(state, solution, targets, kind):
     return segs
 
 
-def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case):
+def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParameters):
+    """The phase-parameter problem (III.A or III.B) from ``state``.
+
+    Returns ``(problem, kind, context)`` with ``kind`` "single" or "double";
+    ``context`` carries the feet the plan needs. Exposed for reference solves.
+    """
     w = pattern.w
     sole = pattern.params.sole
     kind = state.support
     start = StopStart.from_state(state.com[0], state.com_vel[0], state.zmp[0], w,
                                  state.zmp_rate[0] if kind == "double" else 0.0,
                                  state.zmp_accel[0] if kind == "double" else 0.0)
-    t_solve = time.perf_counter()
     if kind == "single":
         support = state.support_foot
         swing = "right" if support == "left" else "left"
         problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
                                         state.feet[swing][:2].copy(), float(state.next_landing[1]))
-        solution = _solve(problem, "single")
+        return problem, kind, {"support": support, "swing": swing}
+    rear = state.rear_foot or "right"
+    fore = "left" if rear == "right" else "right"
+    fore_x = state.feet[fore][0]
+    low = fore_x - sole.heel + params.zmp_margin - state.zmp[0]
+    high = fore_x + sole.toe - params.zmp_margin - state.zmp[0]
+    return _DoubleSupportProblem(start, w, params, low, high), kind, {"fore": fore}
+
+
+def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case):
+    w = pattern.w
+    sole = pattern.params.sole
+    t_solve = time.perf_counter()
+    problem, kind, feet = stop_problem(pattern, state, params)
+    solution = _solve(problem, kind)
+    if kind == "single":
+        support, swing = feet["support"], feet["swing"]
         landing_xy = np.array([state.zmp[0] + solution.target, state.next_landing[1]])
         final_feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
         fore_xy, fore_side = landing_xy, swing
         landing_foot = swing
     else:
-        rear = state.rear_foot or "right"
-        fore = "left" if rear == "right" else "right"
-        fore_xy, fore_side = state.feet[fore][:2].copy(), fore
-        low = fore_xy[0] - sole.heel + params.zmp_margin - state.zmp[0]
-        high = fore_xy[0] + sole.toe - params.zmp_margin - state.zmp[0]
-        problem = _DoubleSupportProblem(start, w, params, low, high)
-        solution = _solve(problem, "double")
+        fore_side = feet["fore"]
+        fore_xy = state.feet[fore_side][:2].copy()
         final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
         landing_xy, landing_foot = None, None
     solve_time = time.perf_counter() - t_solve

@@ -1,0 +1,126 @@
+"""Command line: ``drake-estop simulate`` (walk, latch the stop, log and summarise)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop
+from drake_estop.rollout import rollout, stop_metrics, write_log, write_summary
+
+_GAIT = GaitParameters()
+_STOP = StopParameters()
+
+
+def _add_simulate(sub):
+    p = sub.add_parser(
+        "simulate",
+        help="walk the nominal pattern, latch an emergency stop, write a log and a summary",
+        description="Walk the nominal pattern, latch the emergency stop at --estop-time (sampled at the "
+                    "next servo tick) and plan the four-phase stop (Morisawa et al. 2005). Writes a "
+                    "per-tick CSV log and a JSON summary.",
+    )
+    g = p.add_argument_group("gait (paper Section V defaults)")
+    g.add_argument("--step-length", type=float, default=_GAIT.step_length,
+                   help="nominal step length [m] (default %(default)s)")
+    g.add_argument("--step-time", type=float, default=_GAIT.step_time,
+                   help="nominal step cycle, single + double support [s] (default %(default)s)")
+    g.add_argument("--step-width", type=float, default=_GAIT.step_width,
+                   help="lateral distance between the ankles [m] (default %(default)s)")
+    g.add_argument("--double-support-ratio", type=float, default=_GAIT.double_support_ratio,
+                   help="share of the step cycle in double support (default %(default)s)")
+    g.add_argument("--com-height", type=float, default=_GAIT.com_height,
+                   help="COG height of the LIPM [m] (default %(default)s, HRP-2's walking pattern)")
+    g.add_argument("--num-steps", type=int, default=_GAIT.num_steps,
+                   help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
+    s = p.add_argument_group("stop")
+    s.add_argument("--estop-time", type=float, default=3.4,
+                   help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
+    s.add_argument("--servo-period", type=float, default=_STOP.servo_period,
+                   help="servo / control period [s]; phase boundaries fall on its ticks (default %(default)s)")
+    s.add_argument("--no-crouch", action="store_true", help="keep the COG height constant (no IV.A crouch)")
+    s.add_argument("--crouch-depth", type=float, default=_STOP.crouch_depth,
+                   help="COG lowering during the stop [m] (default %(default)s)")
+    s.add_argument("--a-ss", type=float, default=_STOP.a_ss, help="J_ss swing-speed weight (eq. 24)")
+    s.add_argument("--b-ss", type=float, default=_STOP.b_ss, help="J_ss double-support-time weight (eq. 24)")
+    s.add_argument("--a-ds", type=float, default=_STOP.a_ds, help="J_ds ZMP-displacement weight (eq. 30)")
+    s.add_argument("--b-ds", type=float, default=_STOP.b_ds, help="J_ds double-support-time weight (eq. 30)")
+    s.add_argument("--max-step-length", type=float, default=_STOP.max_step_length,
+                   help="longest landing step from the support ankle [m] (default %(default)s)")
+    s.add_argument("--max-swing-speed", type=float, default=_STOP.max_swing_speed,
+                   help="mean swing-ankle speed limit to the landing point [m/s] (default %(default)s)")
+    s.add_argument("--quantisation", choices=("resolve", "round"), default="resolve",
+                   help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
+                        "'round' only rounds the times, as in the paper")
+    o = p.add_argument_group("output")
+    o.add_argument("--log", metavar="FILE.csv", help="per-servo-tick log (runs >= 1 s past the halt)")
+    o.add_argument("--summary", metavar="FILE.json", help="JSON summary of the stop")
+    o.add_argument("--after-halt", type=float, default=1.0,
+                   help="seconds logged after the end of the halt (default %(default)s, at least 1)")
+    p.set_defaults(func=_simulate)
+
+
+def _parameters(args):
+    gait = GaitParameters(
+        com_height=args.com_height, step_length=args.step_length, step_width=args.step_width,
+        step_time=args.step_time, double_support_ratio=args.double_support_ratio, num_steps=args.num_steps,
+    )
+    stop = StopParameters(
+        a_ss=args.a_ss, b_ss=args.b_ss, a_ds=args.a_ds, b_ds=args.b_ds, servo_period=args.servo_period,
+        max_step_length=args.max_step_length, max_swing_speed=args.max_swing_speed,
+        crouch=not args.no_crouch, crouch_depth=args.crouch_depth, quantisation=args.quantisation,
+    )
+    if gait.step_length > stop.max_step_length:
+        raise ValueError(f"step_length {gait.step_length} m exceeds max_step_length {stop.max_step_length} m")
+    if gait.step_length < 0:
+        raise ValueError(f"step_length must be >= 0, got {gait.step_length}")
+    if args.after_halt < 1.0 or not math.isfinite(args.after_halt):
+        raise ValueError(f"after_halt must be at least 1 s, got {args.after_halt}")
+    return gait, stop
+
+
+def _simulate(args) -> int:
+    gait, stop = _parameters(args)
+    pattern = NominalPattern(gait)
+    if not (math.isfinite(args.estop_time) and 0.0 <= args.estop_time <= pattern.end_time):
+        raise ValueError(f"estop_time {args.estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
+    plan = plan_stop(pattern, args.estop_time, stop)
+    data = rollout(plan, after_halt=args.after_halt)
+    summary = plan.summary()
+    summary["metrics"] = stop_metrics(plan, data)
+    if args.log:
+        write_log(args.log, data)
+    if args.summary:
+        write_summary(args.summary, summary)
+    times = summary["phase_times"]
+    print(f"stop signal {plan.signal_time:.3f} s in {plan.support} support -> {plan.case}; "
+          f"landing {times['landing_end']:.3f}, transition {times['transition_end']:.3f}, "
+          f"slowdown {times['slowdown_end']:.3f}, halt {times['halt_end']:.3f} s; "
+          f"plan {plan.compute_time * 1e3:.2f} ms, {plan.newton_iterations} Newton iterations")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="drake-estop",
+        description="Emergency stop for walking humanoids (Morisawa et al., IROS 2005) on Drake.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_simulate(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, InfeasibleStop, FileNotFoundError) as error:
+        print(f"drake-estop: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

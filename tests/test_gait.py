@@ -1,0 +1,57 @@
+"""Nominal walking pattern: eq. 4 within 1 mm, bounded, ends at rest, ZMP inside the soles."""
+
+import numpy as np
+import pytest
+
+from drake_estop.checks import lipm_tracking_error
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.geometry import SupportPolygon
+
+
+def test_pattern_satisfies_lipm_by_independent_integration(pattern):
+    t = np.arange(0.0, pattern.end_time + 0.5, 0.005)
+    pos, vel, _, zmp = pattern.com(t)
+    for axis in (0, 1):
+        assert lipm_tracking_error(t, pos[:, axis], vel[:, axis], zmp[:, axis], pattern.w) < 1e-3
+
+
+def test_pattern_starts_and_ends_at_rest(pattern):
+    pos, vel, _, zmp = pattern.com([0.0, pattern.end_time, pattern.end_time + 2.0])
+    assert np.abs(vel).max() < 1e-8
+    mid = 0.5 * (pattern.final_feet["left"] + pattern.final_feet["right"])
+    np.testing.assert_allclose(pos[1:], [mid, mid], atol=1e-8)
+    np.testing.assert_allclose(zmp[1:], [mid, mid], atol=1e-8)
+
+
+def test_pattern_zmp_inside_support_polygon(pattern):
+    sole = pattern.params.sole
+    for t in np.arange(0.0, pattern.end_time, 0.005):
+        feet = pattern.feet_at(t)[0]
+        support, _, side = pattern.support_at(t)
+        sides = [side] if support == "single" else ["left", "right"]
+        poly = SupportPolygon(np.vstack([sole.corners(feet[s][:2], s) for s in sides]))
+        zmp = pattern.com(t)[3]
+        assert poly.margin(zmp)[0] >= -1e-9, t
+
+
+def test_swing_foot_lands_at_rest(pattern):
+    step = pattern.steps[3]
+    _, vel, _ = pattern.feet_at(step["touchdown"] - 1e-6)
+    assert np.abs(vel[step["swing"]]).max() < 1e-3
+    pos = pattern.feet_at(step["touchdown"])[0]
+    np.testing.assert_allclose(pos[step["swing"]][:2], step["end"])
+
+
+@pytest.mark.parametrize("name, value", [("com_height", 0.0), ("step_time", -1.0), ("com_height", float("nan")),
+                                         ("double_support_ratio", 1.0), ("num_steps", 1)])
+def test_bad_gait_parameters_name_the_parameter(name, value):
+    with pytest.raises(ValueError, match=name):
+        GaitParameters(**{name: value})
+
+
+def test_other_gaits_build(pattern):
+    for params in (GaitParameters(step_length=0.15), GaitParameters(step_time=1.2, double_support_ratio=0.3)):
+        p = NominalPattern(params)
+        t = np.arange(0, p.end_time, 0.01)
+        pos, _, acc, zmp = p.com(t)
+        np.testing.assert_allclose(zmp, pos - acc / p.w**2, atol=1e-9)
