@@ -199,7 +199,7 @@ class NominalPattern:
                 0.0,
                 [p.initial_shift_time] + durations + [p.final_shift_time, 1.0],
                 [init] + coeffs + [final, hold],
-                mid0[axis], 0.0, self.w,
+                mid0[axis], 0.0, self.w, rest_tail=True,
             )
             self.trajectories.append(traj)
 

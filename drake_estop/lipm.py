@@ -127,7 +127,16 @@ class LipmTrajectory:
     w: float
 
     @classmethod
-    def from_zmp(cls, start_time, durations, zmp_coeffs, x0, v0, w):
+    def from_zmp(cls, start_time, durations, zmp_coeffs, x0, v0, w, rest_tail=False):
+        """Chain segments from the COG state (x0, v0) at ``start_time``.
+
+        ``rest_tail=True`` states that a boundary-value solve (eq. 27-28) put
+        the COG at rest on the last segment's constant ZMP: its homogeneous
+        part is then set to zero so the rest is exact forever (the unstable
+        LIPM would otherwise amplify the rounding residue by ``exp(w t)``).
+        A residue above 1e-4 (m, m/s) means the solve did not reach rest and
+        raises instead of being hidden.
+        """
         durations = np.asarray(durations, dtype=float)
         breaks = start_time + np.concatenate([[0.0], np.cumsum(durations)])
         zmp = np.array([pad(c) for c in zmp_coeffs])
@@ -141,6 +150,11 @@ class LipmTrajectory:
             ch, sh = math.cosh(w * durations[k]), math.sinh(w * durations[k])
             x = big_v[k] * ch + big_w[k] * sh + float(poly_eval(cog_poly[k], durations[k]))
             v = w * (big_v[k] * sh + big_w[k] * ch) + float(poly_eval(cog_poly[k], durations[k], 1))
+        if rest_tail:
+            residue = max(abs(big_v[-1]), abs(big_w[-1]) * w)
+            if np.any(zmp[-1, 1:] != 0.0) or residue > 1e-4:
+                raise ValueError(f"COG does not arrive at rest on the final ZMP (residue {residue:.2e})")
+            big_v[-1] = big_w[-1] = 0.0
         return cls(breaks, zmp, cog_poly, big_v, big_w, w)
 
     @property

@@ -170,7 +170,8 @@ class StopPlan:
         """COG height, vertical velocity and acceleration: quintic crouch (IV.A)."""
         times = np.atleast_1d(np.asarray(times, float))
         z0 = self.pattern.params.com_height
-        depth = self.params.crouch_depth if (self.params.crouch and self.x is not None) else 0.0
+        moving = self.x is not None and self.case != "standing"
+        depth = self.params.crouch_depth if (self.params.crouch and moving) else 0.0
         if depth == 0.0:
             zeros = np.zeros_like(times)
             return z0 + zeros, zeros, zeros.copy()
@@ -199,6 +200,8 @@ class StopPlan:
         if t < self.start_time or self.x is None:
             return self.pattern.upper_body(t)
         q0, qd0 = self.start_state.upper_body, self.start_state.upper_body_rate
+        if self.case == "standing":
+            return q0.copy(), np.zeros_like(q0)
         span = self.slowdown_end - self.start_time
         if t <= self.slowdown_end:
             tau = t - self.start_time
@@ -713,7 +716,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     x_traj, y_traj = (
         lipm.LipmTrajectory.from_zmp(t0, list(d) + halt_durations + [1.0],
                                      list(c) + list(hc) + [lipm.pad([midpoint[a]])],
-                                     state.com[a], state.com_vel[a], w)
+                                     state.com[a], state.com_vel[a], w, rest_tail=True)
         for a, ((d, c), hc) in enumerate(zip(segs, halt_coeffs)))
     plan = StopPlan(
         signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
@@ -752,13 +755,18 @@ def _verify_zmp(plan: StopPlan) -> float:
 
 
 def _trivial_plan(pattern, state, params, signal_time, case):
+    """Standing still: hold the current state. Final shift: the nominal walk already stops."""
     end = state.time if case == "standing" else pattern.end_time
     feet = pattern.feet_at(end)[0]
+    axes = (None, None)
+    if case == "standing":
+        axes = tuple(lipm.LipmTrajectory.from_zmp(end, [1.0], [lipm.pad([state.com[a]])], state.com[a], 0.0,
+                                                  pattern.w, rest_tail=True) for a in (0, 1))
     return StopPlan(
         signal_time=signal_time, start_time=end, case=case, support=pattern.support_at(signal_time)[0],
         start_support="standing", landing_time=end, transition_end=end, slowdown_end=end, halt_end=end,
         step_length=None, zmp_max=None, landing_foot=None, landing_position=None,
-        final_feet={k: v[:2].copy() for k, v in feet.items()}, x=None, y=None, pattern=pattern,
+        final_feet={k: v[:2].copy() for k, v in feet.items()}, x=axes[0], y=axes[1], pattern=pattern,
         params=params, start_state=state, cost=0.0,
     )
 

@@ -1,0 +1,347 @@
+"""Drake LeafSystems of the emergency stop: pattern source, trigger, planner.
+
+* :class:`WalkingPatternSource` plays the nominal walking pattern
+  (:class:`drake_estop.gait.NominalPattern`) at the context time.
+* :class:`EStopTrigger` latches the stop signal once, from a scheduled time,
+  an input port or a Meshcat button (the "emergency stop" a person presses).
+* :class:`StopPlannerSystem` plays the nominal pattern until it sees the latch,
+  then calls :func:`drake_estop.planner.plan_stop` once (Fig. 7 of the paper:
+  the four-phase stop is planned in real time at the servo tick of the
+  signal) and keeps the :class:`~drake_estop.planner.StopPlan` in an abstract
+  state of its Context; from then on it plays the plan.
+
+Reference layout shared by the two reference sources (all world frame, SI):
+``com`` (3) x, y, z of the COG; ``com_vel`` (3); ``zmp`` (2);
+``left_foot`` / ``right_foot`` (7) sole-frame pose ``[x, y, z, qw, qx, qy,
+qz]`` -- the sole frame lies directly below the ankle, so its xy is the ankle
+xy and its z is the ankle *lift* (the sole is on the floor at z = 0), which is
+what :class:`drake_estop.ik.WholeBodyIK` expects; ``upper_body`` (18) joint
+targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
+``ARM_JOINTS`` written in, every other upper-body joint at 0); ``arm_joints``
+(4) the same arm angles in ``ARM_JOINTS`` order.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
+
+from drake_estop.gait import ARM_JOINTS, NominalPattern
+from drake_estop.model import UPPER_BODY_JOINTS
+from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop
+
+#: Sizes of the reference outputs, in the order they sit in the cached vector.
+REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
+                    ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
+                    ("arm_joints", len(ARM_JOINTS)), ("phase", 1))
+_SLICES = {}
+_start = 0
+for _name, _size in REFERENCE_LAYOUT:
+    _SLICES[_name] = slice(_start, _start + _size)
+    _start += _size
+REFERENCE_SIZE = _start
+_ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
+_LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # the soles stay level (straight walk)
+_WALKING = float(PHASES.index("walking"))
+
+
+def upper_body_vector(arm_q):
+    """18-vector in UPPER_BODY_JOINTS order with ``arm_q`` (ARM_JOINTS order)."""
+    out = np.zeros(len(UPPER_BODY_JOINTS))
+    out[_ARM_IN_UPPER] = arm_q
+    return out
+
+
+def sole_pose(ankle):
+    """Sole pose 7-vector from an ankle ``(x, y, lift)``: the sole is at z = lift."""
+    return np.concatenate([np.asarray(ankle, float)[:3], _LEVEL])
+
+
+def reference_vector(t, *, pattern, plan=None):
+    """All reference outputs at time ``t`` as one REFERENCE_SIZE vector.
+
+    Before the plan starts (or without a plan) this is the nominal pattern;
+    the plan's evaluation functions return the nominal pattern before its
+    start, so the switch is continuous.
+    """
+    source = plan if plan is not None else pattern
+    pos, vel, _, zmp = source.com([t])
+    if plan is not None:
+        z, zd, _ = plan.com_height([t])
+        feet = plan.feet(t)
+        phase = float(PHASES.index(plan.phase(t)))
+    else:
+        z, zd = [pattern.params.com_height], [0.0]
+        feet = pattern.feet_at(t)[0]
+        phase = _WALKING
+    arm_q = source.upper_body(t)[0]
+    return np.concatenate([
+        pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"]),
+        sole_pose(feet["right"]), upper_body_vector(arm_q), arm_q, [phase]])
+
+
+class _ReferenceSystem(LeafSystem):
+    """Base: a cached reference vector and one output port per entry."""
+
+    def _declare_reference_outputs(self, prerequisites):
+        """Cache the reference per context and declare its output ports."""
+        self._reference = self.DeclareCacheEntry(
+            "reference",
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(REFERENCE_SIZE)),
+                          calc=self._calc_reference_value),
+            prerequisites)
+        for name, size in REFERENCE_LAYOUT:
+            port = self.DeclareVectorOutputPort(
+                name, size, self._output_calc(_SLICES[name]),
+                prerequisites_of_calc={self._reference.ticket()})
+            setattr(self, f"{name}_port", port)
+
+    def _calc_reference_value(self, context, value):
+        value.set_value(self._calc_reference(context))
+
+    def _output_calc(self, entries):
+        def calc(context, output):
+            reference = self._reference.Eval(context)
+            output.SetFromVector(reference[entries])
+        return calc
+
+    def _calc_reference(self, context):
+        raise NotImplementedError
+
+    def reference(self, context):
+        """The whole cached reference vector (REFERENCE_LAYOUT order)."""
+        return self._reference.Eval(context)
+
+
+class WalkingPatternSource(_ReferenceSystem):
+    """The nominal walking pattern sampled at the context time (no state).
+
+    .. pydrake_system::
+
+        name: WalkingPatternSource
+        output_ports:
+        - com
+        - com_vel
+        - zmp
+        - left_foot
+        - right_foot
+        - upper_body
+        - arm_joints
+        - phase
+
+    See the module docstring for the port layouts; ``phase`` is always the
+    index of "walking" in ``PHASES``.
+    """
+
+    def __init__(self, *, pattern: NominalPattern):
+        super().__init__()
+        self._pattern = pattern
+        self._declare_reference_outputs({self.time_ticket()})
+
+    @property
+    def pattern(self):
+        return self._pattern
+
+    def _calc_reference(self, context):
+        return reference_vector(context.get_time(), pattern=self._pattern)
+
+
+class EStopTrigger(LeafSystem):
+    """Latches the emergency-stop signal once, at a servo tick.
+
+    Sources, checked every ``servo_period``: (a) ``scheduled_time`` (the
+    first tick at or after it), (b) the optional ``stop_request`` input port
+    (any element > 0.5 requests the stop; leave it unconnected to ignore it),
+    (c) a Meshcat button ``button_name`` (a click since the context was
+    initialized).  The first request latches ``[1, t_tick]``; later requests
+    and presses change nothing.
+
+    .. pydrake_system::
+
+        name: EStopTrigger
+        input_ports:
+        - stop_request
+        output_ports:
+        - stop
+
+    State: discrete ``[latched, latch_time]`` plus the button's click count
+    at initialization (so a reused Meshcat button does not fire at once).
+    """
+
+    def __init__(self, *, servo_period, scheduled_time=None, meshcat=None,
+                 button_name="Emergency stop", request_size=1):
+        super().__init__()
+        self._period = float(servo_period)
+        self._scheduled = None if scheduled_time is None else float(scheduled_time)
+        self._meshcat = meshcat
+        self._button = button_name
+        if meshcat is not None:
+            meshcat.AddButton(button_name)
+        self._latch_state = self.DeclareDiscreteState(np.array([0.0, np.nan]))
+        self._clicks_state = self.DeclareDiscreteState(1)
+        self.stop_request_port = self.DeclareVectorInputPort("stop_request", request_size)
+        self.stop_port = self.DeclareStateOutputPort("stop", self._latch_state)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
+
+    @property
+    def button_name(self):
+        return self._button
+
+    def _clicks(self):
+        return 0 if self._meshcat is None else self._meshcat.GetButtonClicks(self._button)
+
+    def _initialize(self, context, discrete_state):
+        """Remember the button's click count when the simulation starts."""
+        discrete_state.set_value(self._clicks_state, [float(self._clicks())])
+        return EventStatus.Succeeded()
+
+    def _requested(self, context):
+        """True when any source asks for the stop at this tick."""
+        t = context.get_time()
+        if self._scheduled is not None and t >= self._scheduled - 1e-6 * self._period:
+            return True
+        if self.stop_request_port.HasValue(context) and np.any(
+                self.stop_request_port.Eval(context) > 0.5):
+            return True
+        baseline = context.get_discrete_state(self._clicks_state).value()[0]
+        return self._clicks() > baseline
+
+    def _update(self, context, discrete_state):
+        """Latch once; afterwards every request is ignored."""
+        if context.get_discrete_state(self._latch_state).value()[0] > 0.5:
+            return EventStatus.DidNothing()
+        if not self._requested(context):
+            return EventStatus.DidNothing()
+        discrete_state.set_value(self._latch_state, [1.0, context.get_time()])
+        return EventStatus.Succeeded()
+
+    @staticmethod
+    def latched(stop):
+        """(latched, latch_time) of a ``stop`` port value."""
+        return bool(stop[0] > 0.5), float(stop[1])
+
+
+class _PlanHandle:
+    """Holder of an immutable StopPlan inside a ``Value[object]``.
+
+    Drake clones abstract state (``copy.deepcopy`` for Python objects) every
+    time the Simulator prepares an unrestricted update; a plan is never
+    mutated after it is made, so sharing it is safe and keeps the tick cheap.
+    """
+
+    __slots__ = ("plan", "wall_time")
+
+    def __init__(self, plan=None, wall_time=float("nan")):
+        self.plan = plan
+        self.wall_time = wall_time
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __copy__(self):
+        return self
+
+
+class StopPlannerSystem(_ReferenceSystem):
+    """Nominal pattern until the stop latches, then the four-phase stop.
+
+    Every ``params.servo_period`` an unrestricted update reads ``stop``; on
+    the first tick that sees ``[1, t_signal]`` it calls
+    ``plan_stop(pattern, t_signal, params)`` (the plan starts at the servo
+    tick of the signal, from the nominal state there) and stores the plan in
+    the abstract state.  Outputs are functions of time and that state.
+
+    .. pydrake_system::
+
+        name: StopPlannerSystem
+        input_ports:
+        - stop
+        output_ports:
+        - com
+        - com_vel
+        - zmp
+        - left_foot
+        - right_foot
+        - upper_body
+        - arm_joints
+        - phase
+
+    ``phase`` is the index into ``PHASES``.  If no feasible stop exists the
+    update fails and the Simulator raises with the planner's message.
+    """
+
+    def __init__(self, *, pattern: NominalPattern, params: StopParameters):
+        super().__init__()
+        self._pattern = pattern
+        self._params = params
+        self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
+        self.stop_port = self.DeclareVectorInputPort("stop", 2)
+        self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, self._update)
+
+    @property
+    def pattern(self):
+        return self._pattern
+
+    @property
+    def params(self):
+        return self._params
+
+    def _handle(self, context):
+        return context.get_abstract_state(self._plan_state).get_value()
+
+    def plan(self, context):
+        """The StopPlan stored in ``context`` (None before the latch)."""
+        return self._handle(context).plan
+
+    def plan_wall_time(self, context):
+        """Wall-clock seconds the update spent in ``plan_stop`` (nan before)."""
+        return self._handle(context).wall_time
+
+    def _update(self, context, state):
+        """Plan once, on the first tick that sees the latched stop."""
+        if self.plan(context) is not None:
+            return EventStatus.DidNothing()
+        latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
+        if not latched:
+            return EventStatus.DidNothing()
+        start = time.perf_counter()
+        try:
+            plan = plan_stop(self._pattern, signal_time, self._params)
+        except (InfeasibleStop, ValueError) as error:
+            return EventStatus.Failed(self, f"stop planning failed: {error}")
+        handle = _PlanHandle(plan, time.perf_counter() - start)
+        state.get_mutable_abstract_state(self._plan_state).set_value(handle)
+        return EventStatus.Succeeded()
+
+    def _calc_reference(self, context):
+        return reference_vector(context.get_time(), pattern=self._pattern,
+                                plan=self.plan(context))
+
+
+def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
+                        button_name="Emergency stop"):
+    """Add an EStopTrigger and a StopPlannerSystem wired together.
+
+    Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
+    left unconnected (export or connect it for an external stop source).
+    """
+    trigger = builder.AddNamedSystem("estop_trigger", EStopTrigger(
+        servo_period=params.servo_period, scheduled_time=estop_time,
+        meshcat=meshcat, button_name=button_name))
+    planner = builder.AddNamedSystem("stop_planner", StopPlannerSystem(
+        pattern=pattern, params=params))
+    builder.Connect(trigger.stop_port, planner.stop_port)
+    return trigger, planner
+
+
+def connect_reference(builder, source, ik):
+    """Connect a reference source's com / feet / upper_body to WholeBodyIK."""
+    builder.Connect(source.com_port, ik.com_port)
+    builder.Connect(source.left_foot_port, ik.left_foot_port)
+    builder.Connect(source.right_foot_port, ik.right_foot_port)
+    builder.Connect(source.upper_body_port, ik.upper_body_port)

@@ -1,0 +1,67 @@
+"""drake-estop simulate: log, summary, help and clear errors."""
+
+import csv
+import json
+
+import pytest
+
+from drake_estop.cli import main
+from drake_estop.planner import PHASES
+
+REQUIRED = ["t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "zmp_x", "zmp_y", "phase"]
+
+
+def test_simulate_writes_log_and_summary(tmp_path):
+    log, summary = tmp_path / "log.csv", tmp_path / "summary.json"
+    assert main(["simulate", "--estop-time", "3.4", "--log", str(log), "--summary", str(summary)]) == 0
+    rows = list(csv.DictReader(open(log)))
+    assert set(REQUIRED) <= set(rows[0])
+    assert {row["phase"] for row in rows} == set(PHASES)
+    data = json.load(open(summary))
+    for key in ("estop_time", "support", "case", "phase_times", "step_length", "landing_position",
+                "final_feet", "sole", "newton_iterations", "plan_compute_time_s"):
+        assert key in data
+    assert data["support"] == "single" and data["case"] == "one-step"
+    halt_end = data["phase_times"]["halt_end"]
+    assert float(rows[-1]["t"]) >= halt_end + 1.0 - 1e-9
+    dt = float(rows[1]["t"]) - float(rows[0]["t"])
+    assert dt == pytest.approx(0.005)
+    last = rows[-1]
+    assert abs(float(last["com_vx"])) < 1e-3 and abs(float(last["com_vy"])) < 1e-3
+
+
+def test_no_crouch_keeps_height(tmp_path):
+    log = tmp_path / "log.csv"
+    assert main(["simulate", "--estop-time", "3.5", "--no-crouch", "--log", str(log)]) == 0
+    heights = {float(row["com_z"]) for row in csv.DictReader(open(log))}
+    assert heights == {0.814}
+
+
+@pytest.mark.parametrize("args, name", [
+    (["--com-height", "0"], "com_height"),
+    (["--servo-period", "-1"], "servo_period"),
+    (["--a-ss", "0"], "a_ss"),
+    (["--step-time", "0"], "step_time"),
+    (["--step-length", "0.9"], "step_length"),
+    (["--estop-time", "99"], "estop_time"),
+    (["--estop-time", "-1"], "estop_time"),
+])
+def test_bad_input_names_the_parameter(args, name, capsys):
+    assert main(["simulate", *args]) == 2
+    err = capsys.readouterr().err
+    assert name in err and "Traceback" not in err
+
+
+def test_help_explains_options(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = capsys.readouterr().out
+    for option in ("--step-length", "--step-time", "--estop-time", "--servo-period", "--no-crouch", "--log",
+                   "--summary"):
+        assert option in out
+
+
+def test_signal_while_standing_is_trivial(tmp_path, capsys):
+    summary = tmp_path / "s.json"
+    assert main(["simulate", "--estop-time", "0", "--summary", str(summary)]) == 0
+    assert json.load(open(summary))["case"] == "standing"

@@ -1,0 +1,220 @@
+"""The four-phase stop from every servo tick of one stride (paper III, IV; issue acceptance)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from drake_estop.checks import lipm_tracking_error
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.planner import StopParameters, plan_stop, stop_problem
+from drake_estop.reference import reference_solve
+from drake_estop.rollout import rollout
+
+
+def _ticks(plan, start, end):
+    dt = plan.params.servo_period
+    return start + dt * np.arange(int(round((end - start) / dt)) + 1)
+
+
+def test_stride_covers_single_and_double_support(stride_plans):
+    supports = {plan.support for plan in stride_plans}
+    assert supports == {"single", "double"}
+
+
+def test_cog_at_rest_at_slowdown_end_and_after_halt(stride_plans):
+    for plan in stride_plans:
+        _, vel, _, _ = plan.com([plan.slowdown_end])
+        assert abs(vel[0, 0]) < 1e-3, plan.signal_time  # eq. 17, sagittal
+        after = _ticks(plan, plan.halt_end, plan.halt_end + 1.0)
+        _, vel, _, _ = plan.com(after)
+        assert np.linalg.norm(vel, axis=1).max() < 1e-3, plan.signal_time  # eq. 28
+
+
+def test_final_cog_and_zmp_at_midpoint_between_feet(stride_plans):
+    for plan in stride_plans:
+        mid = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+        pos, _, _, zmp = plan.com([plan.halt_end, plan.halt_end + 3.0])
+        np.testing.assert_allclose(pos, [mid, mid], atol=1e-6)  # eq. 27
+        np.testing.assert_allclose(zmp, [mid, mid], atol=1e-6)
+
+
+def test_continuity_at_signal_and_phase_boundaries(stride_plans):
+    eps = 1e-7
+    for plan in stride_plans:
+        for b in (plan.start_time, plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end):
+            before = plan.com([b - eps])
+            after = plan.com([b + eps])
+            for k, name in enumerate(("position", "velocity", "acceleration", "zmp")):
+                assert np.abs(before[k] - after[k]).max() < 1e-4, (plan.signal_time, b, name)
+
+
+def test_phase_boundaries_on_servo_ticks(stride_plans, params):
+    for plan in stride_plans:
+        for b in (plan.start_time, plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end):
+            ticks = b / params.servo_period
+            assert abs(ticks - round(ticks)) < 1e-6
+
+
+def test_logged_cog_obeys_lipm_by_independent_integration(stride_plans, pattern):
+    for plan in stride_plans[::4]:
+        data = rollout(plan, after_halt=1.0)
+        sel = data.times >= plan.signal_time - 0.1
+        for axis in (0, 1):
+            err = lipm_tracking_error(data.times[sel], data.com[sel, axis], data.com_vel[sel, axis],
+                                      data.zmp[sel, axis], pattern.w)
+            assert err < 1e-3, (plan.signal_time, axis, err)
+
+
+def test_zmp_inside_support_polygon_every_tick(stride_plans):
+    for plan in stride_plans:
+        assert plan.min_zmp_margin >= 0.0, plan.signal_time
+        # re-check here, independently of the planner's own verification
+        for t in _ticks(plan, plan.start_time, plan.halt_end + 0.5)[::2]:
+            zmp = plan.com([t])[3]
+            assert plan.polygon(t).margin(zmp)[0] >= -1e-9, (plan.signal_time, t)
+
+
+def test_limits_honoured(stride_plans, params):
+    for plan in stride_plans:
+        if plan.step_length is not None:
+            assert params.min_step_length - 1e-12 <= plan.step_length <= params.max_step_length + 1e-12
+            duration = plan.landing_time - plan.start_time
+            assert duration >= params.min_landing_time - 1e-9
+            swing = plan.swing_start["pos"][:2]
+            assert np.linalg.norm(plan.landing_position - swing) / duration <= params.max_swing_speed + 1e-9
+        assert plan.transition_end - plan.landing_time >= params.min_transition_time - 1e-9
+
+
+def test_one_step_wherever_feasible(stride_plans, pattern, params):
+    """Every fallback (III.C) must come from a state where even the generic reference solver
+    finds no feasible one-step parameters."""
+    fallbacks = [plan for plan in stride_plans if plan.case != "one-step"]
+    assert len(fallbacks) <= len(stride_plans) // 10
+    for plan in fallbacks:
+        problem, kind, _ = stop_problem(pattern, pattern.state(plan.signal_time), params)
+        assert reference_solve(problem, kind) is None, plan.signal_time
+
+
+def test_newton_matches_generic_solver(pattern, params):
+    from drake_estop.planner import solve_continuous
+
+    for t in (2.85, 3.0, 3.2, 3.4, 3.46, 3.55):
+        problem, kind, _ = stop_problem(pattern, pattern.state(t), params)
+        _, _, cost, _ = solve_continuous(problem, kind)
+        ref = reference_solve(problem, kind)
+        assert ref is not None
+        assert cost <= ref[0] * 1.001, (t, cost, ref[0])
+
+
+def test_paper_single_support_scenario_extends_step(pattern):
+    plan = plan_stop(pattern, 3.4)
+    assert plan.support == "single" and plan.case == "one-step"
+    nominal_touchdown = pattern.steps[2]["touchdown"]
+    assert plan.landing_time > nominal_touchdown  # touchdown postponed (Section V.A)
+    assert plan.step_length > pattern.params.step_length  # step extended
+
+
+def test_paper_double_support_scenario(pattern):
+    plan = plan_stop(pattern, 3.5, StopParameters(a_ds=50.0, b_ds=1000.0))
+    assert plan.support == "double" and plan.case == "one-step"
+    assert plan.zmp_max is not None
+    fore = plan.final_feet["right"][0]
+    sole = pattern.params.sole
+    assert plan.start_state.zmp[0] + plan.zmp_max <= fore + sole.toe  # overshoot within the sole
+
+
+def test_resolving_after_quantisation_removes_the_residual(pattern, params):
+    """Rounding phase times alone (the paper's Fig. 12) leaves the COG moving at the slowdown
+    end; re-solving the ZMP value with the snapped times makes eq. 17 exact."""
+    rounded = StopParameters(quantisation="round")
+    residual_round, residual_resolve = [], []
+    for t in 2.8 + 0.02 * np.arange(40):
+        for mode, out in ((rounded, residual_round), (params, residual_resolve)):
+            plan = plan_stop(pattern, t, mode)
+            out.append(abs(plan.com([plan.slowdown_end])[1][0, 0]))
+    assert max(residual_resolve) < 1e-9
+    assert max(residual_round) > 1e-3
+
+
+def test_marginal_case_stops_at_next_support_phase(pattern):
+    touchdown = pattern.steps[2]["touchdown"]
+    plan = plan_stop(pattern, touchdown - 0.005)
+    assert plan.case == "next-step"
+    assert plan.start_time >= touchdown
+    assert plan.phase(touchdown - 0.001) == "landing"
+
+
+def test_standing_still_gives_trivial_plan(pattern):
+    for t in (0.0, pattern.end_time + 0.5):
+        plan = plan_stop(pattern, t)
+        assert plan.case == "standing"
+        assert plan.halt_end == plan.signal_time
+        assert plan.phase(t) == "stopped"
+        _, vel, _, _ = plan.com([t, t + 1.0])
+        assert np.abs(vel).max() < 1e-8
+
+
+def test_signal_during_final_shift_follows_nominal_stop(pattern):
+    plan = plan_stop(pattern, pattern.end_time - 0.3)
+    assert plan.case == "already-stopping"
+    assert plan.halt_end == pytest.approx(pattern.end_time)
+
+
+def test_crouch_is_quintic_with_continuous_acceleration(pattern):
+    plan = plan_stop(pattern, 3.0)
+    eps = 1e-6
+    for b in (plan.start_time, plan.halt_end):
+        z0 = plan.com_height([b - eps, b + eps])
+        for k in range(3):
+            assert abs(z0[k][0] - z0[k][1]) < 1e-4
+    z, zd, _ = plan.com_height([plan.halt_end + 1.0])
+    assert z[0] == pytest.approx(pattern.params.com_height - plan.params.crouch_depth)
+    flat = plan_stop(pattern, 3.0, StopParameters(crouch=False))
+    assert np.all(flat.com_height(np.linspace(3.0, 6.0, 50))[0] == pattern.params.com_height)
+
+
+def test_upper_body_cubic_then_quintic_halt(pattern):
+    plan = plan_stop(pattern, 3.0)
+    q0, qd0 = plan.upper_body(plan.start_time)
+    nominal_q, nominal_qd = pattern.upper_body(plan.start_time)
+    np.testing.assert_allclose(q0, nominal_q, atol=1e-12)
+    np.testing.assert_allclose(qd0, nominal_qd, atol=1e-12)
+    q_peak, qd_peak = plan.upper_body(plan.slowdown_end)
+    np.testing.assert_allclose(qd_peak, 0.0, atol=1e-12)  # eq. 32
+    np.testing.assert_allclose(q_peak, plan.upper_body_peak, atol=1e-12)  # eq. 33
+    q_end, qd_end = plan.upper_body(plan.halt_end + 0.5)
+    np.testing.assert_allclose(qd_end, 0.0, atol=1e-12)
+
+
+def test_swing_foot_lands_at_target_at_rest(pattern):
+    plan = plan_stop(pattern, 3.0)
+    dt = 1e-5
+    before = plan.feet(plan.landing_time - dt)[plan.landing_foot]
+    at = plan.feet(plan.landing_time)[plan.landing_foot]
+    np.testing.assert_allclose(at[:2], plan.landing_position, atol=1e-9)
+    assert at[2] == pytest.approx(0.0, abs=1e-9)
+    assert np.abs(at - before).max() / dt < 1e-2  # zero velocity at touchdown
+    lifts = [plan.feet(t)[plan.landing_foot][2] for t in np.linspace(plan.start_time, plan.landing_time, 50)]
+    assert min(lifts) >= -1e-9
+
+
+def test_other_gaits_stop(pattern):
+    for gait in (GaitParameters(step_length=0.15), GaitParameters(step_time=1.0)):
+        p = NominalPattern(gait)
+        for t in np.linspace(p.walk_start, p.last_touchdown, 12):
+            plan = plan_stop(p, t)
+            vel = plan.com([plan.halt_end + 0.5])[1]
+            assert np.abs(vel).max() < 1e-6
+
+
+def test_non_finite_signal_time_rejected(pattern):
+    with pytest.raises(ValueError, match="estop_time"):
+        plan_stop(pattern, math.nan)
+
+
+@pytest.mark.parametrize("name, value", [("a_ss", 0.0), ("servo_period", -0.005), ("b_ds", math.inf),
+                                         ("quantisation", "nearest")])
+def test_bad_stop_parameters_name_the_parameter(name, value):
+    with pytest.raises(ValueError, match=name):
+        StopParameters(**{name: value})

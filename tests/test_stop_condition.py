@@ -1,0 +1,73 @@
+"""Closed-form stop condition (eq. 17-22, 29) and its analytic derivatives."""
+
+import numpy as np
+import pytest
+
+from drake_estop import lipm
+from drake_estop.stop_condition import (StopStart, slowdown_time, slowdown_time_grid, target_zmp,
+                                        target_zmp_grid)
+
+W = lipm.omega(0.814)
+STARTS = [StopStart.from_state(0.05, 0.4, 0.0, W), StopStart.from_state(0.08, 0.5, 0.02, W, 1.5, -20.0)]
+
+
+def _simulate_end_velocity(start_state, durations, target, rate=0.0, accel=0.0):
+    x0, v0, p0 = start_state
+    landing, transition, slowdown = durations
+    coeffs = [lipm.pad([p0]), lipm.transition_coeffs(p0, p0 + target, transition, rate, accel),
+              lipm.pad([p0 + target])]
+    traj = lipm.LipmTrajectory.from_zmp(0.0, [landing, transition, slowdown], coeffs, x0, v0, W)
+    return traj.evaluate(traj.end_time)[1][0]
+
+
+@pytest.mark.parametrize("durations", [(0.3, 0.2, 0.25), (0.1, 0.1, 0.005), (0.6, 0.4, 0.8)])
+def test_target_meets_stop_condition(durations):
+    z = target_zmp(STARTS[0], W, *durations, derivatives=False)
+    assert abs(_simulate_end_velocity((0.05, 0.4, 0.0), durations, z)) < 1e-8  # eq. 17
+
+
+def test_target_with_moving_zmp_meets_stop_condition():
+    z = target_zmp(STARTS[1], W, 0.0, 0.15, 0.2, derivatives=False)
+    v = _simulate_end_velocity((0.08, 0.5, 0.02), (1e-12, 0.15, 0.2), z, 1.5, -20.0)
+    assert abs(v) < 1e-9  # eq. 29 with the ZMP rate and acceleration at the signal
+
+
+@pytest.mark.parametrize("start", STARTS)
+def test_gradient_and_hessian_match_finite_differences(start):
+    x = np.array([0.25 if start is STARTS[0] else 0.0, 0.2, 0.3])
+    _, grad, hess = target_zmp(start, W, *x)
+    eps = 1e-6
+    for k in range(3):
+        e = np.eye(3)[k] * eps
+        num_grad = (target_zmp(start, W, *(x + e), derivatives=False)
+                    - target_zmp(start, W, *(x - e), derivatives=False)) / (2 * eps)
+        num_hess = (target_zmp(start, W, *(x + e))[1] - target_zmp(start, W, *(x - e))[1]) / (2 * eps)
+        assert grad[k] == pytest.approx(num_grad, rel=1e-6, abs=1e-8)
+        np.testing.assert_allclose(hess[k], num_hess, rtol=1e-5, atol=1e-6)
+
+
+def test_slowdown_time_inverts_target_and_has_consistent_derivatives():
+    y = np.array([0.3, 0.2, target_zmp(STARTS[0], W, 0.3, 0.2, 0.25, derivatives=False)])
+    t3, grad, hess = slowdown_time(STARTS[0], W, *y)
+    assert t3 == pytest.approx(0.25, abs=1e-12)
+    eps = 1e-6
+    for k in range(3):
+        e = np.eye(3)[k] * eps
+        num_grad = (slowdown_time(STARTS[0], W, *(y + e))[0] - slowdown_time(STARTS[0], W, *(y - e))[0]) / (2 * eps)
+        num_hess = (slowdown_time(STARTS[0], W, *(y + e))[1] - slowdown_time(STARTS[0], W, *(y - e))[1]) / (2 * eps)
+        assert grad[k] == pytest.approx(num_grad, rel=1e-6, abs=1e-8)
+        np.testing.assert_allclose(hess[k], num_hess, rtol=1e-5, atol=1e-5)
+
+
+def test_unreachable_target_gives_nan_not_garbage():
+    t3, grad, _ = slowdown_time(STARTS[0], W, 0.3, 0.2, 5.0)
+    assert np.isnan(t3) and np.all(grad == 0)
+
+
+def test_vectorised_versions_agree():
+    t1, t2, t3 = np.meshgrid([0.1, 0.4], [0.1, 0.3], [0.05, 0.5], indexing="ij")
+    z = target_zmp_grid(STARTS[1], W, t1, t2, t3)
+    for idx in np.ndindex(z.shape):
+        assert z[idx] == pytest.approx(target_zmp(STARTS[1], W, t1[idx], t2[idx], t3[idx], False), rel=1e-12)
+    back = slowdown_time_grid(STARTS[1], W, t1, t2, z)
+    np.testing.assert_allclose(back, t3, atol=1e-9)
