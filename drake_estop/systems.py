@@ -269,8 +269,10 @@ class StopPlannerSystem(_ReferenceSystem):
         - upper_body
         - arm_joints
         - phase
+        - plan
 
-    ``phase`` is the index into ``PHASES``.  If no feasible stop exists the
+    ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
+    stored StopPlan, or None before the latch.  If no feasible stop exists the
     update fails and the Simulator raises with the planner's message.
     """
 
@@ -281,6 +283,9 @@ class StopPlannerSystem(_ReferenceSystem):
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
+        self.plan_port = self.DeclareAbstractOutputPort(
+            "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
+            prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, self._update)
 
     @property
@@ -293,6 +298,9 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def _handle(self, context):
         return context.get_abstract_state(self._plan_state).get_value()
+
+    def _calc_plan_output(self, context, value):
+        value.set_value(self._handle(context))
 
     def plan(self, context):
         """The StopPlan stored in ``context`` (None before the latch)."""
