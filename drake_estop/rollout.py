@@ -11,6 +11,7 @@ import csv
 import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -75,6 +76,7 @@ def rollout(plan: StopPlan, *, after_halt: float = 1.0, start: float = 0.0) -> R
 def write_log(path, data: Rollout, extra_columns: dict | None = None):
     """CSV, one row per servo tick; ``extra_columns`` name -> (n,) array appended."""
     extra_columns = extra_columns or {}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     rows = list(data.rows())
     header = list(rows[0].keys()) + list(extra_columns)
     with open(path, "w", newline="") as handle:
@@ -86,6 +88,7 @@ def write_log(path, data: Rollout, extra_columns: dict | None = None):
 
 
 def write_summary(path, summary: dict):
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w") as handle:
         json.dump(_jsonable(summary), handle, indent=2, sort_keys=True)
 

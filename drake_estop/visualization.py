@@ -1,0 +1,308 @@
+"""Meshcat views of the emergency stop: traces, markers, support polygon, phase.
+
+The robot itself is drawn by Drake's ``MeshcatVisualizer``.  A Meshcat
+recording keeps ``SetTransform`` / ``SetProperty`` calls only (``SetObject``
+and ``SetLine`` go straight to the scene), so :class:`StopVisualizer` draws
+all geometry once and animates it with transforms and visibility:
+
+* nominal COG (blue) and ZMP (green) traces and nominal footsteps (grey),
+  drawn at initialization;
+* the planned stop's COG (orange) and ZMP (red) traces and the footsteps it
+  takes (red), drawn when the plan appears and hidden in the recording before
+  the latch;
+* the support polygon: one line loop per distinct polygon, only the current
+  one visible;
+* spheres for the current COG (and its floor projection) and ZMP, moved every
+  publish;
+* the current phase as a text plate (a textured quad per phase, generated
+  with matplotlib), only the current one visible.
+
+:func:`make_meshcat` opens a Meshcat server with a clear error when the port
+is taken; :func:`write_replay` writes a self-contained HTML replay.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba,
+                              Sphere)
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from drake_estop.planner import PHASES
+
+PREFIX = "/estop"
+_COG_RGBA = Rgba(0.1, 0.3, 0.9, 1.0)
+_ZMP_RGBA = Rgba(0.1, 0.7, 0.2, 1.0)
+_PLAN_COG_RGBA = Rgba(1.0, 0.55, 0.0, 1.0)
+_PLAN_ZMP_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
+_NOMINAL_FOOT_RGBA = Rgba(0.55, 0.55, 0.55, 1.0)
+_TAKEN_FOOT_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
+_POLYGON_RGBA = Rgba(0.85, 0.1, 0.85, 1.0)
+_PHASE_COLOURS = {"walking": "#2a6fdb", "landing": "#e08a00", "transition": "#c2185b",
+                  "slowdown": "#d32f2f", "halt": "#6a1b9a", "stopped": "#2e7d32"}
+_TRACE_Z = 0.002  # lines slightly above the floor
+
+
+# --------------------------------------------------------------------------
+# Meshcat server and replay files.
+
+
+def make_meshcat(port=None):
+    """A Meshcat server; ``port`` None lets Drake pick a free one (7000-7099).
+
+    Raises RuntimeError naming the port when it is already in use.
+    """
+    os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+    try:
+        return Meshcat(MeshcatParams(port=port)) if port else Meshcat()
+    except RuntimeError as error:
+        where = f"port {port}" if port else "any port in 7000-7099"
+        raise RuntimeError(
+            f"could not start Meshcat on {where} ({error}); is another "
+            "Meshcat/drake-estop already running? Close it or pass a free "
+            "port (or none, to let Drake choose)") from error
+
+
+def start_recording(meshcat, frames_per_second=64.0):
+    """Start recording transforms and properties (SetObject is not recorded)."""
+    meshcat.StartRecording(frames_per_second=frames_per_second,
+                           set_visualizations_while_recording=True)
+
+
+def write_replay(meshcat, path):
+    """Stop the recording, publish it and write ``meshcat.StaticHtml()``.
+
+    The HTML is self-contained (scripts and scene inlined) and opens offline.
+    Returns the path.
+    """
+    meshcat.StopRecording()
+    meshcat.PublishRecording()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(meshcat.StaticHtml())
+    return path
+
+
+def html_scene_bytes(html):
+    """Decoded scene commands (msgpack bytes) embedded in a StaticHtml page."""
+    blobs = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", html)
+    return [base64.b64decode(blob) for blob in blobs]
+
+
+def html_mentions(html, names):
+    """Names among ``names`` that appear in the HTML's embedded scene commands."""
+    scene = b"\n".join(html_scene_bytes(html))
+    return {name for name in names if name.encode() in scene}
+
+
+# --------------------------------------------------------------------------
+# Geometry helpers.
+
+
+def _line(points_xy, z=_TRACE_Z):
+    """3xN vertices of an xy polyline at height ``z``."""
+    pts = np.asarray(points_xy, float)
+    return np.vstack([pts[:, 0], pts[:, 1], np.full(len(pts), z)])
+
+
+def _loop(vertices_xy, z=_TRACE_Z):
+    """Closed polyline of a polygon's vertices."""
+    pts = np.asarray(vertices_xy, float)
+    return _line(np.vstack([pts, pts[:1]]), z)
+
+
+def _sole_loop(sole, ankle_xy, side):
+    """Outline of a sole rectangle (gait.Sole corners, side 'left'/'right')."""
+    return _loop(sole.corners(ankle_xy, side), 0.003)
+
+
+def _phase_plate(directory, phase):
+    """OBJ file of a quad textured with the phase name (matplotlib PNG)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    png = Path(directory) / f"{phase}.png"
+    fig = plt.figure(figsize=(4, 1), dpi=100)
+    fig.patch.set_facecolor("white")
+    fig.text(0.5, 0.5, phase, ha="center", va="center", fontsize=44,
+             color=_PHASE_COLOURS[phase], weight="bold")
+    fig.savefig(png, facecolor="white")
+    plt.close(fig)
+    (Path(directory) / f"{phase}.mtl").write_text(
+        f"newmtl plate\nKa 1 1 1\nKd 1 1 1\nmap_Kd {png.name}\n")
+    obj = Path(directory) / f"{phase}.obj"
+    # 0.6 m x 0.15 m plate in the x-z plane facing -y (the side camera).
+    obj.write_text(
+        f"mtllib {phase}.mtl\n"
+        "v -0.3 0 0\nv 0.3 0 0\nv 0.3 0 0.15\nv -0.3 0 0.15\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 -1 0\nusemtl plate\n"
+        "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
+    return obj
+
+
+def pattern_polygon(pattern, t):
+    """Support polygon vertices of the nominal pattern at ``t`` (ground feet)."""
+    from drake_estop.geometry import SupportPolygon
+
+    sole = pattern.params.sole
+    feet = pattern.feet_at(t)[0]
+    support, _, side = pattern.support_at(t)
+    sides = [side] if support == "single" else ["left", "right"]
+    corners = np.vstack([sole.corners(feet[s][:2], s) for s in sides])
+    return SupportPolygon(corners).vertices
+
+
+def support_vertices(pattern, plan, t):
+    """Current support polygon vertices (plan if there is one, else nominal)."""
+    if plan is not None and plan.x is not None:
+        return plan.polygon(t).vertices
+    return pattern_polygon(pattern, t)
+
+
+def _polygon_key(vertices):
+    rounded = np.round(np.asarray(vertices, float), 4)
+    return hashlib.md5(rounded.tobytes()).hexdigest()[:12]
+
+
+# --------------------------------------------------------------------------
+# The visualizer system.
+
+
+class StopVisualizer(LeafSystem):
+    """Publishes the stop's traces, markers, polygon and phase to Meshcat.
+
+    .. pydrake_system::
+
+        name: StopVisualizer
+        input_ports:
+        - com
+        - zmp
+        - phase
+        - plan
+
+    ``plan`` is the StopPlannerSystem's abstract ``plan`` output.  Publishes
+    every ``publish_period`` with the context time as the recording time.
+    Everything it needs to remember lives in the Meshcat scene (paths that
+    exist), never in Python attributes.
+    """
+
+    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX):
+        super().__init__()
+        self._meshcat = meshcat
+        self._pattern = pattern
+        self._period = publish_period
+        self._prefix = prefix
+        self.com_port = self.DeclareVectorInputPort("com", 3)
+        self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
+        self.phase_port = self.DeclareVectorInputPort("phase", 1)
+        self.plan_port = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        self._plates = tempfile.mkdtemp(prefix="estop_phase_")
+        self.DeclareInitializationPublishEvent(self._initialize)
+        self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
+
+    # -- drawn once ---------------------------------------------------------
+
+    def _initialize(self, context):
+        """Draw the nominal traces, footsteps, markers and phase plates."""
+        m, p, pattern = self._meshcat, self._prefix, self._pattern
+        m.Delete(p)
+        times = np.arange(0.0, pattern.end_time + 0.5, 0.01)
+        pos, _, _, zmp = pattern.com(times)
+        m.SetLine(f"{p}/nominal/cog", _line(pos), 2.0, _COG_RGBA)
+        m.SetLine(f"{p}/nominal/zmp", _line(zmp), 2.0, _ZMP_RGBA)
+        sole = pattern.params.sole
+        for side, xy in pattern.initial_feet.items():
+            m.SetLine(f"{p}/nominal/feet/initial_{side}", _sole_loop(sole, xy, side),
+                      1.5, _NOMINAL_FOOT_RGBA)
+        for k, step in enumerate(pattern.steps):
+            m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"]),
+                      1.5, _NOMINAL_FOOT_RGBA)
+        m.SetObject(f"{p}/markers/cog", Sphere(0.03), _COG_RGBA)
+        m.SetObject(f"{p}/markers/cog_floor", Cylinder(0.02, 0.004), _COG_RGBA)
+        m.SetObject(f"{p}/markers/zmp", Sphere(0.02), _ZMP_RGBA)
+        for phase in PHASES:
+            path = f"{p}/phase/{phase}"
+            m.SetObject(path, Mesh(str(_phase_plate(self._plates, phase))))
+            m.SetProperty(path, "visible", False, 0.0)
+        return EventStatus.Succeeded()
+
+    def _draw_plan(self, plan):
+        """Planned stop traces and taken footsteps; hidden before the latch."""
+        m, p = self._meshcat, f"{self._prefix}/plan"
+        times = np.arange(plan.start_time, plan.halt_end + 0.5, 0.01)
+        pos, _, _, zmp = plan.com(times)
+        m.SetLine(f"{p}/cog", _line(pos, 0.004), 3.0, _PLAN_COG_RGBA)
+        m.SetLine(f"{p}/zmp", _line(zmp, 0.004), 3.0, _PLAN_ZMP_RGBA)
+        sole = self._pattern.params.sole
+        for side, xy in plan.final_feet.items():
+            m.SetLine(f"{p}/feet/{side}", _sole_loop(sole, xy, side), 3.0, _TAKEN_FOOT_RGBA)
+        m.SetProperty(p, "visible", False, 0.0)
+        m.SetProperty(p, "visible", True, plan.signal_time)
+
+    # -- every publish --------------------------------------------------------
+
+    def _publish(self, context):
+        """Move the markers, switch the support polygon and the phase plate."""
+        t = context.get_time()
+        plan = self.plan_port.Eval(context)
+        plan = getattr(plan, "plan", plan)
+        if plan is not None and not self._meshcat.HasPath(f"{self._prefix}/plan/cog") \
+                and plan.x is not None:
+            self._draw_plan(plan)
+        self._move_markers(context, t)
+        self._switch_polygon(plan, t)
+        self._switch_phase(context, plan, t)
+        return EventStatus.Succeeded()
+
+    def _move_markers(self, context, t):
+        com = self.com_port.Eval(context)
+        zmp = self.zmp_port.Eval(context)
+        m, p = self._meshcat, f"{self._prefix}/markers"
+        m.SetTransform(f"{p}/cog", RigidTransform(com), t)
+        m.SetTransform(f"{p}/cog_floor", RigidTransform([com[0], com[1], 0.002]), t)
+        m.SetTransform(f"{p}/zmp", RigidTransform([zmp[0], zmp[1], 0.01]), t)
+        m.SetTransform(f"{self._prefix}/phase", RigidTransform([com[0], -0.35, 1.75]), t)
+
+    def _switch_polygon(self, plan, t):
+        """Show the polygon of ``t``; hide the one of the previous publish."""
+        m = self._meshcat
+        vertices = support_vertices(self._pattern, plan, t)
+        path = f"{self._prefix}/support/{_polygon_key(vertices)}"
+        if not m.HasPath(path):
+            m.SetLine(path, _loop(vertices, 0.005), 3.0, _POLYGON_RGBA)
+            m.SetProperty(path, "visible", False, 0.0)
+        if t > 0.0:
+            previous = support_vertices(self._pattern, plan, t - self._period)
+            old = f"{self._prefix}/support/{_polygon_key(previous)}"
+            if old != path:
+                m.SetProperty(old, "visible", False, t)
+        m.SetProperty(path, "visible", True, t)
+
+    def _switch_phase(self, context, plan, t):
+        phase = PHASES[int(round(self.phase_port.Eval(context)[0]))]
+        previous = plan.phase(t - self._period) if plan is not None and t > 0 else "walking"
+        m, p = self._meshcat, f"{self._prefix}/phase"
+        if previous != phase:
+            m.SetProperty(f"{p}/{previous}", "visible", False, t)
+        m.SetProperty(f"{p}/{phase}", "visible", True, t)
+
+
+def set_side_camera(meshcat, x_center=1.2):
+    """Look at the walk from the robot's right side, slightly above."""
+    meshcat.SetCameraPose(np.array([x_center, -3.6, 1.6]), np.array([x_center, 0.0, 0.7]))
+
+
+def add_floor(meshcat, length=4.0, prefix=PREFIX):
+    """A thin floor plate under the walk (for contrast in replays)."""
+    meshcat.SetObject(f"{prefix}/floor", Box(length, 1.5, 0.01), Rgba(0.93, 0.93, 0.9, 1.0))
+    meshcat.SetTransform(f"{prefix}/floor", RigidTransform([length / 2 - 0.5, 0.0, -0.006]))
