@@ -29,7 +29,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -65,6 +65,10 @@ class StopParameters:
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
     halt_durations: tuple = (0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2, 1.5)  # settle-segment candidates [s]
     quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
+    landing: str = "replan"  # or "nominal": keep the nominal footstep ("finish the step" baseline)
+    # single support: slowdown ZMP ahead of the landing ankle [m]; 0 is the paper's eq. 20, up to
+    # toe - zmp_margin lets the ZMP use the fore sole as the double-support stop does (III.B)
+    landing_zmp_offset: float = 0.0
     cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
     def __post_init__(self):
@@ -85,6 +89,8 @@ class StopParameters:
             raise ValueError("zmp_margin and crouch_depth must be >= 0")
         if self.quantisation not in ("resolve", "round"):
             raise ValueError(f"quantisation must be 'resolve' or 'round', got {self.quantisation!r}")
+        if self.landing not in ("replan", "nominal"):
+            raise ValueError(f"landing must be 'replan' or 'nominal', got {self.landing!r}")
         if not self.halt_durations or min(self.halt_durations) <= 0:
             raise ValueError("halt_durations must be positive")
 
@@ -133,6 +139,13 @@ class StopPlan:
     upper_body_peak: np.ndarray | None = None  # eq. 33
     swing_start: dict = field(default_factory=dict)
     continuous_solution: tuple | None = None
+
+    @property
+    def steps_after_signal(self) -> int:
+        """Foot landings between the signal and rest (nominal ones included)."""
+        nominal = sum(1 for step in self.pattern.steps
+                      if self.signal_time < step["touchdown"] <= self.start_time + 1e-9)
+        return nominal + (1 if self.landing_foot is not None else 0)
 
     # -- evaluation -----------------------------------------------------
     def phase(self, t: float) -> str:
@@ -234,6 +247,7 @@ class StopPlan:
             "estop_time": self.signal_time,
             "support": self.support,
             "case": self.case,
+            "steps_after_signal": self.steps_after_signal,
             "plan_start_time": self.start_time,
             "phase_times": {
                 "landing_end": self.landing_time,
@@ -391,10 +405,15 @@ class _SingleSupportProblem(_StopProblem):
     free: tuple = (0, 1, 2)
 
     def bounds(self):
+        """Durations, and the slowdown ZMP = step length + landing_zmp_offset (eq. 20)."""
         p = self.params
+        offset = p.landing_zmp_offset
         return np.array([[p.min_landing_time, p.max_landing_time],
                          [p.min_transition_time, p.max_transition_time],
-                         [p.min_step_length, p.max_step_length]])
+                         [p.min_step_length + offset, p.max_step_length + offset]])
+
+    def step_length(self, target):
+        return target - self.params.landing_zmp_offset
 
     def _distance(self, step):
         dx = self.support_x + step - self.swing_xy[0]
@@ -404,7 +423,7 @@ class _SingleSupportProblem(_StopProblem):
     def extra_constraints(self, y):
         """Mean swing-ankle speed to the landing point: v_max t_i - distance >= 0."""
         p = self.params
-        dist, dx, dy = self._distance(y[2])
+        dist, dx, dy = self._distance(self.step_length(y[2]))
         value = p.max_swing_speed * y[0] - dist
         grad = np.array([p.max_swing_speed, 0.0, -dx / dist]) if np.ndim(dist) == 0 else None
         hess = np.zeros((3, 3))
@@ -414,12 +433,13 @@ class _SingleSupportProblem(_StopProblem):
 
     def cost_grid(self, y, t3):
         p = self.params
-        return p.a_ss * (y[2] / y[0]) ** 2 + p.b_ss * (y[1] + t3) ** 2  # eq. 24
+        return p.a_ss * (self.step_length(y[2]) / y[0]) ** 2 + p.b_ss * (y[1] + t3) ** 2  # eq. 24
 
     def cost_terms(self, y, t3, tg, th):
         """J_ss (eq. 24) and its gradient and Hessian in (t_i, t_ii, l_s)."""
         p = self.params
-        t1, t2, step = y
+        t1, t2 = y[0], y[1]
+        step = self.step_length(y[2])
         u = step / t1
         ug = np.array([-step / t1**2, 0.0, 1.0 / t1])
         uh = np.array([[2 * step / t1**3, 0.0, -1.0 / t1**2], [0.0, 0.0, 0.0], [-1.0 / t1**2, 0.0, 0.0]])
@@ -668,6 +688,8 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
     if kind == "single":
         support = state.support_foot
         swing = "right" if support == "left" else "left"
+        if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
+            raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
         problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
                                         state.feet[swing][:2].copy(), float(state.next_landing[1]))
         return problem, kind, {"support": support, "swing": swing}
@@ -687,13 +709,15 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     solution = _solve(problem, kind)
     if kind == "single":
         support, swing = feet["support"], feet["swing"]
-        landing_xy = np.array([state.zmp[0] + solution.target, state.next_landing[1]])
+        step_length = problem.step_length(solution.target)
+        landing_xy = np.array([state.zmp[0] + step_length, state.next_landing[1]])
         final_feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
         fore_xy, fore_side = landing_xy, swing
         landing_foot = swing
     else:
         fore_side = feet["fore"]
         fore_xy = state.feet[fore_side][:2].copy()
+        step_length = None
         final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
         landing_xy, landing_foot = None, None
     solve_time = time.perf_counter() - t_solve
@@ -722,7 +746,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
         signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
         start_support=kind, landing_time=landing_time, transition_end=transition_end,
         slowdown_end=slowdown_end, halt_end=slowdown_end + halt,
-        step_length=solution.target if kind == "single" else None,
+        step_length=step_length if kind == "single" else None,
         zmp_max=solution.target if kind == "double" else None,
         landing_foot=landing_foot, landing_position=landing_xy, final_feet=final_feet,
         x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
@@ -794,6 +818,10 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
         if support == "standing" or index >= len(pattern.steps):
             return _finish(_trivial_plan(pattern, state, params, t0, "already-stopping"), wall)
+        if support == "single" and params.landing == "nominal":
+            # "finish the step": land where and when the pattern would, stop on that foothold
+            t = max(snap_to_tick(pattern.steps[index]["touchdown"], dt), t + dt)
+            continue
         try:
             return _finish(_plan_from(pattern, state, params, t0, case), wall)
         except InfeasibleStop:
@@ -815,7 +843,3 @@ def _next_try(pattern, t, dt, support, index, first):
 def _finish(plan: StopPlan, wall_start: float) -> StopPlan:
     plan.compute_time = time.perf_counter() - wall_start
     return plan
-
-
-def with_quantisation(params: StopParameters, mode: str) -> StopParameters:
-    return replace(params, quantisation=mode)
