@@ -17,14 +17,14 @@ import time
 import numpy as np
 
 from drake_estop.gait import NominalPattern
+from drake_estop.rollout import stride_ticks
 from drake_estop.planner import StopParameters, plan_stop, solve_continuous, stop_problem
 from drake_estop.reference import reference_solve
 
-STRIDE_START, STRIDE_TICKS = 2.8, 160
 
 
 def sweep(pattern, params, repeats):
-    times = STRIDE_START + params.servo_period * np.arange(STRIDE_TICKS)
+    times = stride_ticks(pattern, params)
     plans, compute, solve = [], [], []
     for t in times:
         best = None

@@ -28,11 +28,11 @@ import numpy as np
 
 from drake_estop import alternatives
 from drake_estop.gait import NominalPattern
+from drake_estop.rollout import stride_ticks
 from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
 from drake_estop.reference import reference_solve
 from drake_estop.rollout import rollout
 
-STRIDE_START, STRIDE_TICKS = 2.8, 160
 
 
 def _progress(iterable, **kwargs):
@@ -188,7 +188,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     pattern = NominalPattern()
     params = StopParameters()
-    times = (STRIDE_START + params.servo_period * np.arange(STRIDE_TICKS))[:: args.every]
+    times = stride_ticks(pattern, params)[:: args.every]
     rows = evaluate(times, pattern, params)
     summaries = {key: summarise(rows, key) for key in ("planner", "finish_step", "zmp_planner")}
     ratio = scipy_ratio(times[:: args.scipy_every], pattern, params)

@@ -60,7 +60,7 @@ class GaitParameters:
     step_time: float = 0.8  # one step: single + double support [s]
     double_support_ratio: float = 0.2  # share of step_time in double support
     num_steps: int = 8  # including the final step that closes the feet
-    initial_shift_time: float = 1.2  # weight shift before the first step [s]
+    initial_shift_time: float = 1.25  # weight shift before the first step [s] (see README: scenario timing)
     final_shift_time: float = 1.0  # double support that ends the walk at rest [s]
     lift_height: float = 0.05  # swing-foot apex above the floor [m]
     arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
@@ -214,6 +214,12 @@ class NominalPattern:
         return self.initial_feet[side]
 
     # -- queries -----------------------------------------------------------
+    def stride(self, step_index: int = 2):
+        """(start, end) of one full stride: lift-off of ``step_index`` to the next lift-off,
+        single then double support (the sweeps and benchmarks use the third step)."""
+        step = self.steps[step_index]
+        return step["liftoff"], step["step_end"]
+
     def com(self, t):
         """COG x, y position, velocity, acceleration and ZMP at times ``t``: 4 arrays (n, 2)."""
         out = [traj.evaluate(t) for traj in self.trajectories]

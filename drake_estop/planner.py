@@ -37,7 +37,8 @@ from drake_estop import lipm
 from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
 from drake_estop.geometry import SupportPolygon
 from drake_estop.newton import barrier_newton
-from drake_estop.stop_condition import StopStart, slowdown_time, slowdown_time_grid, target_zmp, target_zmp_grid
+from drake_estop.stop_condition import (StopStart, rest_position, rest_position_grid, slowdown_time,
+                                        slowdown_time_grid, target_zmp, target_zmp_grid)
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 
@@ -69,13 +70,19 @@ class StopParameters:
     # single support: slowdown ZMP ahead of the landing ankle [m]; 0 is the paper's eq. 20, up to
     # toe - zmp_margin lets the ZMP use the fore sole as the double-support stop does (III.B)
     landing_zmp_offset: float = 0.0
+    # leg reach: horizontal distance from the COG to the landing ankle at touchdown (fore) and to
+    # the rear ankle where the COG comes to rest (rear) [m]. Measured with the whole-body IK on
+    # models/humanoid.urdf at the walking COG height 0.814 m (0.245 and 0.26; a 4 cm crouch adds
+    # about 5 cm); beyond them a knee is stretched straight. Conservative: the crouch is ignored.
+    max_fore_reach: float = 0.22
+    max_rear_reach: float = 0.26
     cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
     def __post_init__(self):
         for name in ("a_ss", "b_ss", "a_ds", "b_ds", "servo_period", "max_step_length",
                      "min_landing_time", "max_landing_time", "min_transition_time",
                      "max_transition_time", "min_slowdown_time", "max_slowdown_time",
-                     "max_swing_speed", "cost_tolerance"):
+                     "max_swing_speed", "cost_tolerance", "max_fore_reach", "max_rear_reach"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
@@ -149,7 +156,7 @@ class StopPlan:
 
     # -- evaluation -----------------------------------------------------
     def phase(self, t: float) -> str:
-        if t < self.signal_time:
+        if t < self.signal_time - 1e-9:
             return "walking"
         if self.case == "standing" or t >= self.halt_end:
             return "stopped"
@@ -332,8 +339,26 @@ class _StopProblem:
             return [np.nan_to_num(t3 - p.min_slowdown_time, nan=-1.0),
                     np.nan_to_num(p.max_slowdown_time - t3, nan=-1.0)] + self.extra_constraints(y)[0]
 
+    rear_ankle = 0.0  # rear ankle x relative to the start ZMP
+
+    def target_interval(self, landing, transition):
+        """ZMP-target interval meeting the bounds and the slowdown-duration limits (Z falls as
+        the slowdown lengthens), vectorised over duration arrays."""
+        p = self.params
+        bounds = self.bounds()
+        long = target_zmp_grid(self.start, self.w, landing, transition, p.max_slowdown_time)
+        short = target_zmp_grid(self.start, self.w, landing, transition, p.min_slowdown_time)
+        return np.maximum(bounds[2, 0], np.minimum(long, short)), np.minimum(bounds[2, 1], np.maximum(long, short))
+
     def extra_constraints(self, y):
-        return [], [], []
+        """Rear-leg reach where the COG comes to rest: ``reach - (x_rest - rear) >= 0``."""
+        if np.ndim(y[0]) != 0:
+            t3 = slowdown_time_grid(self.start, self.w, y[0], y[1], y[2])
+            rest = rest_position_grid(self.start, self.w, y[0], y[1], y[2], t3)
+            return [np.nan_to_num(self.params.max_rear_reach - rest + self.rear_ankle, nan=-1.0)], None, None
+        rest, grad, hess = rest_position(self.start, self.w, y[0], y[1], y[2])
+        value = self.params.max_rear_reach - rest + self.rear_ankle if math.isfinite(rest) else -1.0
+        return [value], [-grad], [-hess]
 
     def evaluate(self, x):
         """Cost, constraints and their analytic derivatives over the free variables.
@@ -415,21 +440,46 @@ class _SingleSupportProblem(_StopProblem):
     def step_length(self, target):
         return target - self.params.landing_zmp_offset
 
+    def target_interval(self, landing, transition):
+        """Base interval narrowed by the swing-speed disc and the fore-leg reach at touchdown."""
+        p = self.params
+        low, high = super().target_interval(landing, transition)
+        dy = self.landing_y - self.swing_xy[1]
+        radius = np.sqrt(np.maximum((p.max_swing_speed * landing) ** 2 - dy * dy, 0.0))
+        offset = p.landing_zmp_offset - self.support_x
+        low = np.maximum(low, self.swing_xy[0] - radius + offset)
+        high = np.minimum(high, self.swing_xy[0] + radius + offset)
+        grow = np.exp(self.w * landing)
+        ahead = 0.5 * (self.start.dcm * grow + self.start.ccm / grow)
+        return low, np.minimum(high, p.max_fore_reach + ahead + p.landing_zmp_offset)
+
     def _distance(self, step):
         dx = self.support_x + step - self.swing_xy[0]
         dy = self.landing_y - self.swing_xy[1]
         return np.sqrt(dx * dx + dy * dy), dx, dy
 
     def extra_constraints(self, y):
-        """Mean swing-ankle speed to the landing point: v_max t_i - distance >= 0."""
+        """Mean swing-ankle speed to the landing point, ``v_max t_i - distance >= 0``, fore-leg
+        reach at touchdown, ``reach - (landing - x_G(t_i)) >= 0`` with the COG of phase (i)
+        (constant ZMP, eq. 6): ``x_G - p0 = (xi0 exp(w t_i) + zeta0 exp(-w t_i)) / 2``, and the
+        rear-leg reach at rest (support ankle = rear)."""
         p = self.params
-        dist, dx, dy = self._distance(self.step_length(y[2]))
-        value = p.max_swing_speed * y[0] - dist
-        grad = np.array([p.max_swing_speed, 0.0, -dx / dist]) if np.ndim(dist) == 0 else None
-        hess = np.zeros((3, 3))
-        if grad is not None:
-            hess[2, 2] = -dy * dy / dist**3
-        return [value], [grad], [hess]
+        step = self.step_length(y[2])
+        dist, dx, dy = self._distance(step)
+        speed = p.max_swing_speed * y[0] - dist
+        grow = np.exp(self.w * y[0])
+        ahead = 0.5 * (self.start.dcm * grow + self.start.ccm / grow)
+        reach = p.max_fore_reach - step + ahead
+        rear = super().extra_constraints(y)
+        if np.ndim(dist) != 0:
+            return [speed, reach] + rear[0], None, None
+        speed_grad = np.array([p.max_swing_speed, 0.0, -dx / dist])
+        speed_hess = np.zeros((3, 3))
+        speed_hess[2, 2] = -dy * dy / dist**3
+        reach_grad = np.array([0.5 * self.w * (self.start.dcm * grow - self.start.ccm / grow), 0.0, -1.0])
+        reach_hess = np.zeros((3, 3))
+        reach_hess[0, 0] = self.w * self.w * ahead
+        return [speed, reach] + rear[0], [speed_grad, reach_grad] + rear[1], [speed_hess, reach_hess] + rear[2]
 
     def cost_grid(self, y, t3):
         p = self.params
@@ -458,6 +508,7 @@ class _DoubleSupportProblem(_StopProblem):
     params: StopParameters
     zmp_low: float  # allowed range of Z, relative to the start ZMP
     zmp_high: float
+    rear_ankle: float = 0.0  # rear ankle x relative to the start ZMP
     free: tuple = (1, 2)
 
     def bounds(self):
@@ -482,25 +533,42 @@ class _DoubleSupportProblem(_StopProblem):
         return cost, grad, hess
 
 
-_GRID = {"single": (10, 4, 12), "double": (1, 8, 16)}
+_GRID = {"single": (16, 4), "double": (1, 10)}
+_TARGET_SAMPLES = np.linspace(0.02, 0.98, 12)
 
 
 def _grid_start(problem, kind):
-    """Cheapest strictly feasible point of a coarse grid (vectorised), or None."""
+    """Cheapest feasible point of a grid (vectorised): ``(y, cost, strict)`` or None.
+
+    Durations on a grid that includes their bounds; the ZMP target sampled
+    inside its feasible interval for each pair of durations
+    (:meth:`target_interval`), so thin feasible regions bounded by the
+    swing-speed and reach limits are not missed. Strictly feasible points are
+    preferred (the interior-point method needs one); ``strict=False`` means
+    the feasible set has no interior on the grid (a corner of the limits).
+    """
     axes = []
-    for (lo, hi), count in zip(problem.bounds(), _GRID[kind]):
+    for (lo, hi), count in zip(problem.bounds()[:2], _GRID[kind]):
         inset = 1e-3 * (hi - lo)
-        axes.append(np.array([lo]) if count == 1 else np.linspace(lo + inset, hi - inset, count))
-    y = np.meshgrid(*axes, indexing="ij")
+        inner = np.linspace(lo + inset, hi - inset, count) if count > 1 else np.array([lo])
+        axes.append(np.unique(np.concatenate([[lo], inner])) if count > 1 else inner)
+    t1, t2 = np.meshgrid(*axes, indexing="ij")
+    low, high = problem.target_interval(t1, t2)
+    z = low[..., None] + (high - low)[..., None] * _TARGET_SAMPLES
+    y = [np.broadcast_to(t1[..., None], z.shape), np.broadcast_to(t2[..., None], z.shape), z]
     t3 = problem.slowdown(y)
-    ok = np.ones(t3.shape, bool)
-    for g in problem.constraints_grid(y, t3):
-        ok &= g > 1e-9
-    if not np.any(ok):
-        return None
-    cost = np.where(ok, problem.cost_grid(y, np.nan_to_num(t3)), np.inf)
-    i = np.unravel_index(np.argmin(cost), cost.shape)
-    return np.array([axis[i] for axis in y]), float(cost[i])
+    bounds = problem.bounds()
+    margins = [g for g in problem.constraints_grid(y, t3)]
+    margins += [y[k] - bounds[k, 0] for k in problem.free] + [bounds[k, 1] - y[k] for k in problem.free]
+    worst = np.min(np.stack(margins), axis=0)
+    worst = np.where((high >= low)[..., None] & np.isfinite(t3), worst, -np.inf)
+    cost = problem.cost_grid(y, np.nan_to_num(t3))
+    for strict, threshold in ((True, 1e-9), (False, -1e-12)):
+        ok = worst > threshold
+        if np.any(ok):
+            i = np.unravel_index(np.argmin(np.where(ok, cost, np.inf)), cost.shape)
+            return np.array([axis[i] for axis in y]), float(cost[i]), strict
+    return None
 
 
 def solve_continuous(problem, kind):
@@ -508,10 +576,12 @@ def solve_continuous(problem, kind):
     start = _grid_start(problem, kind)
     if start is None:
         raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
-    y0, cost0 = start
+    y0, cost0, strict = start
+    if not strict:  # no interior: the corner of the limits is the only candidate
+        return y0, float(problem.slowdown(y0)), cost0, 0
     free = list(problem.free)
     scale = max(cost0, 1.0)
-    m = 2 * len(free) + 2 + (1 if kind == "single" else 0)
+    m = 2 * len(free) + 2 + (3 if kind == "single" else 1)
     result = barrier_newton(problem.evaluate, y0[free], values=problem.values, mu0=1e-1 * scale / m,
                             mu_final=problem.params.cost_tolerance * scale / m)
     y = problem.full(result.x)
@@ -698,7 +768,8 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
     fore_x = state.feet[fore][0]
     low = fore_x - sole.heel + params.zmp_margin - state.zmp[0]
     high = fore_x + sole.toe - params.zmp_margin - state.zmp[0]
-    return _DoubleSupportProblem(start, w, params, low, high), kind, {"fore": fore}
+    rear_ankle = state.feet[rear][0] - state.zmp[0]
+    return _DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
 
 
 def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case):

@@ -18,11 +18,18 @@ from scipy.optimize import minimize
 from drake_estop.stop_condition import target_zmp
 
 
-def reference_solve(problem, kind, *, starts_per_axis: int = 3):
-    """Returns ``(cost, durations (3,), target)`` of the best feasible SLSQP optimum, or None."""
+def reference_solve(problem, kind, *, starts_per_axis: int = 3, margin: float = 0.0):
+    """Returns ``(cost, durations (3,), target)`` of the best feasible SLSQP optimum, or None.
+
+    ``margin`` > 0 solves a tightened problem: every constraint kept ``margin``
+    inside its limit (metres or seconds), durations ``margin`` inside their bounds.
+    """
     p = problem.params
     bounds = problem.bounds()
-    duration_bounds = [tuple(bounds[0]), tuple(bounds[1]), (p.min_slowdown_time, p.max_slowdown_time)]
+    duration_bounds = [(bounds[0, 0] + margin, bounds[0, 1] - margin), (bounds[1, 0] + margin, bounds[1, 1] - margin),
+                       (p.min_slowdown_time + margin, p.max_slowdown_time - margin)]
+    if kind == "double":
+        duration_bounds[0] = (0.0, 0.0)
     free = [0, 1, 2] if kind == "single" else [1, 2]
 
     def full(x):
@@ -43,7 +50,7 @@ def reference_solve(problem, kind, *, starts_per_axis: int = 3):
         z = target(x)
         values = [z - bounds[2, 0], bounds[2, 1] - z]
         values += list(np.atleast_1d(problem.extra_constraints([d[0], d[1], z])[0]))
-        return np.array(values, float)
+        return np.array(values, float) - margin
 
     best = None
     grids = [np.linspace(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), starts_per_axis)

@@ -55,6 +55,12 @@ def servo_ticks(start: float, end: float, servo_period: float) -> np.ndarray:
     return start + servo_period * np.arange(count)
 
 
+def stride_ticks(pattern, params, step_index: int = 2) -> np.ndarray:
+    """Every servo tick of one stride of ``pattern`` (see :meth:`NominalPattern.stride`)."""
+    start, end = pattern.stride(step_index)
+    return start + params.servo_period * np.arange(int(round((end - start) / params.servo_period)))
+
+
 def rollout(plan: StopPlan, *, after_halt: float = 1.0, start: float = 0.0) -> Rollout:
     """Sample ``plan`` at every servo tick from ``start`` to ``after_halt`` past the halt end."""
     end = max(plan.halt_end, plan.signal_time) + after_halt

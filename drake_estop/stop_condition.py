@@ -217,3 +217,36 @@ def slowdown_time(start: StopStart, w: float, landing: float, transition: float,
     cross = np.outer(f3, grad)
     hess = -(fh + cross + cross.T + zh[2, 2] * np.outer(grad, grad)) / z3
     return t3, grad, hess
+
+
+def rest_position_grid(start: StopStart, w: float, landing, transition, target, slowdown):
+    """COG position where it comes to rest at the slowdown end (relative to the start ZMP).
+
+    With zero velocity there, x = zeta = Z + (zeta_ii - Z) exp(-w T3) and
+    ``zeta_ii = B + Z G`` (the convergent component after the transition).
+    """
+    _, big_b, _, g = _terms_grid(start, w, landing, transition)
+    target = np.asarray(target, float)
+    with np.errstate(invalid="ignore"):
+        return target + (big_b + target * (g - 1.0)) * np.exp(-w * np.asarray(slowdown, float))
+
+
+def rest_position(start: StopStart, w: float, landing: float, transition: float, target: float):
+    """:func:`rest_position_grid` with gradient and Hessian in (landing, transition, target),
+    the slowdown duration eliminated through the stop condition (:func:`slowdown_time`)."""
+    t3, tg, th = slowdown_time(start, w, landing, transition, target)
+    if not math.isfinite(t3):
+        return float("nan"), np.zeros(3), np.zeros((3, 3))
+    _, big_b, _, g = _terms(start, w, landing, transition)
+    b0, b1, b2, b11, b12, b22 = big_b
+    u = b0 + target * (g[0] - 1.0)
+    ug = np.array([b1, b2 + target * g[1], g[0] - 1.0])
+    uh = np.array([[b11, b12, 0.0], [b12, b22 + target * g[2], g[1]], [0.0, g[1], 0.0]])
+    decay = math.exp(-w * t3)
+    eg = -w * decay * tg
+    eh = w * w * decay * np.outer(tg, tg) - w * decay * th
+    value = target + u * decay
+    grad = np.array([0.0, 0.0, 1.0]) + decay * ug + u * eg
+    cross = np.outer(ug, eg)
+    hess = decay * uh + cross + cross.T + u * eh
+    return value, grad, hess

@@ -5,9 +5,8 @@ import pytest
 
 from drake_estop.gait import NominalPattern
 from drake_estop.planner import StopParameters, plan_stop
+from drake_estop.rollout import stride_ticks
 
-STRIDE_START = 2.8  # liftoff of the third step of the default walk
-STRIDE_TICKS = 160  # 0.8 s at 5 ms: single + double support of one step
 
 
 @pytest.fixture(scope="session")
@@ -21,8 +20,9 @@ def params():
 
 
 @pytest.fixture(scope="session")
-def stride_times(params):
-    return STRIDE_START + params.servo_period * np.arange(STRIDE_TICKS)
+def stride_times(pattern, params):
+    """Every servo tick of one stride (single + double support of the third step)."""
+    return stride_ticks(pattern, params)
 
 
 @pytest.fixture(scope="session")
