@@ -59,8 +59,13 @@ _TRACE_Z = 0.002  # lines slightly above the floor
 def make_meshcat(port=None):
     """A Meshcat server; ``port`` None lets Drake pick a free one (7000-7099).
 
+    ``DRAKE_ALLOW_NETWORK=meshcat`` is set only while the server is created
+    and restored afterwards: in Drake 1.51 a process-wide "meshcat" value
+    also disables the PackageMap, which then makes ``Parser.AddModels`` of
+    the humanoid URDF throw (drake_models remote), even for a local file.
     Raises RuntimeError naming the port when it is already in use.
     """
+    previous = os.environ.get("DRAKE_ALLOW_NETWORK")
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     try:
         return Meshcat(MeshcatParams(port=port)) if port else Meshcat()
@@ -70,6 +75,9 @@ def make_meshcat(port=None):
             f"could not start Meshcat on {where} ({error}); is another "
             "Meshcat/drake-estop already running? Close it or pass a free "
             "port (or none, to let Drake choose)") from error
+    finally:
+        if previous is None:
+            os.environ.pop("DRAKE_ALLOW_NETWORK", None)
 
 
 def start_recording(meshcat, frames_per_second=64.0):
@@ -306,3 +314,73 @@ def add_floor(meshcat, length=4.0, prefix=PREFIX):
     """A thin floor plate under the walk (for contrast in replays)."""
     meshcat.SetObject(f"{prefix}/floor", Box(length, 1.5, 0.01), Rgba(0.93, 0.93, 0.9, 1.0))
     meshcat.SetTransform(f"{prefix}/floor", RigidTransform([length / 2 - 0.5, 0.0, -0.006]))
+
+
+# --------------------------------------------------------------------------
+# Paper-style figures (matplotlib, Agg).
+
+
+def _phase_lines(ax, plan):
+    """Dotted verticals at the signal and the phase boundaries."""
+    ax.axvline(plan.signal_time, color="k", lw=1.0, ls="--", label="stop signal")
+    for t in (plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end):
+        ax.axvline(t, color="0.6", lw=0.8, ls=":")
+
+
+def plot_cog_zmp(result, path, title):
+    """COG and ZMP vs time, x and y (paper Fig. 9 / Fig. 12)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    for axis, ax in enumerate(axes):
+        ax.plot(result.times, result.com[:, axis], "b-", label="COG")
+        ax.plot(result.times, result.zmp[:, axis], "r--", label="ZMP")
+        _phase_lines(ax, result.plan)
+        ax.set_ylabel(f"{'xy'[axis]} [m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper left")
+    axes[0].set_title(title)
+    axes[1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_knees(results, path, title):
+    """Knee angles of both legs for several runs (paper Fig. 10)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    styles = {"left": "-", "right": "--"}
+    for label, result in results.items():
+        for side in ("left", "right"):
+            ax.plot(result.times, np.degrees(result.q[f"q_{side[0]}_knee"]), styles[side],
+                    label=f"{side} knee, {label}")
+    _phase_lines(ax, next(iter(results.values())).plan)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("knee angle [deg]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def describe(result):
+    """One-paragraph text summary of a DiagramResult (for scripts)."""
+    plan, errors = result.plan, result.error_summary()
+    return (f"signal {plan.signal_time:.3f} s ({plan.support} support) -> {plan.case}; "
+            f"landing {plan.landing_time:.3f}, transition {plan.transition_end:.3f}, "
+            f"slowdown {plan.slowdown_end:.3f}, halt {plan.halt_end:.3f} s; "
+            f"plan {result.plan_wall_time * 1e3:.2f} ms in the diagram; "
+            f"IK max COG {errors['ik_com_err_max_m'] * 1e3:.3f} mm, foot "
+            f"{errors['ik_foot_err_max_m'] * 1e3:.3f} mm / {errors['ik_foot_rot_err_max_rad']:.1e} rad, "
+            f"ticks over bounds {errors['ik_ticks_over_bounds']}, velocity-limit violations "
+            f"{errors['velocity_limit_violations']}; real-time factor {result.realtime_factor:.1f}")

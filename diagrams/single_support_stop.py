@@ -1,0 +1,54 @@
+"""Paper V.A: emergency stop in the single support phase (Fig. 8-10).
+
+Step 0.3 m, cycle 0.8 s, signal at 3.4 s (late single support), a_ss = 5,
+b_ss = 1000, with the IV.A crouch.  Writes the Meshcat replay, the COG/ZMP
+figure (Fig. 9) and the knee comparison with and without crouch (Fig. 10):
+
+    /work/venv/bin/python diagrams/single_support_stop.py [OUT_DIR]
+"""
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+import sys
+import warnings
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from drake_estop.diagram import simulate_diagram  # noqa: E402
+from drake_estop.gait import GaitParameters  # noqa: E402
+from drake_estop.planner import StopParameters  # noqa: E402
+from drake_estop.visualization import describe, plot_cog_zmp, plot_knees  # noqa: E402
+
+GAIT = GaitParameters(step_length=0.3, step_time=0.8)
+STOP = StopParameters(a_ss=5.0, b_ss=1000.0, crouch=True)
+SIGNAL = 3.4
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out", nargs="?", default="out", help="output directory (default out/)")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    warnings.simplefilter("always", RuntimeWarning)
+    crouch = simulate_diagram(GAIT, STOP, SIGNAL, html=out / "single_support_stop.html")
+    print("with crouch:   ", describe(crouch))
+    flat = simulate_diagram(GAIT, replace(STOP, crouch=False), SIGNAL)
+    print("without crouch:", describe(flat))
+    plot_cog_zmp(crouch, out / "single_support_cog_zmp.png",
+                 "Stop in single support (signal 3.4 s): COG and ZMP (cf. Fig. 9)")
+    plot_knees({"crouch": crouch, "constant COG height": flat}, out / "single_support_knees.png",
+               "Knee joints with and without crouch (cf. Fig. 10)")
+    print(f"wrote {out / 'single_support_stop.html'}, {out / 'single_support_cog_zmp.png'}, "
+          f"{out / 'single_support_knees.png'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

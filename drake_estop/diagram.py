@@ -1,0 +1,386 @@
+"""The Drake diagram: trigger -> stop planner -> whole-body IK -> humanoid -> Meshcat.
+
+::
+
+    EStopTrigger --stop--> StopPlannerSystem --com, feet, upper_body--> WholeBodyIK
+        WholeBodyIK --q--> MultibodyPositionToGeometryPose --> SceneGraph --> MeshcatVisualizer
+        StopPlannerSystem --com, zmp, phase, plan--> StopVisualizer (Meshcat traces)
+        loggers: planner com / com_vel / zmp / feet / phase, IK q and IK errors
+
+The humanoid is kinematic: the plant is registered with the SceneGraph for
+its geometry only and posed by the IK's positions (no dynamics, no contact).
+The MultibodyPlant itself is not a System of the diagram; the handles keep it
+alive (MultibodyPositionToGeometryPose references it).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver
+from drake_estop.model import (ALL_JOINTS, LEFT_SOLE, RIGHT_SOLE, UPPER_BODY_JOINTS,
+                               joint_position_indices, load_humanoid,
+                               nominal_standing_configuration)
+from drake_estop.planner import PHASES, StopParameters
+from drake_estop.systems import (add_stop_controller, connect_reference,
+                                 reference_vector, REFERENCE_LAYOUT)
+
+#: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
+IK_COM_BOUND = 1e-3
+IK_FOOT_BOUND = 1e-3
+IK_FOOT_ROT_BOUND = 1e-2
+
+
+@dataclass
+class DiagramHandles:
+    """The built diagram and the systems/loggers a caller reads."""
+
+    diagram: object
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    pattern: NominalPattern
+    trigger: object
+    planner: object
+    ik: WholeBodyIK
+    loggers: dict
+    meshcat: object = None
+    visualizer: object = None
+    stop_visualizer: object = None
+
+
+def initial_configuration(plant, pattern, *, attempts=20):
+    """IK solution for the pattern at t = 0 (the first tick starts converged).
+
+    The standing posture of model.py has the feet under the hips; the walk
+    starts with the feet ``step_width`` apart, so the IK is solved offline
+    here instead of letting the first servo tick jump.
+    """
+    solver = WholeBodyIkSolver(plant, max_iterations=50)
+    reference = reference_vector(0.0, pattern=pattern)
+    parts = _split(reference)
+    q = nominal_standing_configuration(plant, pattern.params.com_height)
+    upper = dict(zip(UPPER_BODY_JOINTS, parts["upper_body"]))
+    for _ in range(attempts):
+        result = solver.solve(q, parts["com"], parts["left_foot"], parts["right_foot"],
+                              None, upper)
+        q = result.q
+        if result.success and result.iterations <= 1:
+            break
+    if not result.success:
+        raise RuntimeError("the IK cannot reach the pattern's initial posture "
+                           f"(COG error {result.com_error:.2e} m)")
+    return q
+
+
+def _split(reference):
+    """Dict name -> slice of a reference vector (REFERENCE_LAYOUT)."""
+    out, start = {}, 0
+    for name, size in REFERENCE_LAYOUT:
+        out[name] = reference[start:start + size]
+        start += size
+    return out
+
+
+def _add_plant(builder):
+    """SceneGraph in the diagram, humanoid plant registered for geometry."""
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    load_humanoid(plant)
+    plant.Finalize()
+    return plant, scene_graph
+
+
+def _add_loggers(builder, planner, ik, period):
+    """Vector loggers of the planner outputs and the IK outputs, one per tick."""
+    ports = {name: getattr(planner, f"{name}_port") for name in
+             ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "arm_joints")}
+    ports.update(q=ik.q_port, ik_com_error=ik.com_error_port,
+                 ik_foot_error=ik.foot_error_port,
+                 velocity_limit_violations=ik.violations_port)
+    loggers = {}
+    for name, port in ports.items():
+        logger = LogVectorOutput(port, builder, publish_period=period)
+        logger.set_name(f"log_{name}")
+        loggers[name] = logger
+    return loggers
+
+
+def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshcat=None,
+                  button_name="Emergency stop", publish_period=1.0 / 64.0):
+    """Build the e-stop diagram; returns :class:`DiagramHandles`.
+
+    ``estop_time`` schedules the stop (None: only the Meshcat button or the
+    exported ``stop_request`` input stop the walk).  With ``meshcat`` the
+    robot (MeshcatVisualizer), traces and phase (StopVisualizer) are drawn
+    and an "Emergency stop" button is added.
+    """
+    from drake_estop.visualization import StopVisualizer
+
+    gait_params = gait_params or GaitParameters()
+    stop_params = stop_params or StopParameters()
+    pattern = NominalPattern(gait_params)
+    builder = DiagramBuilder()
+    plant, scene_graph = _add_plant(builder)
+    trigger, planner = add_stop_controller(
+        builder, pattern=pattern, params=stop_params, estop_time=estop_time,
+        meshcat=meshcat, button_name=button_name)
+    builder.ExportInput(trigger.stop_request_port, "stop_request")
+    ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
+        plant=plant, servo_period=stop_params.servo_period,
+        initial_q=initial_configuration(plant, pattern)))
+    connect_reference(builder, planner, ik)
+    to_pose = builder.AddNamedSystem("q_to_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(ik.q_port, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(),
+                    scene_graph.get_source_pose_port(plant.get_source_id()))
+    loggers = _add_loggers(builder, planner, ik, stop_params.servo_period)
+    visualizer = stop_visualizer = None
+    if meshcat is not None:
+        visualizer = MeshcatVisualizer.AddToBuilder(
+            builder, scene_graph, meshcat, MeshcatVisualizerParams(
+                publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
+        stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
+            meshcat=meshcat, pattern=pattern, publish_period=publish_period))
+        for name in ("com", "zmp", "phase", "plan"):
+            builder.Connect(getattr(planner, f"{name}_port"),
+                            getattr(stop_visualizer, f"{name}_port"))
+    diagram = builder.Build()
+    diagram.set_name("estop_diagram")
+    return DiagramHandles(diagram, plant, scene_graph, pattern, trigger, planner, ik,
+                          loggers, meshcat, visualizer, stop_visualizer)
+
+
+# --------------------------------------------------------------------------
+# Simulation and results.
+
+
+@dataclass
+class DiagramResult:
+    """Per-tick arrays of one simulated stop (rows = servo ticks)."""
+
+    times: np.ndarray
+    com: np.ndarray  # (n, 3) COG target the IK was given at the tick
+    com_vel: np.ndarray  # (n, 3)
+    zmp: np.ndarray  # (n, 2)
+    phases: list  # PHASES labels
+    feet: dict  # side -> (n, 3) sole xyz targets
+    q: dict  # "q_<joint>" -> (n,) for every joint in ALL_JOINTS
+    q_full: np.ndarray  # (n, nq) plant positions
+    ik_com_err: np.ndarray  # (n,) recomputed with the plant at the logged q [m]
+    ik_foot_err: np.ndarray  # (n,) worst sole position error [m]
+    ik_foot_rot_err: np.ndarray  # (n,) worst sole rotation error [rad]
+    ik_reported_com_err: np.ndarray  # (n,) as reported by WholeBodyIK
+    ik_reported_foot_err: np.ndarray
+    velocity_limit_violations: np.ndarray  # (n,) joints over their velocity limit
+    joint_limit_violations: np.ndarray  # (n,) joints outside their position limits
+    plan: object
+    wall_time: float  # seconds of Simulator.AdvanceTo
+    plan_wall_time: float  # seconds plan_stop took inside the planner's update
+    html: object = None
+    ik_failures: dict = field(default_factory=dict)
+    logged_reference: dict = field(default_factory=dict)  # planner outputs as logged
+
+    @property
+    def sim_time(self):
+        return float(self.times[-1] - self.times[0])
+
+    @property
+    def realtime_factor(self):
+        """Simulated seconds per wall-clock second."""
+        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
+
+    def columns(self):
+        """Extra per-tick CSV columns (name -> (n,) array) for rollout.write_log."""
+        cols = dict(self.q)
+        cols.update(ik_com_err=self.ik_com_err, ik_foot_err=self.ik_foot_err,
+                    ik_foot_rot_err=self.ik_foot_rot_err,
+                    velocity_limit_violations=self.velocity_limit_violations)
+        return cols
+
+    def error_summary(self):
+        """Maxima and counts of ticks over the IK bounds (never silent)."""
+        return {
+            "ik_com_err_max_m": float(self.ik_com_err.max()),
+            "ik_foot_err_max_m": float(self.ik_foot_err.max()),
+            "ik_foot_rot_err_max_rad": float(self.ik_foot_rot_err.max()),
+            "ik_ticks_over_bounds": dict(self.ik_failures),
+            "velocity_limit_violations": int(self.velocity_limit_violations.sum()),
+            "joint_limit_violations": int(self.joint_limit_violations.sum()),
+            "ticks": int(len(self.times)),
+        }
+
+
+def _sole_errors(plant, q_log, left, right):
+    """COG and worst sole position / rotation error at every logged q (plant FK)."""
+    context = plant.CreateDefaultContext()
+    frames = (plant.GetFrameByName(LEFT_SOLE), plant.GetFrameByName(RIGHT_SOLE))
+    n = q_log.shape[0]
+    com = np.empty((n, 3))
+    pos_err = np.zeros(n)
+    rot_err = np.zeros(n)
+    for i in range(n):
+        plant.SetPositions(context, q_log[i])
+        com[i] = plant.CalcCenterOfMassPositionInWorld(context)
+        for frame, target in zip(frames, (left[i], right[i])):
+            pose = frame.CalcPoseInWorld(context)
+            pos_err[i] = max(pos_err[i], np.linalg.norm(pose.translation() - target[:3]))
+            quat = target[3:7] / np.linalg.norm(target[3:7])
+            angle = 2.0 * np.arccos(min(1.0, abs(float(
+                quat @ pose.rotation().ToQuaternion().wxyz()))))
+            rot_err[i] = max(rot_err[i], angle)
+    return com, pos_err, rot_err
+
+
+def _logged(handles, context):
+    """(times, data) of every logger, trimmed to the common tick count."""
+    logs = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
+    n = min(log.sample_times().size for log in logs.values())
+    times = logs["com"].sample_times()[:n]
+    return times, {name: log.data()[:, :n].T for name, log in logs.items()}
+
+
+def _align_ticks(handles, context):
+    """Per servo tick k: the targets the IK was given and the q it returned.
+
+    Loggers publish at t_k *before* the updates of tick k, so the IK state
+    logged at t_(k+1) is the solve of tick k.  The planner's unrestricted
+    update runs before the IK's discrete update in the same tick, so the IK
+    at t_k saw the reference at t_k of the plan stored by then; the plan
+    evaluates to the nominal pattern before its start, so the reference of
+    the final plan at t_k is exactly what the IK was given at every tick.
+    """
+    times, data = _logged(handles, context)
+    plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
+    targets = np.array([reference_vector(t, pattern=handles.pattern, plan=plan)
+                        for t in times[:-1]])
+    ref = {name: targets[:, sl] for name, sl in _slices().items()}
+    solved = {name: data[name][1:] for name in
+              ("q", "ik_com_error", "ik_foot_error", "velocity_limit_violations")}
+    return times[:-1], ref, solved, data, plan
+
+
+def _slices():
+    out, start = {}, 0
+    for name, size in REFERENCE_LAYOUT:
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+def collect_result(handles, context, *, wall_time, html=None):
+    """Build a :class:`DiagramResult` from the loggers in ``context``."""
+    plant = handles.plant
+    times, ref, solved, logged, plan = _align_ticks(handles, context)
+    q_log = solved["q"]
+    com_fk, foot_err, rot_err = _sole_errors(plant, q_log, ref["left_foot"], ref["right_foot"])
+    com_err = np.linalg.norm(com_fk - ref["com"], axis=1)
+    idx = joint_position_indices(plant, ALL_JOINTS)
+    lower, upper = plant.GetPositionLowerLimits()[idx], plant.GetPositionUpperLimits()[idx]
+    joints = q_log[:, idx]
+    limit_viol = np.sum((joints < lower - 1e-9) | (joints > upper + 1e-9), axis=1)
+    planner_context = handles.planner.GetMyContextFromRoot(context)
+    failures = {"com": int(np.sum(com_err > IK_COM_BOUND)),
+                "foot_position": int(np.sum(foot_err > IK_FOOT_BOUND)),
+                "foot_rotation": int(np.sum(rot_err > IK_FOOT_ROT_BOUND))}
+    n = len(times)
+    result = DiagramResult(
+        times=times, com=ref["com"], com_vel=ref["com_vel"], zmp=ref["zmp"],
+        phases=[PHASES[int(round(p))] for p in ref["phase"][:, 0]],
+        feet={"left": ref["left_foot"][:, :3], "right": ref["right_foot"][:, :3]},
+        q={f"q_{name}": joints[:, k] for k, name in enumerate(ALL_JOINTS)},
+        q_full=q_log, ik_com_err=com_err, ik_foot_err=foot_err, ik_foot_rot_err=rot_err,
+        ik_reported_com_err=solved["ik_com_error"][:, 0],
+        ik_reported_foot_err=solved["ik_foot_error"][:, 0],
+        velocity_limit_violations=solved["velocity_limit_violations"][:, 0],
+        joint_limit_violations=limit_viol, plan=plan, wall_time=wall_time,
+        plan_wall_time=handles.planner.plan_wall_time(planner_context), html=html,
+        ik_failures=failures,
+        logged_reference={name: logged[name][:n] for name in
+                          ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase")})
+    _warn_failures(result)
+    return result
+
+
+def _warn_failures(result):
+    """An IK that misses its bounds is reported, never silent."""
+    over = {k: v for k, v in result.ik_failures.items() if v}
+    if over or result.velocity_limit_violations.sum() or result.joint_limit_violations.sum():
+        warnings.warn(f"whole-body IK missed its bounds: ticks over bound {over}, "
+                      f"velocity-limit violations {int(result.velocity_limit_violations.sum())}, "
+                      f"joint-limit violations {int(result.joint_limit_violations.sum())}",
+                      RuntimeWarning, stacklevel=3)
+
+
+def _end_time(handles, context, after_halt):
+    """Halt end of the stored plan (or end of the walk) plus ``after_halt``."""
+    plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
+    end = plan.halt_end if plan is not None else handles.pattern.end_time
+    # one and a half ticks more: the solve of the last tick is logged at the next
+    return end + after_halt + 1.5 * handles.planner.params.servo_period
+
+
+def run(handles, *, after_halt=1.0, realtime_rate=0.0, chunk=0.25):
+    """Simulate until ``after_halt`` past the halt (or past the walk's end).
+
+    Advances in chunks and re-reads the plan from the planner's Context, so a
+    stop latched live by the Meshcat button also ends the run.  Returns
+    ``(simulator, wall_time)``.
+    """
+    simulator = Simulator(handles.diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
+    context = simulator.get_mutable_context()
+    start = time.perf_counter()
+    simulator.Initialize()
+    while True:
+        end = _end_time(handles, context, after_halt)
+        t = context.get_time()
+        if t >= end - 1e-9:
+            break
+        simulator.AdvanceTo(min(end, t + chunk))
+    return simulator, time.perf_counter() - start
+
+
+def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html=None,
+                     meshcat=None, after_halt=1.0, realtime_rate=None):
+    """Build, run to ``halt_end + after_halt`` and collect a :class:`DiagramResult`.
+
+    ``html``: write a self-contained Meshcat replay there (a Meshcat is
+    created if none is given).  ``realtime_rate`` defaults to 1 for a live
+    Meshcat without a replay file (so a person can press the button), else
+    as fast as possible.
+    """
+    from drake_estop.visualization import (add_floor, make_meshcat, set_side_camera,
+                                           start_recording, write_replay)
+
+    if html is not None and meshcat is None:
+        meshcat = make_meshcat()
+    if realtime_rate is None:
+        realtime_rate = 1.0 if (meshcat is not None and html is None) else 0.0
+    handles = build_diagram(gait_params=gait_params, stop_params=stop_params,
+                            estop_time=estop_time, meshcat=meshcat)
+    if meshcat is not None:
+        add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)
+        set_side_camera(meshcat, x_center=0.5 * handles.pattern.final_feet["left"][0])
+    if html is not None:
+        start_recording(meshcat)
+    simulator, wall = run(handles, after_halt=after_halt, realtime_rate=realtime_rate)
+    if html is not None:
+        html = write_replay(meshcat, html)
+    return collect_result(handles, simulator.get_context(), wall_time=wall, html=html)
+
+
+__all__ = ["DiagramHandles", "DiagramResult", "build_diagram", "simulate_diagram",
+           "collect_result", "run", "initial_configuration", "IK_COM_BOUND",
+           "IK_FOOT_BOUND", "IK_FOOT_ROT_BOUND"]

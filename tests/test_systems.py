@@ -1,0 +1,237 @@
+"""Each LeafSystem of drake_estop.systems in isolation, Drake style."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_estop.gait import ARM_JOINTS, NominalPattern
+from drake_estop.model import UPPER_BODY_JOINTS
+from drake_estop.planner import PHASES, StopParameters, plan_stop
+from drake_estop.systems import (EStopTrigger, StopPlannerSystem, WalkingPatternSource,
+                                 add_stop_controller)
+
+DT = 0.005
+
+
+class FakeMeshcat:
+    """Stands in for pydrake's Meshcat button API (clicks set by the test)."""
+
+    def __init__(self):
+        self.clicks = {}
+
+    def AddButton(self, name, keycode=""):
+        self.clicks[name] = 0
+
+    def GetButtonClicks(self, name):
+        return self.clicks[name]
+
+
+@pytest.fixture(scope="module")
+def pattern():
+    return NominalPattern()
+
+
+@pytest.fixture(scope="module")
+def params():
+    return StopParameters()
+
+
+# -- WalkingPatternSource ----------------------------------------------------
+
+
+def test_pattern_source_matches_pattern(pattern):
+    source = WalkingPatternSource(pattern=pattern)
+    context = source.CreateDefaultContext()
+    for t in (0.0, 1.5, 3.1, 3.45, pattern.end_time + 0.3):
+        context.SetTime(t)
+        pos, vel, _, zmp = pattern.com([t])
+        np.testing.assert_allclose(source.com_port.Eval(context),
+                                   [*pos[0], pattern.params.com_height])
+        np.testing.assert_allclose(source.com_vel_port.Eval(context), [*vel[0], 0.0])
+        np.testing.assert_allclose(source.zmp_port.Eval(context), zmp[0])
+        feet = pattern.feet_at(t)[0]
+        for side in ("left", "right"):
+            pose = getattr(source, f"{side}_foot_port").Eval(context)
+            np.testing.assert_allclose(pose[:3], feet[side])  # sole z = lift
+            np.testing.assert_allclose(pose[3:], [1, 0, 0, 0])
+        arm = pattern.upper_body(t)[0]
+        np.testing.assert_allclose(source.arm_joints_port.Eval(context), arm)
+        upper = source.upper_body_port.Eval(context)
+        for k, name in enumerate(ARM_JOINTS):
+            assert upper[UPPER_BODY_JOINTS.index(name)] == pytest.approx(arm[k])
+        assert source.phase_port.Eval(context)[0] == PHASES.index("walking")
+
+
+def test_pattern_source_swing_foot_lifts(pattern):
+    source = WalkingPatternSource(pattern=pattern)
+    context = source.CreateDefaultContext()
+    step = pattern.steps[2]
+    context.SetTime(0.5 * (step["liftoff"] + step["touchdown"]))
+    pose = getattr(source, f"{step['swing']}_foot_port").Eval(context)
+    assert pose[2] == pytest.approx(pattern.params.lift_height, rel=1e-6)
+
+
+# -- EStopTrigger ------------------------------------------------------------
+
+
+def _update(system, context, t):
+    context.SetTime(t)
+    values = system.EvalUniquePeriodicDiscreteUpdate(context)
+    context.SetDiscreteState(values)
+    return system.stop_port.Eval(context)
+
+
+def test_trigger_latches_at_scheduled_tick():
+    trigger = EStopTrigger(servo_period=DT, scheduled_time=3.4)
+    context = trigger.CreateDefaultContext()
+    assert trigger.stop_port.Eval(context)[0] == 0.0
+    assert _update(trigger, context, 3.395)[0] == 0.0
+    stop = _update(trigger, context, 3.4)
+    assert stop[0] == 1.0 and stop[1] == pytest.approx(3.4)
+    stop = _update(trigger, context, 3.6)  # later ticks change nothing
+    assert stop[1] == pytest.approx(3.4)
+
+
+def test_trigger_input_port_latches_once():
+    trigger = EStopTrigger(servo_period=DT)
+    context = trigger.CreateDefaultContext()
+    trigger.stop_request_port.FixValue(context, [0.0])
+    assert _update(trigger, context, 1.0)[0] == 0.0
+    trigger.stop_request_port.FixValue(context, [1.0])
+    assert list(_update(trigger, context, 1.005)) == pytest.approx([1.0, 1.005])
+    trigger.stop_request_port.FixValue(context, [0.0])
+    assert list(_update(trigger, context, 1.5)) == pytest.approx([1.0, 1.005])
+
+
+def test_trigger_meshcat_button_latches_once_and_ignores_later_presses():
+    meshcat = FakeMeshcat()
+    trigger = EStopTrigger(servo_period=DT, meshcat=meshcat, button_name="Stop!")
+    simulator = Simulator(trigger)
+    context = simulator.get_mutable_context()
+    simulator.AdvanceTo(1.0)
+    assert trigger.stop_port.Eval(context)[0] == 0.0
+    meshcat.clicks["Stop!"] = 1
+    simulator.AdvanceTo(1.2)
+    latched, latch_time = EStopTrigger.latched(trigger.stop_port.Eval(context))
+    # AdvanceTo(1.0) leaves the tick-1.0 update pending: the press is seen there
+    assert latched and 1.0 <= latch_time <= 1.0 + 2 * DT
+    meshcat.clicks["Stop!"] = 5
+    simulator.AdvanceTo(2.0)
+    assert trigger.stop_port.Eval(context)[1] == latch_time
+
+
+def test_trigger_ignores_clicks_before_initialization():
+    meshcat = FakeMeshcat()
+    trigger = EStopTrigger(servo_period=DT, meshcat=meshcat)
+    meshcat.clicks["Emergency stop"] = 3  # e.g. a reused button
+    simulator = Simulator(trigger)
+    simulator.AdvanceTo(0.5)
+    assert trigger.stop_port.Eval(simulator.get_context())[0] == 0.0
+
+
+def test_trigger_with_real_meshcat_adds_button():
+    from drake_estop.visualization import make_meshcat
+    meshcat = make_meshcat()
+    EStopTrigger(servo_period=DT, meshcat=meshcat)
+    assert "Emergency stop" in meshcat.GetButtonNames()
+    assert meshcat.GetButtonClicks("Emergency stop") == 0
+
+
+# -- StopPlannerSystem -------------------------------------------------------
+
+
+def _planner_context(pattern, params, t, stop):
+    planner = StopPlannerSystem(pattern=pattern, params=params)
+    simulator = Simulator(planner)
+    context = simulator.get_mutable_context()
+    context.SetTime(t)
+    planner.stop_port.FixValue(context, stop)
+    simulator.Initialize()
+    return planner, simulator, context
+
+
+def test_planner_plays_nominal_until_latched(pattern, params):
+    planner, simulator, context = _planner_context(pattern, params, 3.0, [0.0, np.nan])
+    simulator.AdvanceTo(3.5)
+    assert planner.plan(context) is None
+    pos = pattern.com([3.5])[0][0]
+    np.testing.assert_allclose(planner.com_port.Eval(context)[:2], pos)
+    assert planner.phase_port.Eval(context)[0] == PHASES.index("walking")
+
+
+def test_planner_stores_plan_in_context_once(pattern, params):
+    planner, simulator, context = _planner_context(pattern, params, 3.395, [1.0, 3.4])
+    assert planner.plan(context) is None
+    simulator.AdvanceTo(3.405)
+    plan = planner.plan(context)
+    assert plan is not None and plan.signal_time == pytest.approx(3.4)
+    assert planner.plan_wall_time(context) > 0.0
+    expected = plan_stop(pattern, 3.4, params)
+    assert plan.halt_end == pytest.approx(expected.halt_end)
+    assert planner.plan_port.Eval(context).plan is plan
+    planner.stop_port.FixValue(context, [1.0, 3.6])  # a second latch changes nothing
+    simulator.AdvanceTo(3.7)
+    assert planner.plan(context) is plan
+    # the plan lives in the Context: a fresh context has none
+    assert planner.plan(planner.CreateDefaultContext()) is None
+
+
+@pytest.mark.parametrize("signal", [3.4, 3.5])
+def test_planner_outputs_continuous_across_latch(pattern, params, signal):
+    planner, simulator, context = _planner_context(
+        pattern, params, signal - 10 * DT, [0.0, np.nan])
+    rows = []
+    for k in range(-9, 12):
+        t = signal + k * DT
+        if k == 1:  # the trigger's latch becomes visible one tick after the signal
+            planner.stop_port.FixValue(context, [1.0, signal])
+        simulator.AdvanceTo(t)
+        rows.append(np.concatenate([planner.com_port.Eval(context),
+                                    planner.zmp_port.Eval(context),
+                                    planner.left_foot_port.Eval(context)[:3],
+                                    planner.right_foot_port.Eval(context)[:3],
+                                    planner.upper_body_port.Eval(context)]))
+    jumps = np.abs(np.diff(np.array(rows), axis=0))
+    assert planner.plan(context) is not None
+    # rows[9] is at the signal tick, where the plan starts from the nominal
+    # state: it equals the nominal pattern there (no jump) ...
+    source = WalkingPatternSource(pattern=pattern)
+    nominal_context = source.CreateDefaultContext()
+    nominal_context.SetTime(signal)
+    np.testing.assert_allclose(rows[9][:3], source.com_port.Eval(nominal_context), atol=1e-9)
+    # ... and the ticks around the switch show no isolated spike: each step is
+    # bounded by the steps one tick before and two ticks after the signal.
+    bound = np.maximum(jumps[8], jumps[11]) + 1e-4
+    assert np.all(jumps[9] <= bound) and np.all(jumps[10] <= bound), (jumps[8:12])
+    phase = PHASES[int(planner.phase_port.Eval(context)[0])]
+    assert phase == ("landing" if signal == 3.4 else "transition")
+
+
+def test_planner_reports_phase_sequence(pattern, params):
+    planner, simulator, context = _planner_context(pattern, params, 3.395, [1.0, 3.4])
+    seen = [PHASES[int(planner.phase_port.Eval(context)[0])]]
+    plan = None
+    t = 3.395
+    while plan is None or t < plan.halt_end + 0.1:
+        t += DT
+        simulator.AdvanceTo(t)
+        plan = planner.plan(context)
+        name = PHASES[int(planner.phase_port.Eval(context)[0])]
+        if not seen or seen[-1] != name:
+            seen.append(name)
+    assert seen == ["walking", "landing", "transition", "slowdown", "halt", "stopped"]
+
+
+def test_add_stop_controller_wires_trigger_to_planner(pattern, params):
+    builder = DiagramBuilder()
+    trigger, planner = add_stop_controller(builder, pattern=pattern, params=params,
+                                           estop_time=3.4)
+    builder.ExportInput(trigger.stop_request_port)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(3.3)
+    diagram.get_input_port(0).FixValue(simulator.get_mutable_context(), [0.0])
+    simulator.AdvanceTo(3.42)
+    plan = planner.plan(planner.GetMyContextFromRoot(simulator.get_context()))
+    assert plan is not None and plan.signal_time == pytest.approx(3.4)
