@@ -54,6 +54,16 @@ def _add_simulate(sub):
     s.add_argument("--quantisation", choices=("resolve", "round"), default="resolve",
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
                         "'round' only rounds the times, as in the paper")
+    d = p.add_argument_group("Drake diagram (default) and Meshcat")
+    d.add_argument("--kinematic", action="store_true",
+                   help="plan and roll out the reference only (numpy), without the Drake diagram / IK")
+    d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
+    d.add_argument("--meshcat", action="store_true",
+                   help="show the run live in Meshcat (prints the URL; runs in real time; the "
+                        "'Emergency stop' button stops the robot)")
+    d.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: a free one)")
+    d.add_argument("--button-only", action="store_true",
+                   help="with --meshcat: no scheduled stop, only the Meshcat button stops the walk")
     o = p.add_argument_group("output")
     o.add_argument("--log", metavar="FILE.csv", help="per-servo-tick log (runs >= 1 s past the halt)")
     o.add_argument("--summary", metavar="FILE.json", help="JSON summary of the stop")
@@ -84,14 +94,27 @@ def _parameters(args):
 def _simulate(args) -> int:
     gait, stop = _parameters(args)
     pattern = NominalPattern(gait)
-    if not (math.isfinite(args.estop_time) and 0.0 <= args.estop_time <= pattern.end_time):
-        raise ValueError(f"estop_time {args.estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
-    plan = plan_stop(pattern, args.estop_time, stop)
+    estop_time = None if args.button_only else args.estop_time
+    if args.button_only and not args.meshcat:
+        raise ValueError("button_only needs --meshcat (a person must be able to press the button)")
+    if estop_time is not None and not (math.isfinite(estop_time) and 0.0 <= estop_time <= pattern.end_time):
+        raise ValueError(f"estop_time {estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
+    if args.kinematic:
+        if args.html or args.meshcat:
+            raise ValueError("--html and --meshcat need the Drake diagram (drop --kinematic)")
+        plan = plan_stop(pattern, estop_time, stop)
+        extra, diagram_summary = {}, {}
+    else:
+        plan, extra, diagram_summary = _run_diagram(args, gait, stop, estop_time)
+        if plan is None:
+            print("walk ended without a stop signal")
+            return 0
     data = rollout(plan, after_halt=args.after_halt)
     summary = plan.summary()
     summary["metrics"] = stop_metrics(plan, data)
+    summary.update(diagram_summary)
     if args.log:
-        write_log(args.log, data)
+        write_log(args.log, data, {name: values[:len(data.times)] for name, values in extra.items()})
     if args.summary:
         write_summary(args.summary, summary)
     times = summary["phase_times"]
@@ -99,7 +122,37 @@ def _simulate(args) -> int:
           f"landing {times['landing_end']:.3f}, transition {times['transition_end']:.3f}, "
           f"slowdown {times['slowdown_end']:.3f}, halt {times['halt_end']:.3f} s; "
           f"plan {plan.compute_time * 1e3:.2f} ms, {plan.newton_iterations} Newton iterations")
+    if "ik" in summary:
+        ik = summary["ik"]
+        print(f"whole-body IK: COG error max {ik['ik_com_err_max_m'] * 1e3:.3f} mm, foot error max "
+              f"{ik['ik_foot_err_max_m'] * 1e3:.3f} mm, ticks over bounds {ik['ik_ticks_over_bounds']}, "
+              f"joint-velocity-limit violations {ik['velocity_limit_violations']}")
+    if args.html:
+        print(f"replay written to {args.html} (open it in a browser; works offline)")
     return 0
+
+
+def _run_diagram(args, gait, stop, estop_time):
+    """Run the Drake diagram; returns the plan, per-tick IK columns and summary entries."""
+    import warnings
+
+    from drake_estop.diagram import simulate_diagram
+    from drake_estop.visualization import make_meshcat
+
+    meshcat = None
+    if args.meshcat:
+        meshcat = make_meshcat(args.meshcat_port)
+        print(f"Meshcat: {meshcat.web_url()}  (press 'Emergency stop' in the controls to stop the robot)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # IK misses are reported in the summary below
+        result = simulate_diagram(gait, stop, estop_time, html=args.html, meshcat=meshcat,
+                                  after_halt=args.after_halt)
+    summary = {
+        "ik": result.error_summary(),
+        "realtime_factor": result.realtime_factor,
+        "plan_wall_time_in_diagram_s": result.plan_wall_time,
+    }
+    return result.plan, result.columns(), summary
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -117,7 +170,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, InfeasibleStop, FileNotFoundError) as error:
+    except (ValueError, InfeasibleStop, FileNotFoundError, RuntimeError) as error:
         print(f"drake-estop: error: {error}", file=sys.stderr)
         return 2
 

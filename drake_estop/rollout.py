@@ -46,7 +46,7 @@ class Rollout:
                 "left_x": self.feet["left"][i, 0], "left_y": self.feet["left"][i, 1],
                 "left_z": self.feet["left"][i, 2], "right_x": self.feet["right"][i, 0],
                 "right_y": self.feet["right"][i, 1], "right_z": self.feet["right"][i, 2],
-                **{f"q_{name}": self.upper_body[i, k] for k, name in enumerate(ARM_JOINTS)},
+                **{f"qref_{name}": self.upper_body[i, k] for k, name in enumerate(ARM_JOINTS)},
             }
 
 

@@ -13,7 +13,7 @@ REQUIRED = ["t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "zmp_x", "zmp_y"
 
 def test_simulate_writes_log_and_summary(tmp_path):
     log, summary = tmp_path / "log.csv", tmp_path / "summary.json"
-    assert main(["simulate", "--estop-time", "3.4", "--log", str(log), "--summary", str(summary)]) == 0
+    assert main(["simulate", "--kinematic", "--estop-time", "3.4", "--log", str(log), "--summary", str(summary)]) == 0
     rows = list(csv.DictReader(open(log)))
     assert set(REQUIRED) <= set(rows[0])
     assert {row["phase"] for row in rows} == set(PHASES)
@@ -30,9 +30,30 @@ def test_simulate_writes_log_and_summary(tmp_path):
     assert abs(float(last["com_vx"])) < 1e-3 and abs(float(last["com_vy"])) < 1e-3
 
 
+def test_diagram_run_logs_joints_and_ik_errors(tmp_path):
+    log, summary, html = tmp_path / "log.csv", tmp_path / "s.json", tmp_path / "replay.html"
+    assert main(["simulate", "--estop-time", "3.5", "--log", str(log), "--summary", str(summary),
+                 "--html", str(html)]) == 0
+    rows = list(csv.DictReader(open(log)))
+    header = list(rows[0])
+    assert len(header) == len(set(header))
+    for column in ("q_l_knee", "q_r_knee", "q_chest_pitch", "ik_com_err", "ik_foot_err"):
+        assert column in header
+    assert max(float(row["ik_com_err"]) for row in rows) < 1e-3
+    data = json.load(open(summary))
+    assert data["ik"]["ik_ticks_over_bounds"] == {"com": 0, "foot_position": 0, "foot_rotation": 0}
+    assert data["realtime_factor"] > 0
+    assert html.stat().st_size > 100_000
+
+
+def test_button_only_needs_meshcat(capsys):
+    assert main(["simulate", "--button-only"]) == 2
+    assert "button_only" in capsys.readouterr().err
+
+
 def test_no_crouch_keeps_height(tmp_path):
     log = tmp_path / "log.csv"
-    assert main(["simulate", "--estop-time", "3.5", "--no-crouch", "--log", str(log)]) == 0
+    assert main(["simulate", "--kinematic", "--estop-time", "3.5", "--no-crouch", "--log", str(log)]) == 0
     heights = {float(row["com_z"]) for row in csv.DictReader(open(log))}
     assert heights == {0.814}
 
@@ -63,5 +84,5 @@ def test_help_explains_options(capsys):
 
 def test_signal_while_standing_is_trivial(tmp_path, capsys):
     summary = tmp_path / "s.json"
-    assert main(["simulate", "--estop-time", "0", "--summary", str(summary)]) == 0
+    assert main(["simulate", "--kinematic", "--estop-time", "0", "--summary", str(summary)]) == 0
     assert json.load(open(summary))["case"] == "standing"
