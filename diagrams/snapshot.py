@@ -1,0 +1,48 @@
+"""Picture of the robot mid-stop: run the diagram with a live Meshcat to a chosen
+time and screenshot the Meshcat page in headless Chromium.
+
+    python diagrams/snapshot.py [--estop-time 3.4] [--at 3.75] [--out docs/robot_mid_stop.png]
+"""
+
+import argparse
+import subprocess
+import tempfile
+from pathlib import Path
+
+from pydrake.systems.analysis import Simulator
+
+from drake_estop.diagram import build_diagram
+from drake_estop.gait import GaitParameters
+from drake_estop.planner import StopParameters
+from drake_estop.visualization import add_floor, make_meshcat, set_side_camera
+
+from render_replay import find_chromium  # noqa: E402  (script folder)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--estop-time", type=float, default=3.4)
+    parser.add_argument("--at", type=float, default=3.75, help="simulation time of the picture [s]")
+    parser.add_argument("--out", default="docs/robot_mid_stop.png")
+    args = parser.parse_args()
+    meshcat = make_meshcat()
+    handles = build_diagram(gait_params=GaitParameters(), stop_params=StopParameters(),
+                            estop_time=args.estop_time, meshcat=meshcat)
+    add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)
+    set_side_camera(meshcat, x_center=0.6)
+    simulator = Simulator(handles.diagram)
+    simulator.AdvanceTo(args.at)
+    chromium = find_chromium()
+    out = Path(args.out).resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                        "--use-gl=swiftshader", "--enable-unsafe-swiftshader", f"--user-data-dir={profile}",
+                        f"--screenshot={out}", "--window-size=1200,800", "--virtual-time-budget=8000",
+                        meshcat.web_url()], capture_output=True, timeout=120, check=False)
+    print(f"{out} ({'written' if out.is_file() else 'NOT written'})")
+
+
+if __name__ == "__main__":
+    main()
