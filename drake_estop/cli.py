@@ -14,14 +14,8 @@ _GAIT = GaitParameters()
 _STOP = StopParameters()
 
 
-def _add_simulate(sub):
-    p = sub.add_parser(
-        "simulate",
-        help="walk the nominal pattern, latch an emergency stop, write a log and a summary",
-        description="Walk the nominal pattern, latch the emergency stop at --estop-time (sampled at the "
-                    "next servo tick) and plan the four-phase stop (Morisawa et al. 2005). Writes a "
-                    "per-tick CSV log and a JSON summary.",
-    )
+def _add_gait_and_stop(p, *, estop=True):
+    """Gait and stop options shared by ``simulate`` and ``sweep``."""
     g = p.add_argument_group("gait (paper Section V defaults)")
     g.add_argument("--step-length", type=float, default=_GAIT.step_length,
                    help="nominal step length [m] (default %(default)s)")
@@ -36,8 +30,9 @@ def _add_simulate(sub):
     g.add_argument("--num-steps", type=int, default=_GAIT.num_steps,
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
     s = p.add_argument_group("stop")
-    s.add_argument("--estop-time", type=float, default=3.4,
-                   help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
+    if estop:
+        s.add_argument("--estop-time", type=float, default=3.4,
+                       help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
     s.add_argument("--servo-period", type=float, default=_STOP.servo_period,
                    help="servo / control period [s]; phase boundaries fall on its ticks (default %(default)s)")
     s.add_argument("--no-crouch", action="store_true", help="keep the COG height constant (no IV.A crouch)")
@@ -54,9 +49,25 @@ def _add_simulate(sub):
     s.add_argument("--quantisation", choices=("resolve", "round"), default="resolve",
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
                         "'round' only rounds the times, as in the paper")
+
+
+def _add_simulate(sub):
+    p = sub.add_parser(
+        "simulate",
+        help="walk the nominal pattern, latch an emergency stop, write a log and a summary",
+        description="Walk the nominal pattern, latch the emergency stop at --estop-time (sampled at the "
+                    "next servo tick) and plan the four-phase stop (Morisawa et al. 2005). Runs the Drake "
+                    "diagram (planner, whole-body IK, humanoid) unless --kinematic; --physics simulates the "
+                    "humanoid with contact. Writes a per-tick CSV log and a JSON summary.",
+    )
+    _add_gait_and_stop(p)
     d = p.add_argument_group("Drake diagram (default) and Meshcat")
     d.add_argument("--kinematic", action="store_true",
                    help="plan and roll out the reference only (numpy), without the Drake diagram / IK")
+    d.add_argument("--physics", action="store_true",
+                   help="simulate the humanoid with contact (discrete SAP plant, PD servos tracking the "
+                        "IK joint angles) and check the success criteria; adds cop_x, cop_y, pelvis_z, "
+                        "com_meas_* to the log")
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "
@@ -99,7 +110,12 @@ def _simulate(args) -> int:
         raise ValueError("button_only needs --meshcat (a person must be able to press the button)")
     if estop_time is not None and not (math.isfinite(estop_time) and 0.0 <= estop_time <= pattern.end_time):
         raise ValueError(f"estop_time {estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
-    if args.kinematic:
+    if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
+        raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
+    if args.physics:
+        args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
+        plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time)
+    elif args.kinematic:
         if args.html or args.meshcat:
             raise ValueError("--html and --meshcat need the Drake diagram (drop --kinematic)")
         plan = plan_stop(pattern, estop_time, stop)
@@ -129,7 +145,28 @@ def _simulate(args) -> int:
               f"joint-velocity-limit violations {ik['velocity_limit_violations']}")
     if args.html:
         print(f"replay written to {args.html} (open it in a browser; works offline)")
+    if "physics" in summary:
+        physics = summary["physics"]
+        failed = [name for name, ok in physics["criteria"].items() if not ok]
+        print(f"physics: {'all criteria met' if not failed else 'FAILED ' + ', '.join(failed)}; "
+              f"measured COG at rest {physics['numbers']['rest_after_halt_s']:.2f} s after the planned halt, "
+              f"{physics['numbers']['final_cog_offset_m'] * 1e3:.1f} mm from the feet's midpoint; "
+              f"real-time factor {physics['numbers']['realtime_factor']:.2f}")
+        return 0 if not failed else 1
     return 0
+
+
+def _run_physics(args, gait, stop, pattern, estop_time):
+    """Physics run; returns the plan, per-tick measured columns and the summary entry."""
+    from drake_estop.physics import run_physics
+
+    result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
+    columns = {"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
+               "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
+               "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt}
+    summary = {"physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
+                           "success": result.success, "numbers": result.numbers()}}
+    return result.plan, columns, summary
 
 
 def _run_diagram(args, gait, stop, estop_time):
@@ -155,6 +192,44 @@ def _run_diagram(args, gait, stop, estop_time):
     return result.plan, result.columns(), summary
 
 
+def _add_sweep(sub):
+    p = sub.add_parser(
+        "sweep",
+        help="physics runs for stop signals over one stride; writes the stop map (CSV + figure)",
+        description="Stop signals every --every seconds over one full stride of the nominal walk (the "
+                    "third step: single then double support), each simulated in physics with contact; "
+                    "writes a table and the stop map (case, step length, time to rest, COG travel, "
+                    "success per signal time).",
+    )
+    _add_gait_and_stop(p, estop=False)
+    o = p.add_argument_group("sweep")
+    o.add_argument("--every", type=float, default=0.02, help="signal spacing [s] (default %(default)s)")
+    o.add_argument("--csv", default="out/sweep.csv", help="table (default %(default)s)")
+    o.add_argument("--png", default="out/stop_map.png", help="stop map figure (default %(default)s)")
+    o.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_sweep, after_halt=2.5)
+
+
+def _sweep(args) -> int:
+    from drake_estop.physics import CRITERIA, sweep, write_sweep
+
+    gait, stop = _parameters(args)
+    if not (math.isfinite(args.every) and args.every > 0):
+        raise ValueError(f"every must be a positive number of seconds, got {args.every}")
+    start, end = NominalPattern(gait).stride()
+    table = sweep(gait, stop, every=args.every, start=start, duration=end - start,
+                  progress=not args.no_progress)
+    write_sweep(table, args.csv, args.png)
+    wins = sum(bool(row.get("success")) for row in table)
+    print(f"{wins}/{len(table)} stops met every criterion ({100 * wins / len(table):.0f} %); "
+          f"table {args.csv}, stop map {args.png}")
+    for row in table:
+        if not row.get("success"):
+            reason = row.get("error") or ", ".join(k for k in CRITERIA if row.get(k) is False)
+            print(f"  failed at {row['signal_time']:.3f} s: {reason}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="drake-estop",
@@ -162,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
+    _add_sweep(sub)
     return parser
 
 

@@ -86,3 +86,32 @@ def test_signal_while_standing_is_trivial(tmp_path, capsys):
     summary = tmp_path / "s.json"
     assert main(["simulate", "--kinematic", "--estop-time", "0", "--summary", str(summary)]) == 0
     assert json.load(open(summary))["case"] == "standing"
+
+
+def test_physics_run_logs_measurements_and_criteria(tmp_path):
+    log, summary = tmp_path / "log.csv", tmp_path / "s.json"
+    code = main(["simulate", "--physics", "--estop-time", "3.5", "--log", str(log), "--summary", str(summary)])
+    data = json.load(open(summary))
+    assert code == (0 if data["physics"]["success"] else 1)
+    assert set(data["physics"]["criteria"]) == {"no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint",
+                                                "cop_in_support"}
+    rows = list(csv.DictReader(open(log)))
+    for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z"):
+        assert column in rows[0]
+    assert float(rows[-1]["t"]) >= data["phase_times"]["halt_end"] + 2.5 - 1e-9
+    assert data["physics"]["success"]
+
+
+def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
+    table, figure = tmp_path / "sweep.csv", tmp_path / "map.png"
+    assert main(["sweep", "--every", "0.4", "--csv", str(table), "--png", str(figure), "--no-progress"]) == 0
+    rows = list(csv.DictReader(open(table)))
+    assert len(rows) == 2 and {"signal_time", "case", "step_length", "time_to_rest", "cog_travel",
+                               "success"} <= set(rows[0])
+    assert figure.stat().st_size > 1000
+    assert "stops met every criterion" in capsys.readouterr().out
+
+
+def test_sweep_rejects_bad_spacing(capsys):
+    assert main(["sweep", "--every", "0"]) == 2
+    assert "every" in capsys.readouterr().err
