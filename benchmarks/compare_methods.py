@@ -58,13 +58,23 @@ def plan_metrics(plan):
     }
 
 
+def toe_params(pattern, params):
+    """The planner with the single-support slowdown ZMP as far forward in the fore sole as the
+    double-support stop may put it (``landing_zmp_offset`` = toe - margin; the paper's eq. 20 uses 0)."""
+    from dataclasses import replace
+
+    return replace(params, landing_zmp_offset=pattern.params.sole.toe - params.zmp_margin)
+
+
 def evaluate(times, pattern, params):
     rows = []
     for t in _progress(times, desc="instants", unit="tick"):
         row = {"t": float(t), "support": pattern.support_at(t)[0]}
-        for name, planner in (("planner", plan_stop), ("finish_step", alternatives.finish_the_step)):
+        for name, planner, variant in (("planner", plan_stop, params),
+                                       ("planner_toe", plan_stop, toe_params(pattern, params)),
+                                       ("finish_step", alternatives.finish_the_step, params)):
             try:
-                row[name] = plan_metrics(planner(pattern, t, params))
+                row[name] = plan_metrics(planner(pattern, t, variant))
             except InfeasibleStop:
                 row[name] = None
         z = alternatives.zmp_planner_stop(pattern, t, params)
@@ -89,6 +99,28 @@ def scipy_ratio(times, pattern, params):
         reference_solve(problem, kind)
         theirs.append(time.perf_counter() - start)
     return float(np.median(ours)), float(np.median(theirs))
+
+
+def diagram_rtfs(estop_time=3.4):
+    """Real-time factors of the kinematic diagram and of the physics diagram on one paper scenario."""
+    import warnings
+
+    from drake_estop.diagram import simulate_diagram
+    from drake_estop.gait import GaitParameters
+    from drake_estop.physics import run_physics
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        kinematic = simulate_diagram(GaitParameters(), StopParameters(), estop_time)
+    physics = run_physics(GaitParameters(), StopParameters(), estop_time)
+    return [
+        f"Diagram real-time factors (signal {estop_time} s, one run each): kinematic diagram (planner, whole-body IK,"
+        f" posed humanoid) {kinematic.realtime_factor:.1f}x over {kinematic.sim_time:.1f} s simulated;"
+        f" physics diagram (1 ms SAP plant with contact, PD servos) {physics.realtime_factor:.2f}x,"
+        f" {physics.realtime_factor_with_ik:.2f}x including its reference IK and ZMP filter"
+        f" ({physics.sim_time:.1f} s simulated; physics criteria met: {physics.success}).",
+        "",
+    ]
 
 
 def summarise(rows, method):
@@ -118,7 +150,8 @@ def figure(rows, path):
 
     t = [r["t"] for r in rows]
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-    names = {"planner": "this planner", "finish_step": "finish the step", "zmp_planner": "Drake ZmpPlanner"}
+    names = {"planner": "this planner", "planner_toe": "this planner, ZMP to the toe",
+             "finish_step": "finish the step", "zmp_planner": "Drake ZmpPlanner"}
     for key, label in names.items():
         rest = [r[key]["time_to_rest"] if r[key] else np.nan for r in rows]
         travel = [r[key]["travel"] if r[key] else np.nan for r in rows]
@@ -153,7 +186,9 @@ def write_results(rows, summaries, ratio, path, figure_name, command, extra_line
         " min ZMP margin [cm] | plan time median / max [ms] |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
-    labels = {"planner": "this planner", "finish_step": "finish the step (nominal landing)",
+    labels = {"planner": "this planner (paper: slowdown ZMP at the landing ankle, eq. 20)",
+              "planner_toe": "this planner, single-support slowdown ZMP at the fore toe (offset 0.125 m)",
+              "finish_step": "finish the step (nominal landing)",
               "zmp_planner": "Drake ZmpPlanner, stop at next footstep"}
     for key, label in labels.items():
         s = summaries[key]
@@ -185,18 +220,20 @@ def main(argv=None):
     parser.add_argument("--every", type=int, default=1, help="use every k-th servo tick of the stride")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent), help="folder for RESULTS.md and the figure")
     parser.add_argument("--scipy-every", type=int, default=10)
+    parser.add_argument("--no-diagrams", action="store_true", help="skip the diagrams' real-time factors")
     args = parser.parse_args(argv)
     pattern = NominalPattern()
     params = StopParameters()
     times = stride_ticks(pattern, params)[:: args.every]
     rows = evaluate(times, pattern, params)
-    summaries = {key: summarise(rows, key) for key in ("planner", "finish_step", "zmp_planner")}
+    summaries = {key: summarise(rows, key) for key in ("planner", "planner_toe", "finish_step", "zmp_planner")}
     ratio = scipy_ratio(times[:: args.scipy_every], pattern, params)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     figure(rows, out / "compare_methods.png")
     command = "python benchmarks/compare_methods.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    write_results(rows, summaries, ratio, out / "RESULTS.md", "compare_methods.png", command.strip(), [])
+    extra = [] if args.no_diagrams else diagram_rtfs()
+    write_results(rows, summaries, ratio, out / "RESULTS.md", "compare_methods.png", command.strip(), extra)
     print((out / "RESULTS.md").read_text())
     return rows, summaries
 
