@@ -37,8 +37,9 @@ from drake_estop import lipm
 from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
 from drake_estop.geometry import SupportPolygon
 from drake_estop.newton import barrier_newton
-from drake_estop.stop_condition import (StopStart, rest_position, rest_position_grid, slowdown_time,
-                                        slowdown_time_grid, target_zmp, target_zmp_grid)
+from drake_estop.stop_condition import (StopStart, _rest_from_grid_terms, _slowdown_from_grid_terms,
+                                        _target_from_grid_terms, _terms_grid, slowdown_time_grid, stop_point,
+                                        target_zmp)
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 
@@ -320,9 +321,15 @@ class _StopProblem:
     is solved for the slowdown duration, ``T3 = f(y)`` (closed form, see
     :func:`slowdown_time`), which makes the step-length and ZMP limits simple
     bounds; it is the same equation the paper solves for ``l_s`` (eq. 22).
+
+    Two evaluation paths: vectorised over broadcastable duration grids
+    (``*_grid``, :meth:`target_interval`; grid start and quantisation) and at
+    one point in plain floats (:meth:`evaluate`, :meth:`values`; the Newton
+    iterations, where numpy's per-call overhead would dominate).
     """
 
     free: tuple  # indices of y that are decision variables
+    rear_ankle = 0.0  # rear ankle x relative to the start ZMP
 
     def bounds(self) -> np.ndarray:
         raise NotImplementedError
@@ -330,93 +337,157 @@ class _StopProblem:
     def target_bounds(self):
         raise NotImplementedError
 
-    def slowdown(self, y):
-        return slowdown_time_grid(self.start, self.w, y[0], y[1], y[2])
+    # -- grids ------------------------------------------------------------
+    def grid_terms(self, landing, transition):
+        """Closed-form terms on a (landing, transition) grid, shared by the grid evaluations."""
+        return _terms_grid(self.start, self.w, landing, transition)
 
-    def constraints_grid(self, y, t3):
+    def slowdown(self, y, terms=None):
+        """T3 from the stop condition (eq. 21), vectorised; ``terms`` from :meth:`grid_terms`."""
+        if terms is None:
+            return slowdown_time_grid(self.start, self.w, y[0], y[1], y[2])
+        return _slowdown_from_grid_terms(terms, self.w, np.asarray(y[2], float))
+
+    def constraints_grid(self, y, t3, terms=None):
         p = self.params
         with np.errstate(invalid="ignore"):
             return [np.nan_to_num(t3 - p.min_slowdown_time, nan=-1.0),
-                    np.nan_to_num(p.max_slowdown_time - t3, nan=-1.0)] + self.extra_constraints(y)[0]
+                    np.nan_to_num(p.max_slowdown_time - t3, nan=-1.0)] + self.extra_constraints(y, terms)[0]
 
-    rear_ankle = 0.0  # rear ankle x relative to the start ZMP
-
-    def target_interval(self, landing, transition):
+    def target_interval(self, landing, transition, terms=None):
         """ZMP-target interval meeting the bounds and the slowdown-duration limits (Z falls as
         the slowdown lengthens), vectorised over duration arrays."""
         p = self.params
         bounds = self.bounds()
-        long = target_zmp_grid(self.start, self.w, landing, transition, p.max_slowdown_time)
-        short = target_zmp_grid(self.start, self.w, landing, transition, p.min_slowdown_time)
+        terms = self.grid_terms(landing, transition) if terms is None else terms
+        long = _target_from_grid_terms(terms, self.w, p.max_slowdown_time)
+        short = _target_from_grid_terms(terms, self.w, p.min_slowdown_time)
         return np.maximum(bounds[2, 0], np.minimum(long, short)), np.minimum(bounds[2, 1], np.maximum(long, short))
 
-    def extra_constraints(self, y):
-        """Rear-leg reach where the COG comes to rest: ``reach - (x_rest - rear) >= 0``."""
+    def extra_constraints(self, y, terms=None):
+        """Rear-leg reach where the COG comes to rest: ``reach - (x_rest - rear) >= 0``.
+
+        Arrays in, arrays out (vectorised); at one point also gradients and Hessians.
+        """
         if np.ndim(y[0]) != 0:
-            t3 = slowdown_time_grid(self.start, self.w, y[0], y[1], y[2])
-            rest = rest_position_grid(self.start, self.w, y[0], y[1], y[2], t3)
+            terms = self.grid_terms(y[0], y[1]) if terms is None else terms
+            target = np.asarray(y[2], float)
+            rest = _rest_from_grid_terms(terms, self.w, target, _slowdown_from_grid_terms(terms, self.w, target))
             return [np.nan_to_num(self.params.max_rear_reach - rest + self.rear_ankle, nan=-1.0)], None, None
-        rest, grad, hess = rest_position(self.start, self.w, y[0], y[1], y[2])
-        value = self.params.max_rear_reach - rest + self.rear_ankle if math.isfinite(rest) else -1.0
-        return [value], [-grad], [-hess]
+        values, grads, hessians = self._extras_point([float(v) for v in y], *self._point(y)[3:])
+        return (values, [np.array(gr) for gr in grads],
+                [np.zeros((3, 3)) if h is None else np.array(h) for h in hessians])
+
+    # -- one point, plain floats --------------------------------------------
+    def _point(self, y):
+        """T3 and rest position with derivatives at ``y`` (zeros where infeasible)."""
+        t3, tg, th, rest, rg, rh = stop_point(self.start, self.w, float(y[0]), float(y[1]), float(y[2]))
+        if tg is None:
+            return t3, _ZERO3, _ZERO33, rest, _ZERO3, _ZERO33
+        return t3, tg, th, rest, rg, rh
+
+    def _extras_point(self, y, rest, rest_grad=None, rest_hess=None):
+        """Extra constraints at one point: values, and with ``rest_grad`` their gradients and
+        Hessians in y (nested lists, None = zero)."""
+        value = self.params.max_rear_reach - rest + self._floats["rear_ankle"] if math.isfinite(rest) else -1.0
+        if rest_grad is None:
+            return [value], None, None
+        return [value], [[-v for v in rest_grad]], [[[-v for v in row] for row in rest_hess]]
+
+    @functools.cached_property
+    def _floats(self):
+        """Problem data as plain floats (the solver's scalar arithmetic)."""
+        return self._float_data()
+
+    def _float_data(self):
+        return {"rear_ankle": float(self.rear_ankle),
+                "bounds": [tuple(map(float, self.bounds()[k])) for k in self.free]}
+
+    @functools.cached_property
+    def _bound_rows(self):
+        """Gradients of the bound constraints (lower, upper per free variable)."""
+        n = len(self.free)
+        rows = []
+        for i in range(n):
+            unit = [1.0 if j == i else 0.0 for j in range(n)]
+            rows += [unit, [-u for u in unit]]
+        return rows
+
+    def _bound_values(self, x):
+        return [v for xi, (lo, hi) in zip(x, self._floats["bounds"]) for v in (xi - lo, hi - xi)]
+
+    def _full_point(self, x):
+        """Free variables (array or list) -> y as a list of floats."""
+        if len(self.free) == 3:
+            return list(map(float, x))
+        y = [0.0, 0.0, 0.0]
+        for k, value in zip(self.free, x):
+            y[k] = float(value)
+        return y
+
+    def _restrict(self, vector=None, matrix=None):
+        """Entries of a 3-vector / 3x3 matrix over the free variables."""
+        if len(self.free) == 3:
+            return vector if matrix is None else matrix
+        idx = self.free
+        if matrix is None:
+            return [vector[i] for i in idx]
+        return [[matrix[i][j] for j in idx] for i in idx]
 
     def evaluate(self, x):
-        """Cost, constraints and their analytic derivatives over the free variables.
+        """Cost, constraints and their analytic derivatives over the free variables, as
+        plain floats and nested lists for :func:`barrier_newton` (``None``: zero Hessian).
 
         Constraint order: lower/upper bound of each free variable, slowdown
         duration above its minimum and below its maximum, then the extras.
         """
-        idx = list(self.free)
-        y = self.full(x)
-        t3, tg, th = slowdown_time(self.start, self.w, y[0], y[1], y[2])
+        x = list(map(float, x))
+        y = self._full_point(x)
+        t3, tg, th, rest, rg, rh = self._point(y)
         cost, cg, ch = self.cost_terms(y, t3, tg, th)
+        ev, eg, eh = self._extras_point(y, rest, rg, rh)
         p = self.params
-        bounds = self.bounds()[idx]
-        ev, eg, eh = self.extra_constraints(y)
-        n = len(idx)
-        g = np.empty(2 * n + 2 + len(ev))
-        g[0:2 * n:2] = x - bounds[:, 0]
-        g[1:2 * n:2] = bounds[:, 1] - x
-        g[2 * n] = t3 - p.min_slowdown_time if math.isfinite(t3) else -1.0
-        g[2 * n + 1] = p.max_slowdown_time - t3 if math.isfinite(t3) else -1.0
-        g[2 * n + 2:] = ev
-        gg = np.zeros((len(g), n))
-        gg[0:2 * n:2] = np.eye(n)
-        gg[1:2 * n:2] = -np.eye(n)
-        gg[2 * n] = tg[idx]
-        gg[2 * n + 1] = -tg[idx]
-        gh = np.zeros((len(g), n, n))
-        square = self._square
-        sub = th[square]
-        gh[2 * n] = sub
-        gh[2 * n + 1] = -sub
-        for k, (grad, hess) in enumerate(zip(eg, eh)):
-            gg[2 * n + 2 + k] = grad[idx]
-            gh[2 * n + 2 + k] = hess[square]
-        return cost, cg[idx], ch[square], g, gg, gh
-
-    @property
-    def _square(self):
-        return np.ix_(self.free, self.free)
+        finite = math.isfinite(t3)
+        g = self._bound_values(x) + [t3 - p.min_slowdown_time if finite else -1.0,
+                                     p.max_slowdown_time - t3 if finite else -1.0] + ev
+        sub = self._restrict
+        gg = self._bound_rows + [sub(tg), sub([-v for v in tg])] + [sub(e) for e in eg]
+        th_free = sub(matrix=th)
+        gh = [None] * len(self._bound_rows) + [th_free, [[-v for v in row] for row in th_free]]
+        gh += [None if h is None else sub(matrix=h) for h in eh]
+        return cost, sub(cg), sub(matrix=ch), g, gg, gh
 
     def values(self, x):
         """Cost and constraint values only (line-search trial points)."""
-        y = self.full(x)
-        t3 = slowdown_time(self.start, self.w, y[0], y[1], y[2], derivatives=False)
-        bounds = self.bounds()[list(self.free)]
+        x = list(map(float, x))
+        y = self._full_point(x)
+        t3, rest = stop_point(self.start, self.w, y[0], y[1], y[2], derivatives=False)
+        g = self._bound_values(x)
+        extras = self._extras_point(y, rest)[0]
+        if not math.isfinite(t3):
+            return math.inf, [-1.0] * (len(g) + 2 + len(extras))
         p = self.params
-        g = [v for pair in zip(x - bounds[:, 0], bounds[:, 1] - x) for v in pair]
-        if math.isfinite(t3):
-            g += [t3 - p.min_slowdown_time, p.max_slowdown_time - t3]
-        else:
-            return math.inf, np.full(len(g) + 2 + len(self.extra_constraints(y)[0]), -1.0)
-        g += self.extra_constraints(y)[0]
-        return self.cost_grid(y, t3), np.array(g, dtype=float)
+        g += [t3 - p.min_slowdown_time, p.max_slowdown_time - t3] + extras
+        return self.cost_grid(y, t3), g
 
     def full(self, x):
         y = np.zeros(3)
         y[list(self.free)] = x
         return y
+
+
+_ZERO3 = [0.0, 0.0, 0.0]
+_ZERO33 = [[0.0] * 3 for _ in range(3)]
+
+
+def _square(value):
+    """value ** 2 (same rounding for floats and arrays, no float overflow error)."""
+    return value * value
+
+
+def _outer_plus(u, scale, matrix):
+    """``u u^T + scale * matrix`` as nested lists (a Hessian term of the costs)."""
+    return [[u[i] * u[j] + scale * matrix[i][j] for j in range(3)] for i in range(3)]
 
 
 @dataclass
@@ -440,10 +511,10 @@ class _SingleSupportProblem(_StopProblem):
     def step_length(self, target):
         return target - self.params.landing_zmp_offset
 
-    def target_interval(self, landing, transition):
+    def target_interval(self, landing, transition, terms=None):
         """Base interval narrowed by the swing-speed disc and the fore-leg reach at touchdown."""
         p = self.params
-        low, high = super().target_interval(landing, transition)
+        low, high = super().target_interval(landing, transition, terms)
         dy = self.landing_y - self.swing_xy[1]
         radius = np.sqrt(np.maximum((p.max_swing_speed * landing) ** 2 - dy * dy, 0.0))
         offset = p.landing_zmp_offset - self.support_x
@@ -458,11 +529,13 @@ class _SingleSupportProblem(_StopProblem):
         dy = self.landing_y - self.swing_xy[1]
         return np.sqrt(dx * dx + dy * dy), dx, dy
 
-    def extra_constraints(self, y):
+    def extra_constraints(self, y, terms=None):
         """Mean swing-ankle speed to the landing point, ``v_max t_i - distance >= 0``, fore-leg
         reach at touchdown, ``reach - (landing - x_G(t_i)) >= 0`` with the COG of phase (i)
         (constant ZMP, eq. 6): ``x_G - p0 = (xi0 exp(w t_i) + zeta0 exp(-w t_i)) / 2``, and the
         rear-leg reach at rest (support ankle = rear)."""
+        if np.ndim(y[0]) == 0:
+            return super().extra_constraints(y)
         p = self.params
         step = self.step_length(y[2])
         dist, dx, dy = self._distance(step)
@@ -470,34 +543,55 @@ class _SingleSupportProblem(_StopProblem):
         grow = np.exp(self.w * y[0])
         ahead = 0.5 * (self.start.dcm * grow + self.start.ccm / grow)
         reach = p.max_fore_reach - step + ahead
-        rear = super().extra_constraints(y)
-        if np.ndim(dist) != 0:
-            return [speed, reach] + rear[0], None, None
-        speed_grad = np.array([p.max_swing_speed, 0.0, -dx / dist])
-        speed_hess = np.zeros((3, 3))
-        speed_hess[2, 2] = -dy * dy / dist**3
-        reach_grad = np.array([0.5 * self.w * (self.start.dcm * grow - self.start.ccm / grow), 0.0, -1.0])
-        reach_hess = np.zeros((3, 3))
-        reach_hess[0, 0] = self.w * self.w * ahead
-        return [speed, reach] + rear[0], [speed_grad, reach_grad] + rear[1], [speed_hess, reach_hess] + rear[2]
+        return [speed, reach] + super().extra_constraints(y, terms)[0], None, None
+
+    def _float_data(self):
+        data = super()._float_data()
+        data.update(support_x=float(self.support_x), swing=tuple(map(float, self.swing_xy[:2])),
+                    landing_y=float(self.landing_y))
+        return data
+
+    def _extras_point(self, y, rest, rest_grad=None, rest_hess=None):
+        """The three extra constraints of :meth:`extra_constraints` at one point (plain floats)."""
+        p, f = self.params, self._floats
+        step = self.step_length(y[2])
+        dx = f["support_x"] + step - f["swing"][0]
+        dy = f["landing_y"] - f["swing"][1]
+        dist = math.sqrt(dx * dx + dy * dy)
+        speed = p.max_swing_speed * y[0] - dist
+        grow = math.exp(self.w * y[0])
+        ahead = 0.5 * (self.start.dcm * grow + self.start.ccm / grow)
+        reach = p.max_fore_reach - step + ahead
+        rear, rear_grad, rear_hess = super()._extras_point(y, rest, rest_grad, rest_hess)
+        if rest_grad is None:
+            return [speed, reach] + rear, None, None
+        speed_grad = [p.max_swing_speed, 0.0, -dx / dist]
+        speed_hess = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, -dy * dy / dist**3]]
+        reach_grad = [0.5 * self.w * (self.start.dcm * grow - self.start.ccm / grow), 0.0, -1.0]
+        reach_hess = [[self.w * self.w * ahead, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+        return ([speed, reach] + rear, [speed_grad, reach_grad] + rear_grad,
+                [speed_hess, reach_hess] + rear_hess)
 
     def cost_grid(self, y, t3):
         p = self.params
-        return p.a_ss * (self.step_length(y[2]) / y[0]) ** 2 + p.b_ss * (y[1] + t3) ** 2  # eq. 24
+        return p.a_ss * _square(self.step_length(y[2]) / y[0]) + p.b_ss * _square(y[1] + t3)  # eq. 24
 
     def cost_terms(self, y, t3, tg, th):
-        """J_ss (eq. 24) and its gradient and Hessian in (t_i, t_ii, l_s)."""
+        """J_ss (eq. 24) and its gradient and Hessian in (t_i, t_ii, l_s), nested lists."""
         p = self.params
         t1, t2 = y[0], y[1]
         step = self.step_length(y[2])
-        u = step / t1
-        ug = np.array([-step / t1**2, 0.0, 1.0 / t1])
-        uh = np.array([[2 * step / t1**3, 0.0, -1.0 / t1**2], [0.0, 0.0, 0.0], [-1.0 / t1**2, 0.0, 0.0]])
-        span = t2 + t3
-        sg = tg + np.array([0.0, 1.0, 0.0])
+        u = step / t1  # mean swing speed term
+        t1sq = t1 * t1
+        ug = [-step / t1sq, 0.0, 1.0 / t1]
+        uh = [[2 * step / t1**3, 0.0, -1.0 / t1sq], [0.0, 0.0, 0.0], [-1.0 / t1sq, 0.0, 0.0]]
+        span = t2 + t3  # double support + slowdown
+        sg = [tg[0], tg[1] + 1.0, tg[2]]
         cost = p.a_ss * u * u + p.b_ss * span * span
-        grad = 2 * p.a_ss * u * ug + 2 * p.b_ss * span * sg
-        hess = 2 * p.a_ss * (np.outer(ug, ug) + u * uh) + 2 * p.b_ss * (np.outer(sg, sg) + span * th)
+        ku, ks = 2 * p.a_ss * u, 2 * p.b_ss * span
+        grad = [ku * ug[i] + ks * sg[i] for i in range(3)]
+        hu, hs = _outer_plus(ug, u, uh), _outer_plus(sg, span, th)
+        hess = [[2 * p.a_ss * hu[i][j] + 2 * p.b_ss * hs[i][j] for j in range(3)] for i in range(3)]
         return cost, grad, hess
 
 
@@ -519,22 +613,35 @@ class _DoubleSupportProblem(_StopProblem):
 
     def cost_grid(self, y, t3):
         p = self.params
-        return p.a_ds * y[2] ** 2 + p.b_ds * (y[1] + t3) ** 2  # eq. 30 (t_i = signal time)
+        return p.a_ds * _square(y[2]) + p.b_ds * _square(y[1] + t3)  # eq. 30 (t_i = signal time)
 
     def cost_terms(self, y, t3, tg, th):
-        """J_ds (eq. 30) with ZMP_max = target, in (t_ii, ZMP_max) (eq. 31)."""
+        """J_ds (eq. 30) with ZMP_max = target, in (t_ii, ZMP_max) (eq. 31), nested lists."""
         p = self.params
         span = y[1] + t3
-        sg = tg + np.array([0.0, 1.0, 0.0])
-        zg = np.array([0.0, 0.0, 1.0])
-        cost = p.a_ds * y[2] ** 2 + p.b_ds * span * span
-        grad = 2 * p.a_ds * y[2] * zg + 2 * p.b_ds * span * sg
-        hess = 2 * p.a_ds * np.outer(zg, zg) + 2 * p.b_ds * (np.outer(sg, sg) + span * th)
+        sg = [tg[0], tg[1] + 1.0, tg[2]]
+        zg = [0.0, 0.0, 1.0]
+        cost = p.a_ds * _square(y[2]) + p.b_ds * span * span
+        kz, ks = 2 * p.a_ds * y[2], 2 * p.b_ds * span
+        grad = [kz * zg[i] + ks * sg[i] for i in range(3)]
+        hs = _outer_plus(sg, span, th)
+        hess = [[2 * p.a_ds * zg[i] * zg[j] + 2 * p.b_ds * hs[i][j] for j in range(3)] for i in range(3)]
         return cost, grad, hess
 
 
 _GRID = {"single": (16, 4), "double": (1, 10)}
 _TARGET_SAMPLES = np.linspace(0.02, 0.98, 12)
+
+
+@functools.lru_cache(maxsize=64)
+def _grid_axes(kind, bounds):
+    """Landing and transition grids (include the bounds; cached: they depend on the limits only)."""
+    axes = []
+    for (lo, hi), count in zip(bounds, _GRID[kind]):
+        inset = 1e-3 * (hi - lo)
+        inner = np.linspace(lo + inset, hi - inset, count) if count > 1 else np.array([lo])
+        axes.append(np.unique(np.concatenate([[lo], inner])) if count > 1 else inner)
+    return axes[0][:, None, None], axes[1][None, :, None]
 
 
 def _grid_start(problem, kind):
@@ -546,28 +653,26 @@ def _grid_start(problem, kind):
     swing-speed and reach limits are not missed. Strictly feasible points are
     preferred (the interior-point method needs one); ``strict=False`` means
     the feasible set has no interior on the grid (a corner of the limits).
+    Arrays are (landing, transition, target) axes that broadcast; the closed
+    form's quadrature runs once per transition duration.
     """
-    axes = []
-    for (lo, hi), count in zip(problem.bounds()[:2], _GRID[kind]):
-        inset = 1e-3 * (hi - lo)
-        inner = np.linspace(lo + inset, hi - inset, count) if count > 1 else np.array([lo])
-        axes.append(np.unique(np.concatenate([[lo], inner])) if count > 1 else inner)
-    t1, t2 = np.meshgrid(*axes, indexing="ij")
-    low, high = problem.target_interval(t1, t2)
-    z = low[..., None] + (high - low)[..., None] * _TARGET_SAMPLES
-    y = [np.broadcast_to(t1[..., None], z.shape), np.broadcast_to(t2[..., None], z.shape), z]
-    t3 = problem.slowdown(y)
     bounds = problem.bounds()
-    margins = [g for g in problem.constraints_grid(y, t3)]
+    t1, t2 = _grid_axes(kind, tuple(tuple(row) for row in bounds[:2].tolist()))
+    terms = problem.grid_terms(t1, t2)  # (landing, transition, 1)
+    low, high = problem.target_interval(t1[..., 0], t2[..., 0], tuple(term[..., 0] for term in terms))
+    z = low[..., None] + (high - low)[..., None] * _TARGET_SAMPLES
+    y = [t1, t2, z]
+    t3 = problem.slowdown(y, terms)
+    margins = problem.constraints_grid(y, t3, terms)
     margins += [y[k] - bounds[k, 0] for k in problem.free] + [bounds[k, 1] - y[k] for k in problem.free]
-    worst = np.min(np.stack(margins), axis=0)
+    worst = functools.reduce(np.minimum, margins)
     worst = np.where((high >= low)[..., None] & np.isfinite(t3), worst, -np.inf)
     cost = problem.cost_grid(y, np.nan_to_num(t3))
     for strict, threshold in ((True, 1e-9), (False, -1e-12)):
         ok = worst > threshold
         if np.any(ok):
             i = np.unravel_index(np.argmin(np.where(ok, cost, np.inf)), cost.shape)
-            return np.array([axis[i] for axis in y]), float(cost[i]), strict
+            return np.array([np.broadcast_to(axis, cost.shape)[i] for axis in y]), float(cost[i]), strict
     return None
 
 
@@ -615,22 +720,25 @@ def _quantise(problem, kind, y, t3, iterations) -> PhaseSolution:
         hi = math.floor(limits[k][1] / dt + 1e-9)
         base = math.floor(value / dt + 1e-9)
         options.append(np.array(sorted({min(max(n, lo), hi) for n in range(base - 1, base + 3)}), float) * dt)
-    t1, t2, t3q = (a.ravel() for a in np.meshgrid(*options, indexing="ij"))
+    shape = tuple(len(o) for o in options)
+    t1, t2, t3q = options[0][:, None, None], options[1][None, :, None], options[2][None, None, :]
+    terms = problem.grid_terms(t1, t2)
     if p.quantisation == "resolve":
-        z = target_zmp_grid(problem.start, problem.w, t1, t2, t3q)
+        z = _target_from_grid_terms(terms, problem.w, t3q)
     else:
-        z = np.full(t1.shape, y[2])
+        z = np.full(shape, y[2])
     yq = [t1, t2, z]
-    ok = np.ones(t1.shape, bool)
+    ok = np.ones(shape, bool)
     for k in range(3):
         ok &= (yq[k] >= bounds[k, 0] - 1e-12) & (yq[k] <= bounds[k, 1] + 1e-12)
-    for g in problem.constraints_grid(yq, t3q):
+    for g in problem.constraints_grid(yq, t3q, terms):
         ok &= g >= -1e-12
     if not np.any(ok):
         raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
     cost = np.where(ok, problem.cost_grid(yq, t3q), np.inf)
-    i = int(np.argmin(cost))
-    return PhaseSolution(float(t1[i]), float(t2[i]), float(t3q[i]), float(z[i]), float(cost[i]),
+    i = np.unravel_index(np.argmin(cost), shape)
+    return PhaseSolution(float(t1[i[0], 0, 0]), float(t2[0, i[1], 0]), float(t3q[0, 0, i[2]]), float(z[i]),
+                         float(cost[i]),
                          iterations, (y[0], y[1], t3, y[2]))
 
 
@@ -655,8 +763,10 @@ def _halt_basis(w: float, shift: float, settle: float):
 
     Shapes over the two halt segments: [from the slowdown ZMP, to the target,
     free point q, bump A, bump B]. Returns their ZMP coefficients per segment,
-    the COG end state each produces from rest, the homogeneous transition
-    matrix and the shapes sampled at the probe points.
+    the COG end state each produces from rest (plain floats), the homogeneous
+    transition matrix, ``S^T`` and the normal matrix ``S S^T`` (nested lists)
+    of the least-norm boundary-value problem (eq. 27-28; ``S``: weighted
+    responses of the unknowns) and the shapes sampled at the probe points.
     """
     zero = lipm.pad(np.zeros(1))
     one = lipm.pad([1.0])
@@ -674,9 +784,11 @@ def _halt_basis(w: float, shift: float, settle: float):
     total = shift + settle
     ch, sh = math.cosh(w * total), math.sinh(w * total)
     homogeneous = np.array([[ch, sh / w], [w * sh, ch]])
+    scaled = responses[2:].T * _HALT_WEIGHTS
+    normal = scaled @ scaled.T  # badly conditioned for long settles: solved per call, not inverted
     samples = np.array([np.concatenate([lipm.poly_eval(c, _HALT_PROBE * d) for d, c in zip(durations, shape)])
                         for shape in shapes])
-    return np.array(shapes), responses, homogeneous, samples
+    return np.array(shapes), responses, homogeneous, (np.ascontiguousarray(scaled.T), normal.tolist()), samples
 
 
 _HALT_WEIGHTS = np.array([10.0, 1.0, 1.0])  # q, bump A, bump B: bumps penalised
@@ -687,30 +799,84 @@ def _halt_axis(x3, v3, zmp3, target, shift, settle, w):
     free point ``q``, then a settle segment from ``q`` to ``target`` with two
     bumps. ``q`` and the bump heights solve Harada's two-point boundary-value
     problem (COG at ``target`` at rest) in the weighted least-norm sense, so
-    the ZMP moves as little as the COG allows. Returns (coefficients per
-    segment, ZMP samples at the probe points)."""
-    shapes, responses, homogeneous, samples = _halt_basis(w, shift, settle)
+    the ZMP moves as little as the COG allows. Returns (shape weights ``mix``,
+    ZMP samples at the probe points); coefficients per segment are
+    ``np.tensordot(mix, shapes, axes=1)`` (:func:`_halt_coeffs`)."""
+    _, responses, homogeneous, (scaled_t, normal), samples = _halt_basis(w, shift, settle)
     free = homogeneous @ np.array([x3, v3]) + zmp3 * responses[0] + target * responses[1]
-    scaled = responses[2:].T * _HALT_WEIGHTS
-    u = _HALT_WEIGHTS * (scaled.T @ np.linalg.solve(scaled @ scaled.T, np.array([target, 0.0]) - free))
+    # weighted least norm: u = W S^T (S S^T)^-1 (end state wanted - end state without the unknowns)
+    u = _HALT_WEIGHTS * (scaled_t @ np.array(_solve2(normal, (np.array([target, 0.0]) - free).tolist())))
     mix = np.concatenate([[zmp3, target], u])
-    return np.tensordot(mix, shapes, axes=1), mix @ samples
+    return mix, mix @ samples
 
 
-def _choose_halt(pre, midpoint, polygon, params, w):
+def _solve2(matrix, rhs):
+    """2x2 linear solve by Gaussian elimination with partial pivoting, plain floats; the
+    operations of LAPACK's gesv (multiplier by the pivot's reciprocal), so the result
+    equals ``np.linalg.solve`` to the bit even on the badly conditioned halt systems."""
+    (a, b), (c, d) = matrix
+    r0, r1 = rhs
+    if abs(c) > abs(a):
+        a, b, c, d, r0, r1 = c, d, a, b, r1, r0
+    factor = c * (1.0 / a)
+    second = (r1 - factor * r0) / (d - factor * b)
+    return (r0 - b * second) / a, second
+
+
+def _halt_coeffs(mix, shift, settle, w):
+    """ZMP coefficients per halt segment of the shape weights from :func:`_halt_axis`."""
+    return list(np.tensordot(mix, _halt_basis(w, shift, settle)[0], axes=1))
+
+
+def _choose_halt(ends, midpoint, polygon, params, w):
     """Shortest halt whose ZMP keeps ``zmp_margin`` inside the support polygon;
-    else the one with the largest margin. Returns (durations, coeffs per axis, margin)."""
-    ends = [traj.evaluate(traj.end_time) for traj in pre]
+    else the one with the largest margin. ``ends``: COG position, velocity and
+    ZMP per axis at the slowdown end. Returns (durations, coeffs per axis, margin)."""
     best = None
     for shift, settle in _halt_candidates(params):
-        axes = [_halt_axis(float(e[0][0]), float(e[1][0]), float(e[3][0]), midpoint[a], shift, settle, w)
-                for a, e in enumerate(ends)]
+        axes = [_halt_axis(x3, v3, zmp3, midpoint[a], shift, settle, w) for a, (x3, v3, zmp3) in enumerate(ends)]
         margin = float(polygon.margin(np.stack([axes[0][1], axes[1][1]], axis=1)).min())
         if best is None or margin > best[2]:
-            best = ([shift, settle], [list(axis[0]) for axis in axes], margin)
+            best = ([shift, settle], [axis[0] for axis in axes], margin)
         if margin >= params.zmp_margin:
             break
-    return best
+    (shift, settle), mixes, margin = best
+    return best[0], [_halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
+
+
+def _slowdown_end_state(t0, durations, coeffs, x, v, w):
+    """COG position and velocity at the end of phases (i)-(iii) of one axis, plain floats.
+
+    The arithmetic of ``LipmTrajectory.from_zmp(t0, durations, coeffs, x, v, w)``
+    chained over the segments (eq. 6-11), then ``evaluate`` at the end time, op
+    for op: the halt boundary-value problem downstream is badly conditioned, so
+    its input is kept identical to the bit rather than just to rounding.
+    """
+    ww = w * w
+    for duration, c in zip(durations, coeffs):
+        big_a = lipm.pad(c).tolist()  # particular solution A (eq. 7-8), backwards from the top degree
+        for i in range(len(big_a) - 3, -1, -1):
+            big_a[i] = big_a[i] + (i + 1) * (i + 2) * big_a[i + 2] / ww
+        big_v, big_w = x - big_a[0], (v - big_a[1]) / w
+        ch, sh = math.cosh(w * duration), math.sinh(w * duration)
+        x = big_v * ch + big_w * sh + _horner(big_a, duration)
+        v = w * (big_v * sh + big_w * ch) + _horner([i * a for i, a in enumerate(big_a)][1:], duration)
+    elapsed = 0.0
+    for duration in durations[:-1]:
+        elapsed += duration
+    tau = (t0 + (elapsed + durations[-1])) - (t0 + elapsed)  # end time minus the last break
+    ch, sh = float(np.cosh(w * tau)), float(np.sinh(w * tau))
+    position = big_v * ch + big_w * sh + _horner(big_a, tau)
+    velocity = w * (big_v * sh + big_w * ch) + _horner([i * a for i, a in enumerate(big_a)][1:], tau)
+    return position, velocity
+
+
+def _horner(coeffs, tau):
+    """``sum_i c_i tau^i`` (numpy's polyval order)."""
+    value = coeffs[-1] + tau * 0.0
+    for c in reversed(coeffs[:-1]):
+        value = c + value * tau
+    return value
 
 
 def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
@@ -800,11 +966,13 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
     sagittal_target = state.zmp[0] + solution.target
     lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin)
-    segs = _zmp_segments(state, solution, (sagittal_target, lateral_target), kind)
     polygon = SupportPolygon(np.vstack([sole.corners(final_feet[s], s) for s in ("left", "right")]))
-    pre = [lipm.LipmTrajectory.from_zmp(t0, d, c, state.com[a], state.com_vel[a], w)
-           for a, (d, c) in enumerate(segs)]
-    halt_durations, halt_coeffs, margin = _choose_halt(pre, midpoint, polygon, params, w)
+    targets = (sagittal_target, lateral_target)
+    segs = _zmp_segments(state, solution, targets, kind)
+    # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
+    ends = [_slowdown_end_state(t0, d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
+            for a, (d, c) in enumerate(segs)]
+    halt_durations, halt_coeffs, margin = _choose_halt(ends, midpoint, polygon, params, w)
     if margin < 0:
         raise InfeasibleStop("halt ZMP leaves the support polygon for every halt duration")
     halt = sum(halt_durations)
@@ -829,24 +997,44 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
                             "acc": state.feet_acc[landing_foot]}
     span = slowdown_end - t0
     plan.upper_body_peak = state.upper_body + state.upper_body_rate * span / 3.0  # eq. 33
-    plan.min_zmp_margin = _verify_zmp(plan)
+    plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
     if plan.min_zmp_margin < -1e-9:
         raise InfeasibleStop(f"planned ZMP leaves the support polygon by {-plan.min_zmp_margin:.4f} m")
     return plan
 
 
-def _verify_zmp(plan: StopPlan) -> float:
-    """Smallest ZMP margin to the support polygon over every servo tick of the stop."""
+def _verify_zmp(plan: StopPlan, final_polygon: SupportPolygon | None = None) -> float:
+    """Smallest ZMP margin to the support polygon over every servo tick of the stop.
+
+    ``final_polygon``: the polygon of both feet at their final positions, if the
+    caller has it (else built by :meth:`StopPlan.polygon`).
+    """
     dt = plan.params.servo_period
     ticks = plan.start_time + dt * np.arange(int(round((plan.halt_end - plan.start_time) / dt)) + 1)
-    zmp = plan.com(ticks)[3]
+    zmp = np.stack([_zmp_at(plan.x, ticks), _zmp_at(plan.y, ticks)], axis=1)  # ticks >= start: no nominal part
     worst = np.inf
-    pre = ticks < plan.landing_time
-    if np.any(pre):
-        worst = min(worst, float(plan.polygon(plan.start_time).margin(zmp[pre]).min()))
-    if np.any(~pre):
-        worst = min(worst, float(plan.polygon(plan.halt_end).margin(zmp[~pre]).min()))
+    split = int(np.searchsorted(ticks, plan.landing_time, side="left"))  # ticks before the landing
+    if split > 0:
+        worst = min(worst, float(_support_polygon(plan).margin(zmp[:split]).min()))
+    if split < len(ticks):
+        polygon = final_polygon if final_polygon is not None else plan.polygon(plan.halt_end)
+        worst = min(worst, float(polygon.margin(zmp[split:]).min()))
     return worst
+
+
+def _support_polygon(plan: StopPlan) -> SupportPolygon:
+    """:meth:`StopPlan.polygon` at the plan start: before the landing only the support sole."""
+    if plan.landing_foot is None:
+        return plan.polygon(plan.start_time)
+    side = next(s for s in plan.final_feet if s != plan.landing_foot)
+    return SupportPolygon(plan.pattern.params.sole.corners(plan.final_feet[side][:2], side))
+
+
+def _zmp_at(traj: lipm.LipmTrajectory, times: np.ndarray) -> np.ndarray:
+    """ZMP of a trajectory at sorted times (the ZMP part of :meth:`LipmTrajectory.evaluate`)."""
+    k = np.clip(np.searchsorted(traj.breaks, times, side="right") - 1, 0, len(traj.zmp) - 1)
+    tau = times - traj.breaks[k]
+    return np.sum(traj.zmp[k] * tau[:, None] ** np.arange(lipm.N_COEFFS), axis=1)
 
 
 def _trivial_plan(pattern, state, params, signal_time, case):
