@@ -961,3 +961,245 @@ def _plot_stop_map(table, png_path):
     Path(png_path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png_path, dpi=110)
     plt.close(fig)
+
+
+# --------------------------------------------------------------------------
+# Closed loop: the physics mode of the diagram (planner -> stabiliser -> IK -> servos, online).
+
+
+@dataclass
+class ClosedLoopHandles(PhysicsHandles):
+    """:class:`PhysicsHandles` plus the online controller systems of the closed loop."""
+
+    trigger: object = None
+    planner: object = None
+    stabilizer: object = None
+    ik: object = None
+    measurement: object = None
+    desired_state: object = None
+    feedforward: object = None  # TrajectorySource of the offline preview COG offset (or None)
+
+
+@dataclass(frozen=True)
+class StabilizerParameters:
+    """Gains of :class:`drake_estop.stabilizer.DcmStabilizer` (see its module docstring)."""
+
+    k_dcm: float = 0.5  # [1/s] DCM error decay rate (see drake_estop.stabilizer: gain choice)
+    zmp_margin: float = 0.01  # [m] commanded ZMP kept this far inside the planned support polygon
+    k_model: float = 0.0  # share of the estimated ZMP model error cancelled by the COG
+    model_error_time_constant: float = 0.02  # [s]
+    dcm_filter_time_constant: float = 0.1  # [s] low-pass of the measured DCM error
+    max_offset: float = 0.08  # [m] bound on the COG correction
+    enabled: bool = True  # False: the same diagram with the feedback cut (open loop, online IK)
+    joint_target_mode: str = "interpolate"  # DesiredStateInterpolator mode
+
+
+def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
+                              stop_params: StopParameters | None = None, estop_time: float | None = None, *,
+                              physics: PhysicsParameters | None = None,
+                              stabilizer: StabilizerParameters | None = None,
+                              pattern: NominalPattern | None = None,
+                              com_feedforward=None) -> ClosedLoopHandles:
+    """The closed-loop physics diagram; everything is computed online in the Simulator.
+
+    ::
+
+        EStopTrigger -> StopPlannerSystem --com, com_vel, zmp, feet--> DcmStabilizer --com--> WholeBodyIK
+        StopPlannerSystem --feet, upper_body--> WholeBodyIK --q--> DesiredStateInterpolator
+            --desired_state--> MultibodyPlant (PD servos, contact)
+        MultibodyPlant --state--> CogMeasurement --com, com_vel--> DcmStabilizer
+        MultibodyPlant --contact_results--> CopEstimator --cop--> DcmStabilizer
+        loggers (5 ms): plant state, CoP, forces (as build_physics_diagram), IK q and errors,
+            stabiliser commanded ZMP / COG offset / DCM error
+
+    The stop is planned inside the Simulator on the servo tick of the signal
+    (``estop_time``; None: never). ``com_feedforward`` (optional, default
+    None) is a ``PiecewisePolynomial`` of a COG offset ``[dx, dy, dvx, dvy]``
+    added to the planned COG and COG velocity before the stabiliser (used by
+    ``run_closed_loop(use_preview_filter=True)``: an OFFLINE-computed term).
+    """
+    from pydrake.systems.primitives import Adder, Demultiplexer, Multiplexer
+
+    from drake_estop.diagram import initial_configuration as pattern_initial_configuration
+    from drake_estop.ik import WholeBodyIK
+    from drake_estop.stabilizer import CogMeasurement, DcmStabilizer, DesiredStateInterpolator
+    from drake_estop.systems import add_stop_controller, connect_reference
+
+    physics = physics or PhysicsParameters()
+    stop_params = stop_params or StopParameters()
+    stabilizer = stabilizer or StabilizerParameters()
+    pattern = pattern or NominalPattern(gait_params or GaitParameters())
+    dt = stop_params.servo_period
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, physics.time_step)
+    instance = load_humanoid(plant)
+    ground_id = add_ground(plant, physics)
+    plant.set_contact_model(ContactModel.kPoint if physics.contact == "point"
+                            else ContactModel.kHydroelasticWithFallback)
+    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+    set_servo_gains(plant, physics)
+    plant.Finalize()
+    filter_sole_contact(plant, scene_graph, ground_id, physics)
+    soles = [plant.GetBodyByName(_SOLE_FRAMES[side]) for side in SIDES]
+    cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
+    builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
+
+    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time)
+    kin_plant, _, _ = _ik()
+    q0 = pattern_initial_configuration(kin_plant, pattern)
+    ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
+        plant=kin_plant, servo_period=dt, initial_q=q0, solver=WholeBodyIkSolver(kin_plant)))
+    connect_reference(builder, planner, ik)
+    measurement = builder.AddNamedSystem("cog_measurement", CogMeasurement(plant=plant))
+    builder.Connect(plant.get_state_output_port(), measurement.state_port)
+    stab = builder.AddNamedSystem("dcm_stabilizer", DcmStabilizer(
+        servo_period=dt, sole=pattern.params.sole, k_dcm=stabilizer.k_dcm, zmp_margin=stabilizer.zmp_margin,
+        k_model=stabilizer.k_model, model_error_time_constant=stabilizer.model_error_time_constant,
+        dcm_filter_time_constant=stabilizer.dcm_filter_time_constant, max_offset=stabilizer.max_offset))
+    com_port, com_vel_port = planner.com_port, planner.com_vel_port
+    feedforward = None
+    if com_feedforward is not None:
+        feedforward = builder.AddNamedSystem("preview_com_offset", TrajectorySource(com_feedforward))
+        split = builder.AddSystem(Demultiplexer([2, 2]))
+        builder.Connect(feedforward.get_output_port(), split.get_input_port())
+        summed = []
+        for k, port in enumerate((com_port, com_vel_port)):
+            pad = builder.AddSystem(Multiplexer([2, 1]))
+            builder.Connect(split.get_output_port(k), pad.get_input_port(0))
+            zero = builder.AddSystem(_constant(np.zeros(1)))
+            builder.Connect(zero.get_output_port(), pad.get_input_port(1))
+            adder = builder.AddSystem(Adder(2, 3))
+            builder.Connect(port, adder.get_input_port(0))
+            builder.Connect(pad.get_output_port(), adder.get_input_port(1))
+            summed.append(adder.get_output_port())
+        com_port, com_vel_port = summed
+    builder.Connect(com_port, stab.planned_com_port)
+    builder.Connect(com_vel_port, stab.planned_com_vel_port)
+    builder.Connect(planner.zmp_port, stab.planned_zmp_port)
+    builder.Connect(planner.left_foot_port, stab.left_foot_port)
+    builder.Connect(planner.right_foot_port, stab.right_foot_port)
+    if stabilizer.enabled:
+        builder.Connect(measurement.com_port, stab.measured_com_port)
+        builder.Connect(measurement.com_vel_port, stab.measured_com_vel_port)
+        builder.Connect(cop.cop_port, stab.measured_cop_port)
+    else:  # feedback cut: the stabiliser sees a perfectly tracked plan and passes it through
+        builder.Connect(com_port, stab.measured_com_port)
+        builder.Connect(com_vel_port, stab.measured_com_vel_port)
+        builder.Connect(planner.zmp_port, stab.measured_cop_port)
+    # the IK's com input was connected to the planner by connect_reference: rebuild that edge
+    builder.Disconnect(planner.com_port, ik.com_port)
+    builder.Connect(stab.com_port, ik.com_port)
+    q_idx, _ = actuated_indices(plant)
+    desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
+        q_indices=q_idx, initial_q=q0, servo_period=dt, mode=stabilizer.joint_target_mode))
+    builder.Connect(ik.q_port, desired.q_port)
+    builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
+
+    period = physics.log_period
+    loggers = {
+        "state": LogVectorOutput(plant.get_state_output_port(), builder, period),
+        "cop": LogVectorOutput(cop.cop_port, builder, period),
+        "normal_force": LogVectorOutput(cop.normal_force_port, builder, period),
+        "foot_forces": LogVectorOutput(cop.body_normal_forces_port, builder, period),
+        "ik_q": LogVectorOutput(ik.q_port, builder, period),
+        "ik_com_error": LogVectorOutput(ik.com_error_port, builder, period),
+        "ik_foot_error": LogVectorOutput(ik.foot_error_port, builder, period),
+        "commanded_zmp": LogVectorOutput(stab.commanded_zmp_port, builder, period),
+        "com_offset": LogVectorOutput(stab.com_offset_port, builder, period),
+        "dcm_error": LogVectorOutput(stab.dcm_error_port, builder, period),
+    }
+    diagram = builder.Build()
+    diagram.set_name("estop_closed_loop")
+    handles = ClosedLoopHandles(diagram, plant, scene_graph, instance, cop, None, loggers, ground_id,
+                                trigger=trigger, planner=planner, stabilizer=stab, ik=ik,
+                                measurement=measurement, desired_state=desired, feedforward=feedforward)
+    handles.initial_q = q0
+    return handles
+
+
+def _constant(value):
+    from pydrake.systems.primitives import ConstantVectorSource
+    return ConstantVectorSource(value)
+
+
+def _preview_feedforward(plan: StopPlan, after_halt: float, filter_iterations: int):
+    """OFFLINE: the ZmpPreviewFilter COG offset of the whole plan as [dx, dy, dvx, dvy](t)."""
+    ro = rollout(plan, after_halt=after_halt)
+    reference = reference_for(ro, plan, filter_iterations=filter_iterations)
+    offset = reference.com_offset
+    rate = np.gradient(offset, ro.times, axis=0)
+    return PiecewisePolynomial.FirstOrderHold(ro.times, np.hstack([offset, rate]).T), reference.wall_time
+
+
+def _closed_loop_reference(handles: ClosedLoopHandles, context, wall_time: float) -> JointReference:
+    """The IK's positions and errors as logged (the online joint reference)."""
+    q_log = handles.loggers["ik_q"].FindLog(context)
+    com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
+    foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
+    from drake_estop.diagram import IK_COM_BOUND, IK_FOOT_BOUND
+    failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
+    return JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, wall_time)
+
+
+def run_closed_loop(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
+                    estop_time: float = 3.4, *, after_halt: float = 2.5, use_preview_filter: bool = False,
+                    physics: PhysicsParameters | None = None, stabilizer: StabilizerParameters | None = None,
+                    pattern: NominalPattern | None = None) -> PhysicsResult:
+    """Walk, stop at ``estop_time`` and check the criteria with the closed-loop diagram.
+
+    Everything runs online in the Simulator (:func:`build_closed_loop_diagram`):
+    the trigger latches, the planner plans at that servo tick, the stabiliser
+    corrects the COG target from the measured COG / CoP, the IK solves each
+    5 ms tick and the PD servos track it. The run ends ``after_halt`` s after
+    the planned halt end (the plan is read from the planner's context once
+    the signal has passed). The criteria are those of :func:`analyse`
+    (unchanged); ``result.reference`` holds the logged IK positions.
+
+    ``use_preview_filter=True`` adds the OFFLINE :class:`ZmpPreviewFilter` COG
+    correction of the whole plan (computed before the simulation from the
+    plan, as in :func:`run_physics`) as a feedforward in front of the
+    stabiliser: not a purely online controller.
+    """
+    physics = physics or PhysicsParameters()
+    stop_params = stop_params or StopParameters()
+    pattern = pattern or NominalPattern(gait_params or GaitParameters())
+    feedforward, offline_time = None, 0.0
+    if use_preview_filter:
+        iterations = max(physics.filter_iterations, 1)
+        feedforward, offline_time = _preview_feedforward(
+            plan_stop(pattern, estop_time, stop_params), after_halt, iterations)
+    handles = build_closed_loop_diagram(gait_params, stop_params, estop_time, physics=physics,
+                                        stabilizer=stabilizer, pattern=pattern, com_feedforward=feedforward)
+    simulator = Simulator(handles.diagram)
+    context = simulator.get_mutable_context()
+    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
+    simulator.Initialize()
+    dt = stop_params.servo_period
+    planner_context = handles.planner.GetMyContextFromRoot(context)
+    start = time.perf_counter()
+    simulator.AdvanceTo(snap_time(estop_time, dt) + 2 * dt)
+    plan = handles.planner.plan(planner_context)
+    if plan is None:
+        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
+    end = max(plan.halt_end, plan.signal_time) + after_halt
+    end = dt * math.floor(end / dt + 1e-9)
+    simulator.AdvanceTo(end)
+    wall = time.perf_counter() - start
+    reference = _closed_loop_reference(handles, context, offline_time)
+    result = analyse(handles, context, plan, reference, physics, wall)
+    result.closed_loop = _closed_loop_logs(handles, context)
+    return result
+
+
+def snap_time(t: float, period: float) -> float:
+    """First servo tick at or after ``t``."""
+    return math.ceil(t / period - 1e-9) * period
+
+
+def _closed_loop_logs(handles: ClosedLoopHandles, context) -> dict:
+    out = {}
+    for name in ("commanded_zmp", "com_offset", "dcm_error"):
+        log = handles.loggers[name].FindLog(context)
+        out[name] = log.data().T
+        out["times"] = log.sample_times()
+    return out
