@@ -13,6 +13,8 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 from pydrake.multibody.parsing import Parser
 
+from drake_estop.gait import Sole
+
 MODEL_PATH = Path(__file__).resolve().parents[1] / "models" / "humanoid.urdf"
 
 FLOATING_BASE = "pelvis"
@@ -44,18 +46,13 @@ PELVIS_HEIGHT_AT_ZERO = 0.705
 
 
 @dataclass(frozen=True)
-class SoleGeometry:
-    """Sole rectangle measured in the sole frame (origin below the ankle).
-
-    ``inner`` is towards the robot's centre line, ``outer`` away from it, so
-    for the left foot the sole spans y in [-inner, +outer] and for the right
-    foot y in [-outer, +inner].  All values in metres.
+class SoleGeometry(Sole):
+    """The model's sole: :class:`drake_estop.gait.Sole` (toe, heel, inner, outer
+    around the ankle; the planner's numbers) plus the ankle height and the sole
+    thickness. ``inner`` is towards the robot's centre line, ``outer`` away
+    from it. All values in metres.
     """
 
-    toe: float = 0.135
-    heel: float = 0.105
-    inner: float = 0.055
-    outer: float = 0.081
     ankle_height: float = 0.105
     thickness: float = 0.01
 
@@ -69,11 +66,9 @@ class SoleGeometry:
         """Sole width along y [m]."""
         return self.inner + self.outer
 
-    def corners(self, side):
+    def local_corners(self, side):
         """Sole corners (4x2, x/y in the sole frame) for ``side`` 'l' or 'r'."""
-        sign = 1.0 if side == "l" else -1.0
-        ys = (sign * self.outer, -sign * self.inner)
-        return np.array([[x, y] for x in (self.toe, -self.heel) for y in ys])
+        return self.corners((0.0, 0.0), "left" if side == "l" else "right")
 
 
 SOLE = SoleGeometry()

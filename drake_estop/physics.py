@@ -857,7 +857,6 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
 # --------------------------------------------------------------------------
 # Stride sweep and the stop map.
 
-SWEEP_START = 2.8  # liftoff of the third step of the default walk
 CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support")
 
 
@@ -881,9 +880,10 @@ def sweep_row(result: PhysicsResult) -> dict:
 
 
 def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None, *,
-          every: float = 0.02, start: float = SWEEP_START, duration: float | None = None,
+          every: float = 0.02, start: float | None = None, duration: float | None = None,
           progress: bool = True, physics: PhysicsParameters | None = None, after_halt: float = 2.5):
-    """:func:`run_physics` for stop signals every ``every`` s over one stride (default 2.8-3.6 s).
+    """:func:`run_physics` for stop signals every ``every`` s over one stride (default: the
+    third step, :meth:`NominalPattern.stride`, single then double support).
 
     Returns a list of :func:`sweep_row` dicts; a run that raises (e.g. an
     infeasible plan) gives a row with ``success`` False and the ``error``.
@@ -893,6 +893,7 @@ def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters
     stop_params = stop_params or StopParameters()
     pattern = NominalPattern(gait_params)
     duration = gait_params.step_time if duration is None else duration
+    start = pattern.stride()[0] if start is None else start
     count = int(math.floor(duration / every + 1e-9))
     times = start + every * np.arange(count)
     table = []

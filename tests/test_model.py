@@ -207,10 +207,10 @@ def test_sole_frame_below_ankle(plant):
 
 
 def test_sole_corners():
-    corners = SOLE.corners("l")
+    corners = SOLE.local_corners("l")
     assert corners[:, 0].max() == SOLE.toe and corners[:, 0].min() == -SOLE.heel
     assert corners[:, 1].max() == SOLE.outer and corners[:, 1].min() == -SOLE.inner
-    assert SOLE.corners("r")[:, 1].min() == -SOLE.outer
+    assert SOLE.local_corners("r")[:, 1].min() == -SOLE.outer
 
 
 def test_missing_file_names_file(tmp_path):
