@@ -501,6 +501,21 @@ class PhysicsHandles:
     ground_id: object
 
 
+def add_physics_plant(builder, params: PhysicsParameters):
+    """The humanoid on the ground: discrete plant (SAP-based contact), servo gains, sole contact
+    filtered to the corner spheres. Returns ``(plant, scene_graph, model_instance, ground_id)``."""
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, params.time_step)
+    instance = load_humanoid(plant)
+    ground_id = add_ground(plant, params)
+    plant.set_contact_model(ContactModel.kPoint if params.contact == "point"
+                            else ContactModel.kHydroelasticWithFallback)
+    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
+    set_servo_gains(plant, params)
+    plant.Finalize()
+    filter_sole_contact(plant, scene_graph, ground_id, params)
+    return plant, scene_graph, instance, ground_id
+
+
 def build_physics_diagram(reference: JointReference | None = None, params: PhysicsParameters | None = None,
                           *, desired_state_source=None) -> PhysicsHandles:
     """Humanoid + ground + PD servos + CoP estimator + 5 ms loggers.
@@ -511,15 +526,7 @@ def build_physics_diagram(reference: JointReference | None = None, params: Physi
     """
     params = params or PhysicsParameters()
     builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, params.time_step)
-    instance = load_humanoid(plant)
-    ground_id = add_ground(plant, params)
-    plant.set_contact_model(ContactModel.kPoint if params.contact == "point"
-                            else ContactModel.kHydroelasticWithFallback)
-    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
-    set_servo_gains(plant, params)
-    plant.Finalize()
-    filter_sole_contact(plant, scene_graph, ground_id, params)
+    plant, scene_graph, instance, ground_id = add_physics_plant(builder, params)
     source = None
     if desired_state_source is not None:
         port = desired_state_source(builder, plant)
@@ -1032,15 +1039,7 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
     dt = stop_params.servo_period
     builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, physics.time_step)
-    instance = load_humanoid(plant)
-    ground_id = add_ground(plant, physics)
-    plant.set_contact_model(ContactModel.kPoint if physics.contact == "point"
-                            else ContactModel.kHydroelasticWithFallback)
-    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
-    set_servo_gains(plant, physics)
-    plant.Finalize()
-    filter_sole_contact(plant, scene_graph, ground_id, physics)
+    plant, scene_graph, instance, ground_id = add_physics_plant(builder, physics)
     soles = [plant.GetBodyByName(_SOLE_FRAMES[side]) for side in SIDES]
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
