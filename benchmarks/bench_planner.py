@@ -67,6 +67,9 @@ def main():
     pattern = NominalPattern()
     params = StopParameters()
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
+    from drake_estop import planner
+    print("solver backend: " + ("compiled (numba " + __import__("numba").__version__ + ", drake_estop.fastcore)"
+                                if planner.COMPILED else "pure Python (numba missing or DRAKE_ESTOP_PURE_PYTHON set)"))
     times, plans, compute, solve = sweep(pattern, params, args.repeats)
     iterations = np.array([p.newton_iterations for p in plans])
     fallback = [p for p in plans if p.case != "one-step"]

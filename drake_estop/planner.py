@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -40,6 +41,16 @@ from drake_estop.newton import barrier_newton
 from drake_estop.stop_condition import (StopStart, _rest_from_grid_terms, _slowdown_from_grid_terms,
                                         _target_from_grid_terms, _terms_grid, slowdown_time_grid, stop_point,
                                         target_zmp)
+
+try:  # compiled solver core (numba); the pure-Python path below stays the reference
+    from drake_estop import fastcore as _fastcore
+except ImportError:  # numba missing or broken: pure Python
+    _fastcore = None
+
+COMPILED = _fastcore is not None and not os.environ.get("DRAKE_ESTOP_PURE_PYTHON")
+"""Use :mod:`drake_estop.fastcore` for grid start, Newton and quantisation (same
+algorithm, results equal to rounding). Off without numba or with the environment
+variable ``DRAKE_ESTOP_PURE_PYTHON`` set; tests flip it to compare the paths."""
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 
@@ -678,6 +689,32 @@ def _grid_start(problem, kind):
 
 def solve_continuous(problem, kind):
     """Interior-point Newton optimum before quantisation: ``(y, t3, cost, iterations)``."""
+    if COMPILED and _fastcore is not None:
+        _, (y0, y1, t3, y2, cost), iterations, status = _fastcore.solve(*_compiled_args(problem, kind), False)
+        _compiled_status(status, kind)
+        return np.array([y0, y1, y2]), float(t3), float(cost), int(iterations)
+    return _solve_continuous_python(problem, kind)
+
+
+def _compiled_args(problem, kind):
+    """Problem vector and grid axes for :mod:`drake_estop.fastcore`."""
+    bounds = problem.bounds()
+    t1, t2 = _grid_axes(kind, tuple(tuple(row) for row in bounds[:2].tolist()))
+    return _fastcore.pack(problem, kind), t1.ravel(), t2.ravel(), _TARGET_SAMPLES
+
+
+def _compiled_status(status, kind):
+    """The Python path's exceptions for the compiled solver's status codes."""
+    if status == _fastcore.NO_GRID_START:
+        raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
+    if status == _fastcore.NO_QUANTISATION:
+        raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
+    if status == _fastcore.INFEASIBLE_START:
+        raise ValueError("barrier_newton needs a strictly feasible start")
+
+
+def _solve_continuous_python(problem, kind):
+    """:func:`solve_continuous` in pure Python (the reference the compiled path follows)."""
     start = _grid_start(problem, kind)
     if start is None:
         raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
@@ -695,7 +732,19 @@ def solve_continuous(problem, kind):
 
 
 def _solve(problem, kind) -> PhaseSolution:
-    y, t3, _, iterations = solve_continuous(problem, kind)
+    if COMPILED and _fastcore is not None:
+        q, cont, iterations, status = _fastcore.solve(*_compiled_args(problem, kind), True)
+        _compiled_status(status, kind)
+        (t1, t2, t3, z, cost), cont = q.tolist(), cont.tolist()[:4]
+        if problem.params.quantisation == "resolve":
+            # Z once more with numpy at the chosen ticks: equal to the Python path's to the bit
+            # (the compiled quadrature can differ in the last bit, and the halt
+            # boundary-value problem downstream amplifies that ~1e7 times)
+            z = float(_target_from_grid_terms(problem.grid_terms(np.float64(t1), np.float64(t2)), problem.w,
+                                              np.float64(t3)))
+            cost = float(problem.cost_grid([t1, t2, z], t3))
+        return PhaseSolution(t1, t2, t3, z, cost, int(iterations), tuple(cont))
+    y, t3, _, iterations = _solve_continuous_python(problem, kind)
     return _quantise(problem, kind, y, t3, iterations)
 
 
