@@ -270,10 +270,8 @@ class NominalPattern:
         return "double", len(self.steps), None
 
     def state(self, t: float) -> PatternState:
-        pos, vel, _, zmp = self.com(t)
-        # ZMP rate and acceleration in plain floats (same operations as ``zmp_derivatives``)
-        rates = [_zmp_rates(traj, float(t)) for traj in self.trajectories]
-        rate, accel = np.array([r[0] for r in rates]), np.array([r[1] for r in rates])
+        axes = [traj.evaluate_at(float(t)) for traj in self.trajectories]
+        pos, vel, zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (0, 1, 3, 4, 5))
         support, index, side = self.support_at(t)
         feet, feet_vel, feet_acc = self.feet_at(t)
         next_landing, rear = None, None
@@ -286,31 +284,10 @@ class NominalPattern:
         q, qd = self.upper_body(t)
         return PatternState(
             time=float(t), support=support, support_foot=side if support == "single" else None,
-            com=pos[0], com_vel=vel[0], zmp=zmp[0], zmp_rate=rate, zmp_accel=accel,
+            com=pos, com_vel=vel, zmp=zmp, zmp_rate=rate, zmp_accel=accel,
             feet=feet, feet_vel=feet_vel, feet_acc=feet_acc, next_landing=next_landing,
             rear_foot=rear, step_index=index, upper_body=q, upper_body_rate=qd,
         )
-
-
-def _zmp_rates(traj: lipm.LipmTrajectory, t: float):
-    """ZMP rate and acceleration of one axis at one instant, plain floats
-    (:meth:`LipmTrajectory.zmp_derivatives` without the per-call array overhead)."""
-    k = min(max(bisect.bisect_right(traj.breaks.tolist(), t) - 1, 0), len(traj.zmp) - 1)
-    tau = t - float(traj.breaks[k])
-    rate = _derivative(traj.zmp[k].tolist())
-    return _polyval(rate, tau), _polyval(_derivative(rate), tau)
-
-
-def _polyval(coeffs, tau):
-    """``sum_i c_i tau^i`` by Horner's rule (numpy's polyval order), plain floats."""
-    value = coeffs[-1] + tau * 0.0
-    for c in reversed(coeffs[:-1]):
-        value = c + value * tau
-    return value
-
-
-def _derivative(coeffs):
-    return [i * c for i, c in enumerate(coeffs)][1:]
 
 
 def swing_foot(start_xy, end_xy, elapsed, duration, lift_height):

@@ -20,6 +20,7 @@ polynomials are built to be continuous (eq. 12-14) by the callers.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -49,13 +50,32 @@ def cog_particular_coeffs(zmp_coeffs: np.ndarray, w: float) -> np.ndarray:
 
 
 def poly_eval(coeffs: np.ndarray, tau, derivative: int = 0):
-    """Evaluate ``sum_i c_i tau^i`` or its derivative (coefficients low to high)."""
+    """Evaluate ``sum_i c_i tau^i`` or its derivative (coefficients low to high).
+
+    Scalars take a plain-float Horner loop with numpy's operation order (same
+    result, no array overhead: the planner evaluates many scalars per plan).
+    """
     c = np.asarray(coeffs, dtype=float)
     for _ in range(derivative):
         c = c[1:] * np.arange(1, len(c))
     if len(c) == 0:
         return np.zeros_like(np.asarray(tau, dtype=float))
+    if isinstance(tau, (float, int, np.floating)):
+        return np.float64(horner(c.tolist(), float(tau)))
     return np.polynomial.polynomial.polyval(tau, c)
+
+
+def horner(terms, x: float) -> float:
+    """``sum_i terms[i] x^i`` in numpy polyval's operation order, on plain floats."""
+    value = terms[-1] + x * 0.0
+    for ci in reversed(terms[:-1]):
+        value = ci + value * x
+    return value
+
+
+def _derivative(terms):
+    """Coefficients of the derivative (numpy's ``c[1:] * arange(1, n)`` products)."""
+    return [c * i for i, c in enumerate(terms)][1:]
 
 
 def pad(coeffs, n: int = N_COEFFS) -> np.ndarray:
@@ -144,12 +164,12 @@ class LipmTrajectory:
         n = len(durations)
         big_v, big_w = np.zeros(n), np.zeros(n)
         x, v = float(x0), float(v0)
-        for k in range(n):
-            big_v[k] = x - cog_poly[k, 0]
-            big_w[k] = (v - cog_poly[k, 1]) / w
-            ch, sh = math.cosh(w * durations[k]), math.sinh(w * durations[k])
-            x = big_v[k] * ch + big_w[k] * sh + float(poly_eval(cog_poly[k], durations[k]))
-            v = w * (big_v[k] * sh + big_w[k] * ch) + float(poly_eval(cog_poly[k], durations[k], 1))
+        for k, (poly, duration) in enumerate(zip(cog_poly.tolist(), durations.tolist())):
+            cosh_part = big_v[k] = x - poly[0]
+            sinh_part = big_w[k] = (v - poly[1]) / w
+            ch, sh = math.cosh(w * duration), math.sinh(w * duration)
+            x = cosh_part * ch + sinh_part * sh + horner(poly, duration)
+            v = w * (cosh_part * sh + sinh_part * ch) + horner(_derivative(poly), duration)
         if rest_tail:
             residue = max(abs(big_v[-1]), abs(big_w[-1]) * w)
             if np.any(zmp[-1, 1:] != 0.0) or residue > 1e-4:
@@ -188,6 +208,23 @@ class LipmTrajectory:
         )
         zmp = np.sum(self.zmp[k] * powers, axis=1)
         return pos, vel, acc, zmp
+
+    def evaluate_at(self, t: float):
+        """:meth:`evaluate` at one instant in plain floats (position, velocity,
+        acceleration, ZMP, ZMP rate, ZMP acceleration), for per-tick callers."""
+        k = min(max(bisect.bisect_right(self.breaks.tolist(), t) - 1, 0), len(self.zmp) - 1)
+        tau = t - float(self.breaks[k])
+        w = self.w
+        ch, sh = math.cosh(w * tau), math.sinh(w * tau)
+        cosh_part, sinh_part = float(self.cosh_coef[k]), float(self.sinh_coef[k])
+        poly = self.cog_poly[k].tolist()
+        rate = _derivative(poly)
+        zmp = self.zmp[k].tolist()
+        zmp_rate = _derivative(zmp)
+        return (cosh_part * ch + sinh_part * sh + horner(poly, tau),
+                w * (cosh_part * sh + sinh_part * ch) + horner(rate, tau),
+                w * w * (cosh_part * ch + sinh_part * sh) + horner(_derivative(rate), tau),
+                horner(zmp, tau), horner(zmp_rate, tau), horner(_derivative(zmp_rate), tau))
 
     def zmp_derivatives(self, t):
         """ZMP rate and acceleration at ``t`` (for a planner starting mid-transition)."""

@@ -59,8 +59,13 @@ def reference_solve(problem, kind, *, starts_per_axis: int = 3, margin: float = 
         result = minimize(cost, np.array(x0), method="SLSQP", bounds=[duration_bounds[k] for k in free],
                           constraints=[{"type": "ineq", "fun": constraints}],
                           options={"ftol": 1e-12, "maxiter": 300})
-        if not result.success or np.any(constraints(result.x) < -1e-7):
+        # keep every feasible end point: SLSQP often stops with "positive directional
+        # derivative in line search" at the optimum of these problems
+        x = np.clip(result.x, [b[0] for b in (duration_bounds[k] for k in free)],
+                    [b[1] for b in (duration_bounds[k] for k in free)])
+        if not np.all(np.isfinite(x)) or not np.isfinite(cost(x)) or np.any(constraints(x) < -1e-7):
             continue
+        result.x, result.fun = x, cost(x)
         if best is None or result.fun < best[0]:
             best = (float(result.fun), full(result.x), float(target(result.x)))
     return best
