@@ -42,11 +42,11 @@ def cog_particular_coeffs(zmp_coeffs: np.ndarray, w: float) -> np.ndarray:
     ``a_i = A_i - (i+1)(i+2) A_{i+2} / w^2``, solved backwards from the top
     degree where ``A_n = a_n`` and ``A_{n-1} = a_{n-1}``.
     """
-    a = np.asarray(zmp_coeffs, dtype=float)
-    big_a = a.copy()
-    for i in range(len(a) - 3, -1, -1):
-        big_a[i] = a[i] + (i + 1) * (i + 2) * big_a[i + 2] / (w * w)
-    return big_a
+    big_a = np.asarray(zmp_coeffs, dtype=float).tolist()
+    ww = w * w
+    for i in range(len(big_a) - 3, -1, -1):
+        big_a[i] = big_a[i] + (i + 1) * (i + 2) * big_a[i + 2] / ww
+    return np.array(big_a)
 
 
 def poly_eval(coeffs: np.ndarray, tau, derivative: int = 0):

@@ -745,15 +745,7 @@ def _sole_polygon_corners(sole, xy, yaw, side):
 
 def _planned_support(plan: StopPlan, t: float):
     """Feet the plan stands on at ``t`` (the sides of :meth:`StopPlan.polygon`)."""
-    feet = plan.feet(t)
-    on_ground = [side for side in SIDES if feet[side][2] <= 1e-9]
-    if t < plan.start_time:
-        support, _, side = plan.pattern.support_at(t)
-        if support == "single":
-            on_ground = [side]
-    elif plan.landing_foot is not None and t < plan.landing_time:
-        on_ground = [s for s in SIDES if s != plan.landing_foot]
-    return on_ground
+    return plan.support_sides(t)
 
 
 def _intervals(mask):

@@ -246,10 +246,9 @@ class StopPlan:
         dsigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / (self.halt_end - self.slowdown_end)
         return peak + (ARM_NEUTRAL - peak) * sigma, (ARM_NEUTRAL - peak) * dsigma
 
-    def polygon(self, t: float) -> SupportPolygon:
-        """Support polygon at ``t`` (soles on the ground)."""
-        sole = self.pattern.params.sole
-        feet = self.feet(t)
+    def support_sides(self, t: float, feet=None) -> list:
+        """Feet on the ground at ``t`` ('left'/'right'); ``feet`` from :meth:`feet` if given."""
+        feet = self.feet(t) if feet is None else feet
         on_ground = [side for side, p in feet.items() if p[2] <= 1e-9]
         if t < self.start_time:
             support, _, side = self.pattern.support_at(t)
@@ -257,7 +256,13 @@ class StopPlan:
                 on_ground = [side]
         elif self.landing_foot is not None and t < self.landing_time:
             on_ground = [s for s in feet if s != self.landing_foot]
-        corners = np.vstack([sole.corners(feet[s][:2], s) for s in on_ground])
+        return on_ground
+
+    def polygon(self, t: float) -> SupportPolygon:
+        """Support polygon at ``t`` (soles on the ground)."""
+        sole = self.pattern.params.sole
+        feet = self.feet(t)
+        corners = np.vstack([sole.corners(feet[s][:2], s) for s in self.support_sides(t, feet)])
         return SupportPolygon(corners)
 
     def summary(self) -> dict:
@@ -908,24 +913,16 @@ def _slowdown_end_state(t0, durations, coeffs, x, v, w):
             big_a[i] = big_a[i] + (i + 1) * (i + 2) * big_a[i + 2] / ww
         big_v, big_w = x - big_a[0], (v - big_a[1]) / w
         ch, sh = math.cosh(w * duration), math.sinh(w * duration)
-        x = big_v * ch + big_w * sh + _horner(big_a, duration)
-        v = w * (big_v * sh + big_w * ch) + _horner([i * a for i, a in enumerate(big_a)][1:], duration)
+        x = big_v * ch + big_w * sh + lipm.horner(big_a, duration)
+        v = w * (big_v * sh + big_w * ch) + lipm.horner([i * a for i, a in enumerate(big_a)][1:], duration)
     elapsed = 0.0
     for duration in durations[:-1]:
         elapsed += duration
     tau = (t0 + (elapsed + durations[-1])) - (t0 + elapsed)  # end time minus the last break
     ch, sh = float(np.cosh(w * tau)), float(np.sinh(w * tau))
-    position = big_v * ch + big_w * sh + _horner(big_a, tau)
-    velocity = w * (big_v * sh + big_w * ch) + _horner([i * a for i, a in enumerate(big_a)][1:], tau)
+    position = big_v * ch + big_w * sh + lipm.horner(big_a, tau)
+    velocity = w * (big_v * sh + big_w * ch) + lipm.horner([i * a for i, a in enumerate(big_a)][1:], tau)
     return position, velocity
-
-
-def _horner(coeffs, tau):
-    """``sum_i c_i tau^i`` (numpy's polyval order)."""
-    value = coeffs[-1] + tau * 0.0
-    for c in reversed(coeffs[:-1]):
-        value = c + value * tau
-    return value
 
 
 def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
@@ -1083,7 +1080,12 @@ def _zmp_at(traj: lipm.LipmTrajectory, times: np.ndarray) -> np.ndarray:
     """ZMP of a trajectory at sorted times (the ZMP part of :meth:`LipmTrajectory.evaluate`)."""
     k = np.clip(np.searchsorted(traj.breaks, times, side="right") - 1, 0, len(traj.zmp) - 1)
     tau = times - traj.breaks[k]
-    return np.sum(traj.zmp[k] * tau[:, None] ** np.arange(lipm.N_COEFFS), axis=1)
+    coeffs = traj.zmp[k]
+    value = coeffs[:, -1].copy()
+    for i in range(lipm.N_COEFFS - 2, -1, -1):  # Horner, vectorised over the ticks
+        value *= tau
+        value += coeffs[:, i]
+    return value
 
 
 def _trivial_plan(pattern, state, params, signal_time, case):
