@@ -67,6 +67,8 @@ def toe_params(pattern, params):
 
 
 def evaluate(times, pattern, params):
+    # warm-up: the first plan of a process loads the compiled solver (numba cache, ~0.3 s)
+    plan_stop(pattern, float(times[0]), params)
     rows = []
     for t in _progress(times, desc="instants", unit="tick"):
         row = {"t": float(t), "support": pattern.support_at(t)[0]}
