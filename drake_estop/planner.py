@@ -1105,6 +1105,21 @@ def _trivial_plan(pattern, state, params, signal_time, case):
     )
 
 
+def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
+    """Plan once (single and double support) so the compiled solver is loaded before the
+    robot walks: the first call in a process loads numba's cache (~0.3 s; ~17 s to
+    compile after an install), which must not land on the servo tick of a real stop.
+    Returns the seconds it took."""
+    wall = time.perf_counter()
+    start, end = pattern.stride()
+    for fraction in (0.3, 0.9):
+        try:
+            plan_stop(pattern, start + fraction * (end - start), params)
+        except InfeasibleStop:
+            pass
+    return time.perf_counter() - wall
+
+
 def snap_to_tick(t: float, servo_period: float) -> float:
     """The servo tick at or after ``t`` (the stop is sampled by the servo loop)."""
     return math.ceil(t / servo_period - 1e-9) * servo_period

@@ -31,7 +31,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop
+from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, warm_up
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
@@ -280,6 +280,7 @@ class StopPlannerSystem(_ReferenceSystem):
         super().__init__()
         self._pattern = pattern
         self._params = params
+        warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})

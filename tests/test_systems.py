@@ -235,3 +235,26 @@ def test_add_stop_controller_wires_trigger_to_planner(pattern, params):
     simulator.AdvanceTo(3.42)
     plan = planner.plan(planner.GetMyContextFromRoot(simulator.get_context()))
     assert plan is not None and plan.signal_time == pytest.approx(3.4)
+
+
+def test_planner_system_loads_the_solver_before_the_stop():
+    """The first plan of a process must not pay for loading the compiled solver on the
+    servo tick of the stop: the system warms the planner up when it is built. Checked
+    in a fresh process (in this one the solver is loaded already)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import time\n"
+        "from drake_estop.gait import NominalPattern\n"
+        "from drake_estop.planner import StopParameters, plan_stop\n"
+        "from drake_estop.systems import StopPlannerSystem\n"
+        "pattern = NominalPattern()\n"
+        "StopPlannerSystem(pattern=pattern, params=StopParameters())\n"
+        "start = time.perf_counter()\n"
+        "plan_stop(pattern, 3.4)\n"
+        "print(time.perf_counter() - start)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    first_plan = float(done.stdout.strip().splitlines()[-1])
+    assert first_plan < 0.05  # ~1 ms once warm; loading the compiled solver takes ~0.3 s
