@@ -18,12 +18,13 @@ import numpy as np
 
 from drake_estop.gait import NominalPattern
 from drake_estop.rollout import stride_ticks
-from drake_estop.planner import StopParameters, plan_stop, solve_continuous, stop_problem
+from drake_estop.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
 from drake_estop.reference import reference_solve
 
 
 
 def sweep(pattern, params, repeats):
+    warm_up(pattern, params)  # load the compiled solver first, as the stop-planner system does
     times = stride_ticks(pattern, params)
     plans, compute, solve = [], [], []
     for t in times:

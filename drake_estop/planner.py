@@ -260,10 +260,9 @@ class StopPlan:
 
     def polygon(self, t: float) -> SupportPolygon:
         """Support polygon at ``t`` (soles on the ground)."""
-        sole = self.pattern.params.sole
         feet = self.feet(t)
-        corners = np.vstack([sole.corners(feet[s][:2], s) for s in self.support_sides(t, feet)])
-        return SupportPolygon(corners)
+        return soles_polygon(self.pattern.params.sole,
+                             tuple((s, float(feet[s][0]), float(feet[s][1])) for s in self.support_sides(t, feet)))
 
     def summary(self) -> dict:
         sole = self.pattern.params.sole
@@ -294,6 +293,13 @@ class StopPlan:
             "crouch": bool(self.params.crouch),
             "servo_period": self.params.servo_period,
         }
+
+
+@functools.lru_cache(maxsize=512)
+def soles_polygon(sole, feet: tuple) -> SupportPolygon:
+    """Support polygon of the soles ``feet`` = ((side, ankle x, ankle y), ...); cached, since
+    the same footholds recur from plan to plan."""
+    return SupportPolygon(np.vstack([sole.corners((x, y), side) for side, x, y in feet]))
 
 
 class InfeasibleStop(Exception):
@@ -1012,7 +1018,8 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
     sagittal_target = state.zmp[0] + solution.target
     lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin)
-    polygon = SupportPolygon(np.vstack([sole.corners(final_feet[s], s) for s in ("left", "right")]))
+    polygon = soles_polygon(sole, tuple((s, float(final_feet[s][0]), float(final_feet[s][1]))
+                                        for s in ("left", "right")))
     targets = (sagittal_target, lateral_target)
     segs = _zmp_segments(state, solution, targets, kind)
     # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
@@ -1073,7 +1080,8 @@ def _support_polygon(plan: StopPlan) -> SupportPolygon:
     if plan.landing_foot is None:
         return plan.polygon(plan.start_time)
     side = next(s for s in plan.final_feet if s != plan.landing_foot)
-    return SupportPolygon(plan.pattern.params.sole.corners(plan.final_feet[side][:2], side))
+    xy = plan.final_feet[side]
+    return soles_polygon(plan.pattern.params.sole, ((side, float(xy[0]), float(xy[1])),))
 
 
 def _zmp_at(traj: lipm.LipmTrajectory, times: np.ndarray) -> np.ndarray:
