@@ -12,7 +12,6 @@ rest between the feet, exactly.
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass, field
 

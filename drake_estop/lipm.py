@@ -85,15 +85,22 @@ def pad(coeffs, n: int = N_COEFFS) -> np.ndarray:
     return out
 
 
+def _segment_step(cog_poly, duration, x0, v0, w):
+    """One segment of eq. 6 and 9 in plain floats: from the COG state (x0, v0) at its start
+    and the particular solution ``cog_poly`` (a list, eq. 7-8), the coefficients V, W and
+    the COG state at its end: ``(V, W, x, v)``."""
+    cosh_part = x0 - cog_poly[0]
+    sinh_part = (v0 - cog_poly[1]) / w
+    ch, sh = math.cosh(w * duration), math.sinh(w * duration)
+    x = cosh_part * ch + sinh_part * sh + horner(cog_poly, duration)
+    v = w * (cosh_part * sh + sinh_part * ch) + horner(_derivative(cog_poly), duration)
+    return cosh_part, sinh_part, x, v
+
+
 def segment_end_state(zmp_coeffs, duration, x0, v0, w):
     """COG position and velocity at the end of one segment (eq. 6, 9)."""
-    big_a = cog_particular_coeffs(zmp_coeffs, w)
-    v_coef = x0 - big_a[0]
-    w_coef = (v0 - (big_a[1] if len(big_a) > 1 else 0.0)) / w
-    ch, sh = math.cosh(w * duration), math.sinh(w * duration)
-    x = v_coef * ch + w_coef * sh + float(poly_eval(big_a, duration))
-    v = w * v_coef * sh + w * w_coef * ch + float(poly_eval(big_a, duration, 1))
-    return x, v
+    cog_poly = cog_particular_coeffs(pad(zmp_coeffs), w).tolist()
+    return _segment_step(cog_poly, float(duration), float(x0), float(v0), w)[2:]
 
 
 # ---------------------------------------------------------------------------
@@ -165,11 +172,7 @@ class LipmTrajectory:
         big_v, big_w = np.zeros(n), np.zeros(n)
         x, v = float(x0), float(v0)
         for k, (poly, duration) in enumerate(zip(cog_poly.tolist(), durations.tolist())):
-            cosh_part = big_v[k] = x - poly[0]
-            sinh_part = big_w[k] = (v - poly[1]) / w
-            ch, sh = math.cosh(w * duration), math.sinh(w * duration)
-            x = cosh_part * ch + sinh_part * sh + horner(poly, duration)
-            v = w * (cosh_part * sh + sinh_part * ch) + horner(_derivative(poly), duration)
+            big_v[k], big_w[k], x, v = _segment_step(poly, duration, x, v, w)
         if rest_tail:
             residue = max(abs(big_v[-1]), abs(big_w[-1]) * w)
             if np.any(zmp[-1, 1:] != 0.0) or residue > 1e-4:
@@ -263,7 +266,7 @@ def solve_bump_coeffs(base_unit, bumps_unit, duration, x0, v0, w, targets):
     cols = [scale_unit_poly(b, duration) for b in bumps_unit]
 
     def end_values(zmp, x_init, v_init):
-        x, v = segment_end_state(pad(zmp), duration, x_init, v_init, w)
+        x, v = segment_end_state(zmp, duration, x_init, v_init, w)
         return {"x": x, "v": v, "dcm": x + v / w}
 
     free = end_values(base, x0, v0)
@@ -286,7 +289,7 @@ def chain_end_state(durations, coeffs, x0, v0, w):
     """COG position and velocity after a chain of ZMP segments (eq. 6, 9-11)."""
     x, v = x0, v0
     for duration, c in zip(durations, coeffs):
-        x, v = segment_end_state(pad(c), duration, x, v, w)
+        x, v = segment_end_state(c, duration, x, v, w)
     return x, v
 
 

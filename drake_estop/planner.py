@@ -904,33 +904,6 @@ def _choose_halt(ends, midpoint, polygon, params, w):
     return best[0], [_halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
 
 
-def _slowdown_end_state(t0, durations, coeffs, x, v, w):
-    """COG position and velocity at the end of phases (i)-(iii) of one axis, plain floats.
-
-    The arithmetic of ``LipmTrajectory.from_zmp(t0, durations, coeffs, x, v, w)``
-    chained over the segments (eq. 6-11), then ``evaluate`` at the end time, op
-    for op: the halt boundary-value problem downstream is badly conditioned, so
-    its input is kept identical to the bit rather than just to rounding.
-    """
-    ww = w * w
-    for duration, c in zip(durations, coeffs):
-        big_a = lipm.pad(c).tolist()  # particular solution A (eq. 7-8), backwards from the top degree
-        for i in range(len(big_a) - 3, -1, -1):
-            big_a[i] = big_a[i] + (i + 1) * (i + 2) * big_a[i + 2] / ww
-        big_v, big_w = x - big_a[0], (v - big_a[1]) / w
-        ch, sh = math.cosh(w * duration), math.sinh(w * duration)
-        x = big_v * ch + big_w * sh + lipm.horner(big_a, duration)
-        v = w * (big_v * sh + big_w * ch) + lipm.horner([i * a for i, a in enumerate(big_a)][1:], duration)
-    elapsed = 0.0
-    for duration in durations[:-1]:
-        elapsed += duration
-    tau = (t0 + (elapsed + durations[-1])) - (t0 + elapsed)  # end time minus the last break
-    ch, sh = float(np.cosh(w * tau)), float(np.sinh(w * tau))
-    position = big_v * ch + big_w * sh + lipm.horner(big_a, tau)
-    velocity = w * (big_v * sh + big_w * ch) + lipm.horner([i * a for i, a in enumerate(big_a)][1:], tau)
-    return position, velocity
-
-
 def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
     """Lateral ZMP of phases (ii)-(iii): the sagittal phase times, and the value
     that also zeroes the lateral COG velocity at the slowdown end (same stop
@@ -1023,7 +996,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     targets = (sagittal_target, lateral_target)
     segs = _zmp_segments(state, solution, targets, kind)
     # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
-    ends = [_slowdown_end_state(t0, d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
+    ends = [lipm.chain_end_state(d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
             for a, (d, c) in enumerate(segs)]
     halt_durations, halt_coeffs, margin = _choose_halt(ends, midpoint, polygon, params, w)
     if margin < 0:
