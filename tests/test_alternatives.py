@@ -1,21 +1,16 @@
 """The comparison methods (issue: benchmarks against the alternatives), smoke-tested on a few instants."""
 
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
+from scripts import load_script
 
 from drake_estop import alternatives
 from drake_estop.planner import StopParameters, plan_stop
 
 
 def _compare_module():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_methods.py"
-    spec = importlib.util.spec_from_file_location("compare_methods", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/compare_methods.py")
 
 
 def test_finish_the_step_keeps_the_nominal_footstep(pattern, params):

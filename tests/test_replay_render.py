@@ -4,11 +4,10 @@ Needs Debian's chromium (``.ci/run`` installs it); without it these tests are
 skipped with that reason.
 """
 
-import importlib.util
 import warnings
-from pathlib import Path
 
 import pytest
+from scripts import load_script
 
 from drake_estop.diagram import simulate_diagram
 from drake_estop.gait import GaitParameters
@@ -17,11 +16,7 @@ from drake_estop.visualization import add_floor, make_meshcat, write_replay
 
 
 def _renderer():
-    path = Path(__file__).resolve().parents[1] / "diagrams" / "render_replay.py"
-    spec = importlib.util.spec_from_file_location("render_replay", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("diagrams/render_replay.py")
 
 
 RENDER = _renderer()
