@@ -30,7 +30,7 @@ import functools
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -158,6 +158,7 @@ class StopPlan:
     upper_body_peak: np.ndarray | None = None  # eq. 33
     swing_start: dict = field(default_factory=dict)
     continuous_solution: tuple | None = None
+    crouch_start: float | None = None  # a re-plan keeps the crouch of the plan it replaces
 
     @property
     def steps_after_signal(self) -> int:
@@ -207,9 +208,10 @@ class StopPlan:
         if depth == 0.0:
             zeros = np.zeros_like(times)
             return z0 + zeros, zeros, zeros.copy()
-        duration = self.halt_end - self.start_time
-        s = np.clip((times - self.start_time) / duration, 0.0, 1.0)
-        inside = (times > self.start_time) & (times < self.halt_end)
+        start = self.start_time if self.crouch_start is None else self.crouch_start
+        duration = self.halt_end - start
+        s = np.clip((times - start) / duration, 0.0, 1.0)
+        inside = (times > start) & (times < self.halt_end)
         z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
         zd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside
         zdd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside
@@ -1106,9 +1108,22 @@ def snap_to_tick(t: float, servo_period: float) -> float:
     return math.ceil(t / servo_period - 1e-9) * servo_period
 
 
-def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None) -> StopPlan:
-    """Plan the stop for a signal at ``signal_time`` (snapped to the next servo tick)."""
+def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
+              measured=None) -> StopPlan:
+    """Plan the stop for a signal at ``signal_time`` (snapped to the next servo tick).
+
+    ``measured``: optional ``(com_xy, com_vel_xy)`` of the robot at that tick
+    (a state estimate); the plan then starts from it, so the continuity
+    conditions (eq. 10-11) hold against what the robot is doing, with the
+    ZMP continuous with the pattern's (eq. 12-13). Only the signal's own
+    support phase uses it: a next-step fallback (III.C) starts from the
+    nominal state at its later tick.
+    """
     params = params or StopParameters()
+    if measured is not None:
+        measured = tuple(np.asarray(m, float)[:2] for m in measured)
+        if len(measured) != 2 or not all(np.all(np.isfinite(m)) for m in measured):
+            raise ValueError(f"measured must be finite (com_xy, com_vel_xy), got {measured!r}")
     if not math.isfinite(signal_time):
         raise ValueError(f"estop_time must be finite, got {signal_time!r}")
     wall = time.perf_counter()
@@ -1120,6 +1135,8 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     while t <= horizon:
         support, index, _ = pattern.support_at(t)
         state = pattern.state(t)
+        if measured is not None and t == t0:
+            state = replace(state, com=measured[0].copy(), com_vel=measured[1].copy())
         if support == "standing" and t == t0:
             return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
         if support == "standing" or index >= len(pattern.steps):
@@ -1134,6 +1151,38 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s")
+
+
+def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None:
+    """Re-plan the landing of a single-support stop at tick ``t`` from the measured COG.
+
+    The new plan starts at ``t`` from the current plan's ZMP (value, rate and
+    acceleration, eq. 12-13) and swing-foot state, and from the measured COG
+    position and velocity (eq. 10-11); landing time, step length and the
+    later phases are solved again (eq. 21-26). Returns None where no landing
+    is left to change (after ``landing_time - min_landing_time``, or a plan
+    that does not land a foot). Raises :class:`InfeasibleStop` when no
+    one-step stop exists from that state.
+    """
+    params = plan.params
+    if plan.landing_foot is None or plan.x is None or not plan.start_time <= t < plan.landing_time - params.min_landing_time:
+        return None
+    h = 1e-3
+    axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
+    zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
+    before, now, after = plan.feet(t - h), plan.feet(t), plan.feet(t + h)
+    if t - h < plan.start_time:  # the plan's own swing start (continuous with what it started from)
+        before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
+    feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
+    feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
+    upper, upper_rate = plan.upper_body(t)
+    state = replace(plan.start_state, time=float(t), com=np.asarray(com_xy, float)[:2].copy(),
+                    com_vel=np.asarray(com_vel_xy, float)[:2].copy(), zmp=zmp, zmp_rate=rate, zmp_accel=accel,
+                    feet=now, feet_vel=feet_vel, feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
+    wall = time.perf_counter()
+    new = _plan_from(plan.pattern, state, params, plan.signal_time, plan.case)
+    new.crouch_start = plan.start_time if plan.crouch_start is None else plan.crouch_start
+    return _finish(new, wall)
 
 
 def _next_try(pattern, t, dt, support, index, first):

@@ -23,6 +23,7 @@ targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -31,7 +32,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
@@ -233,11 +234,14 @@ class _PlanHandle:
     mutated after it is made, so sharing it is safe and keeps the tick cheap.
     """
 
-    __slots__ = ("plan", "wall_time")
+    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time")
 
-    def __init__(self, plan=None, wall_time=float("nan")):
+    def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None):
         self.plan = plan
         self.wall_time = wall_time
+        self.replans = replans
+        self.replan_failures = replan_failures
+        self.max_wall_time = wall_time if max_wall_time is None else max_wall_time
 
     def __deepcopy__(self, memo):
         return self
@@ -276,13 +280,25 @@ class StopPlannerSystem(_ReferenceSystem):
     update fails and the Simulator raises with the planner's message.
     """
 
-    def __init__(self, *, pattern: NominalPattern, params: StopParameters):
+    def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.02,
+                 bias_time_constant: float = 0.5):
         super().__init__()
+        for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value!r}")
         self._pattern = pattern
         self._params = params
+        self._replan_threshold = float(replan_threshold)
         warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
+        # optional: the estimated COG; when connected the stop is planned (and re-planned) from it
+        self.measured_com_port = self.DeclareVectorInputPort("measured_com", 3)
+        self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
+        # low-passed (measured - reference) COG position and velocity while walking: the servo's
+        # steady tracking error, which a plan from the measured state must not turn into a jump
+        self._bias_alpha = params.servo_period / (bias_time_constant + params.servo_period)
+        self._bias_state = self.DeclareDiscreteState(4)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
@@ -311,20 +327,86 @@ class StopPlannerSystem(_ReferenceSystem):
         """Wall-clock seconds the update spent in ``plan_stop`` (nan before)."""
         return self._handle(context).wall_time
 
+    def replans(self, context):
+        """``(re-plans made, re-plans that found no feasible stop)`` since the signal."""
+        handle = self._handle(context)
+        return handle.replans, handle.replan_failures
+
+    def _raw_measured(self, context):
+        if not self.measured_com_port.HasValue(context):
+            return None
+        com, vel = self.measured_com_port.Eval(context), self.measured_com_vel_port.Eval(context)
+        if not (np.all(np.isfinite(com)) and np.all(np.isfinite(vel))):
+            return None
+        return np.concatenate([com[:2], vel[:2]])
+
+    def _measured(self, context):
+        """Measured COG (xy) and velocity less the walking tracking bias, or None."""
+        raw = self._raw_measured(context)
+        if raw is None:
+            return None
+        corrected = raw - context.get_discrete_state(self._bias_state).value()
+        return corrected[:2], corrected[2:]
+
+    def _track_bias(self, context, state):
+        raw = self._raw_measured(context)
+        if raw is None:
+            return
+        pos, vel, _, _ = self._pattern.com([context.get_time()])
+        bias = context.get_discrete_state(self._bias_state).value()
+        reference = np.concatenate([pos[0], vel[0]])
+        state.get_mutable_discrete_state(self._bias_state).set_value(
+            bias + self._bias_alpha * (raw - reference - bias))
+
     def _update(self, context, state):
-        """Plan once, on the first tick that sees the latched stop."""
-        if self.plan(context) is not None:
-            return EventStatus.DidNothing()
+        """Plan on the first tick that sees the latched stop; then re-plan (at most once a tick)
+        while the measured DCM leaves the plan's by more than ``replan_threshold``."""
+        handle = self._handle(context)
+        if handle.plan is not None:
+            return self._maybe_replan(context, state, handle)
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
         if not latched:
-            return EventStatus.DidNothing()
+            self._track_bias(context, state)
+            return EventStatus.Succeeded()
+        measured = self._measured(context)
         start = time.perf_counter()
         try:
-            plan = plan_stop(self._pattern, signal_time, self._params)
+            if measured is None:
+                plan = plan_stop(self._pattern, signal_time, self._params)
+            else:  # from the state measured now (this tick, at or after the signal's)
+                plan = plan_stop(self._pattern, max(signal_time, context.get_time()), self._params,
+                                 measured=measured)
+                plan.signal_time = min(plan.signal_time, signal_time)
         except (InfeasibleStop, ValueError) as error:
             return EventStatus.Failed(self, f"stop planning failed: {error}")
         handle = _PlanHandle(plan, time.perf_counter() - start)
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
+        return EventStatus.Succeeded()
+
+    def _maybe_replan(self, context, state, handle):
+        measured = self._measured(context)
+        if measured is None:
+            return EventStatus.DidNothing()
+        t = context.get_time()
+        plan = handle.plan
+        pos, vel, _, _ = plan.com([t])
+        omega = plan.pattern.w
+        deviation = (measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)
+        if float(np.linalg.norm(deviation)) <= self._replan_threshold:
+            return EventStatus.DidNothing()
+        start = time.perf_counter()
+        try:
+            new = replan_stop(plan, t, *measured)
+        except InfeasibleStop:
+            new, failures = None, handle.replan_failures + 1
+        else:
+            failures = handle.replan_failures
+        wall = time.perf_counter() - start
+        if new is None and failures == handle.replan_failures:
+            return EventStatus.DidNothing()  # nothing left to re-plan (the foot has landed)
+        updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
+                              max(handle.max_wall_time, wall))
+        state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
     def _calc_reference(self, context):
