@@ -32,8 +32,7 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba,
-                              Sphere)
+from pydrake.geometry import Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba, Sphere
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
