@@ -2,7 +2,10 @@
 
 Run from the repository root:
 
-    /work/venv/bin/python benchmarks/bench_closed_loop.py [--estop-time 3.4] [--sweep] [--no-preview]
+    python benchmarks/bench_closed_loop.py [--estop-time 3.4] [--sweep] [--no-preview]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 
 Prints the real-time factor of ``Simulator.AdvanceTo`` of the closed-loop
 diagram (median of ``--repeats`` runs, 3 by default) and the success
@@ -17,19 +20,14 @@ because the feedback alone does not keep the robot up (see
 """
 
 import argparse
-from pathlib import Path
 import statistics
-import sys
 import time
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from drake_estop.gait import GaitParameters, NominalPattern  # noqa: E402
-from drake_estop.physics import StabilizerParameters, run_closed_loop  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.physics import StabilizerParameters, run_closed_loop
+from drake_estop.planner import StopParameters
 
 
 def _failed(result):

@@ -1,6 +1,9 @@
 """Real-time factor of the e-stop diagram (no live Meshcat).
 
-    /work/venv/bin/python benchmarks/bench_diagram.py [--runs 5] [--signal 3.4]
+    python benchmarks/bench_diagram.py [--runs 5] [--signal 3.4]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 
 Simulates a ~6 s scenario (walk, stop signal, stop, 1 s standing; the run is
 extended to 6 s after the halt if needed) and prints the median real-time
@@ -9,21 +12,17 @@ reference evaluation, one WholeBodyIK update, and the one-off plan_stop.
 """
 
 import argparse
-from pathlib import Path
 import statistics
 import sys
 import time
 import warnings
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from drake_estop.diagram import build_diagram, run  # noqa: E402
-from drake_estop.gait import GaitParameters  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
-from drake_estop.systems import reference_vector  # noqa: E402
+from drake_estop.diagram import build_diagram, run
+from drake_estop.gait import GaitParameters
+from drake_estop.planner import StopParameters
+from drake_estop.systems import reference_vector
 
 
 def one_run(signal, duration):

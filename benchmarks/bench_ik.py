@@ -2,7 +2,10 @@
 
 Run from the repository root:
 
-    /work/venv/bin/python benchmarks/bench_ik.py [--steps 2000]
+    python benchmarks/bench_ik.py [--steps 2000]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 
 Prints median / 95th percentile / max solve time of ``WholeBodyIkSolver``
 (each solve warm-started from the previous solution, targets 5 ms apart)
@@ -11,22 +14,15 @@ and of one ``WholeBodyIK`` discrete update, plus the worst errors.
 
 import argparse
 import math
-from pathlib import Path
-import sys
 import time
 
 import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.analysis import Simulator
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from pydrake.math import RigidTransform, RollPitchYaw  # noqa: E402
-from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
-from pydrake.systems.analysis import Simulator  # noqa: E402
-
-from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver, pose_vector  # noqa: E402
-from drake_estop.model import (UPPER_BODY_JOINTS, load_humanoid,  # noqa: E402
-                               nominal_standing_configuration)
+from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver, pose_vector
+from drake_estop.model import UPPER_BODY_JOINTS, load_humanoid, nominal_standing_configuration
 
 PERIOD = 0.005
 

@@ -2,7 +2,10 @@
 
 Run from the repository root:
 
-    /work/venv/bin/python benchmarks/bench_physics.py [--estop-time 3.4] [--contact point]
+    python benchmarks/bench_physics.py [--estop-time 3.4] [--contact point]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 
 Prints the real-time factor of the physics simulation (simulated seconds per
 wall-clock second of ``Simulator.AdvanceTo``), the one-off cost of the joint
@@ -11,15 +14,10 @@ real-time factor including it, and the success criteria of the run.
 """
 
 import argparse
-from pathlib import Path
-import sys
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from drake_estop.gait import GaitParameters, NominalPattern  # noqa: E402
-from drake_estop.physics import PhysicsParameters, run_physics  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.physics import PhysicsParameters, run_physics
+from drake_estop.planner import StopParameters
 
 
 def main():

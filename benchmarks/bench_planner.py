@@ -6,6 +6,9 @@ same problems and the ratio, the share of next-step fallbacks, and the
 quantisation residual with and without re-solving the ZMP value.
 
     python benchmarks/bench_planner.py [--repeats 3]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 from __future__ import annotations
@@ -17,10 +20,9 @@ import time
 import numpy as np
 
 from drake_estop.gait import NominalPattern
-from drake_estop.rollout import stride_ticks
 from drake_estop.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
 from drake_estop.reference import reference_solve
-
+from drake_estop.rollout import stride_ticks
 
 
 def sweep(pattern, params, repeats):
@@ -75,7 +77,8 @@ def main():
     iterations = np.array([p.newton_iterations for p in plans])
     fallback = [p for p in plans if p.case != "one-step"]
     single = sum(p.support == "single" for p in plans)
-    print(f"stride: {len(plans)} servo ticks from {times[0]:.3f} s ({single} single, {len(plans) - single} double support)")
+    print(f"stride: {len(plans)} servo ticks from {times[0]:.3f} s"
+          f" ({single} single, {len(plans) - single} double support)")
     print(f"plan compute time   median {np.median(compute) * 1e3:.3f} ms   max {compute.max() * 1e3:.3f} ms"
           f"   (target: median < 0.5 ms, max < 5 ms)")
     print(f"parameter solve     median {np.median(solve) * 1e3:.3f} ms   max {solve.max() * 1e3:.3f} ms"
@@ -84,7 +87,8 @@ def main():
     print(f"next-step fallback  {len(fallback)}/{len(plans)} = {100 * len(fallback) / len(plans):.1f} % "
           f"at {[round(p.signal_time, 3) for p in fallback]}")
     rest = np.array([np.linalg.norm(p.com([p.halt_end])[1]) for p in plans])
-    print(f"COG speed at halt end: max {rest.max():.2e} m/s; min ZMP margin {min(p.min_zmp_margin for p in plans):.4f} m")
+    print(f"COG speed at halt end: max {rest.max():.2e} m/s;"
+          f" min ZMP margin {min(p.min_zmp_margin for p in plans):.4f} m")
     rounded = StopParameters(quantisation="round")
     residual = []
     for t in times[::4]:
@@ -95,8 +99,10 @@ def main():
           f" re-solved: max {max(resolved) * 1e3:.2e} mm/s")
     sample = times[:: args.scipy_every]
     ours, theirs, single_start, gaps = scipy_comparison(pattern, params, sample)
-    print(f"scipy SLSQP (paper's variables, multi-start) on {len(sample)} instants: median {np.median(theirs) * 1e3:.1f} ms;"
-          f" single start {np.median(single_start) * 1e3:.1f} ms; ours (continuous solve) {np.median(ours) * 1e3:.2f} ms")
+    print(f"scipy SLSQP (paper's variables, multi-start) on {len(sample)} instants:"
+          f" median {np.median(theirs) * 1e3:.1f} ms;"
+          f" single start {np.median(single_start) * 1e3:.1f} ms;"
+          f" ours (continuous solve) {np.median(ours) * 1e3:.2f} ms")
     print(f"speed-up: {np.median(theirs) / np.median(ours):.0f}x vs multi-start, "
           f"{np.median(single_start) / np.median(ours):.1f}x vs single start (target >= 20x)")
     print(f"cost gap to scipy: max {gaps.max():+.2e} (relative; negative = Newton better)")

@@ -12,6 +12,9 @@ double support):
 Writes benchmarks/RESULTS.md (table, machine, command) and a figure.
 
     python benchmarks/compare_methods.py [--every 1] [--out benchmarks]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 from __future__ import annotations
@@ -28,11 +31,9 @@ import numpy as np
 
 from drake_estop import alternatives
 from drake_estop.gait import NominalPattern
-from drake_estop.rollout import stride_ticks
 from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
 from drake_estop.reference import reference_solve
-from drake_estop.rollout import rollout
-
+from drake_estop.rollout import rollout, stride_ticks
 
 
 def _progress(iterable, **kwargs):
@@ -182,7 +183,8 @@ def write_results(rows, summaries, ratio, path, figure_name, command, extra_line
         f"Made by `{command}` on {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()},"
         f" {time.strftime('%Y-%m-%d')}. Default gait (0.3 m, 0.8 s, 20 % double support, COG 0.814 m);"
         f" signal at every 5 ms servo tick of the stride {rows[0]['t']:.3f}-{rows[-1]['t']:.3f} s"
-        f" ({sum(r['support'] == 'single' for r in rows)} single, {sum(r['support'] == 'double' for r in rows)} double support).",
+        f" ({sum(r['support'] == 'single' for r in rows)} single,"
+        f" {sum(r['support'] == 'double' for r in rows)} double support).",
         "",
         "| method | stopped within one step | time to rest median / worst [s] | COG travel median / worst [m] |"
         " min ZMP margin [cm] | plan time median / max [ms] |",
@@ -220,7 +222,8 @@ def write_results(rows, summaries, ratio, path, figure_name, command, extra_line
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--every", type=int, default=1, help="use every k-th servo tick of the stride")
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parent), help="folder for RESULTS.md and the figure")
+    parser.add_argument("--out", default=str(Path(__file__).resolve().parent),
+                        help="folder for RESULTS.md and the figure")
     parser.add_argument("--scipy-every", type=int, default=10)
     parser.add_argument("--no-diagrams", action="store_true", help="skip the diagrams' real-time factors")
     args = parser.parse_args(argv)

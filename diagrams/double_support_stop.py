@@ -5,25 +5,25 @@ b_ds = 1000.  Writes the Meshcat replay and the COG/ZMP figure (Fig. 12);
 with ``--round`` the phase times are only rounded to servo ticks, as in the
 paper, which shows its ZMP overshoot near 4 s:
 
-    /work/venv/bin/python diagrams/double_support_stop.py [OUT_DIR] [--round]
+    python diagrams/double_support_stop.py [OUT_DIR] [--round]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 import argparse
-from pathlib import Path
 import sys
 import warnings
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from drake_estop.diagram import simulate_diagram  # noqa: E402
-from drake_estop.gait import GaitParameters  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
-from drake_estop.visualization import describe, plot_cog_zmp  # noqa: E402
+from drake_estop.diagram import simulate_diagram
+from drake_estop.gait import GaitParameters
+from drake_estop.planner import StopParameters
+from drake_estop.visualization import describe, plot_cog_zmp
 
 GAIT = GaitParameters(step_length=0.3, step_time=0.8)
 SIGNAL = 3.5

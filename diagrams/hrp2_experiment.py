@@ -4,25 +4,25 @@ Step 0.15 m, cycle 0.8 s, the same weights as the simulations, the stop
 signal at half of a single support phase (the third step's, so the walk is
 in its steady cycle).  Writes the Meshcat replay and the COG/ZMP figure:
 
-    /work/venv/bin/python diagrams/hrp2_experiment.py [OUT_DIR] [--step N]
+    python diagrams/hrp2_experiment.py [OUT_DIR] [--step N]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 import argparse
-from pathlib import Path
 import sys
 import warnings
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from drake_estop.diagram import simulate_diagram  # noqa: E402
-from drake_estop.gait import GaitParameters, NominalPattern  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
-from drake_estop.visualization import describe, plot_cog_zmp  # noqa: E402
+from drake_estop.diagram import simulate_diagram
+from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.planner import StopParameters
+from drake_estop.visualization import describe, plot_cog_zmp
 
 GAIT = GaitParameters(step_length=0.15, step_time=0.8)
 STOP = StopParameters(a_ss=5.0, b_ss=1000.0, a_ds=50.0, b_ds=1000.0)

@@ -1,6 +1,9 @@
 """Render a Meshcat HTML replay in headless Chromium and check the robot shows.
 
-    /work/venv/bin/python diagrams/render_replay.py FILE.html OUT.png [--chromium PATH]
+    python diagrams/render_replay.py FILE.html OUT.png [--chromium PATH]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 
 Takes a screenshot after letting the page's virtual time run (the replay's
 animation starts playing), then checks the robot is on screen: enough pixels
@@ -13,11 +16,11 @@ the robot is not found, 2 when Chromium fails.
 """
 
 import argparse
-from pathlib import Path
 import shutil
 import subprocess
 import sys
 import tempfile
+from pathlib import Path
 
 import numpy as np
 

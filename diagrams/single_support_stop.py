@@ -4,26 +4,26 @@ Step 0.3 m, cycle 0.8 s, signal at 3.4 s (late single support), a_ss = 5,
 b_ss = 1000, with the IV.A crouch.  Writes the Meshcat replay, the COG/ZMP
 figure (Fig. 9) and the knee comparison with and without crouch (Fig. 10):
 
-    /work/venv/bin/python diagrams/single_support_stop.py [OUT_DIR]
+    python diagrams/single_support_stop.py [OUT_DIR]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 import argparse
-from dataclasses import replace
-from pathlib import Path
 import sys
 import warnings
+from dataclasses import replace
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from drake_estop.diagram import simulate_diagram  # noqa: E402
-from drake_estop.gait import GaitParameters  # noqa: E402
-from drake_estop.planner import StopParameters  # noqa: E402
-from drake_estop.visualization import describe, plot_cog_zmp, plot_knees  # noqa: E402
+from drake_estop.diagram import simulate_diagram
+from drake_estop.gait import GaitParameters
+from drake_estop.planner import StopParameters
+from drake_estop.visualization import describe, plot_cog_zmp, plot_knees
 
 GAIT = GaitParameters(step_length=0.3, step_time=0.8)
 STOP = StopParameters(a_ss=5.0, b_ss=1000.0, crouch=True)

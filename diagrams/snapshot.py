@@ -2,6 +2,9 @@
 time and screenshot the Meshcat page in headless Chromium.
 
     python diagrams/snapshot.py [--estop-time 3.4] [--at 3.75] [--out docs/robot_mid_stop.png]
+
+Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
+no path set-up.
 """
 
 import argparse
@@ -10,13 +13,12 @@ import tempfile
 from pathlib import Path
 
 from pydrake.systems.analysis import Simulator
+from render_replay import find_chromium  # diagrams/render_replay.py (the script folder is on sys.path)
 
 from drake_estop.diagram import build_diagram
 from drake_estop.gait import GaitParameters
 from drake_estop.planner import StopParameters
 from drake_estop.visualization import add_floor, make_meshcat, set_side_camera
-
-from render_replay import find_chromium  # noqa: E402  (script folder)
 
 
 def main():

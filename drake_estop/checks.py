@@ -24,7 +24,7 @@ def lipm_tracking_error(times, com, com_vel, zmp, w, window: float = 0.5) -> flo
         if len(t) < 2:
             continue
         p = zmp[sel]
-        sol = solve_ivp(lambda s, y: [y[1], w * w * (y[0] - np.interp(s, t, p))], (t[0], t[-1]),
+        sol = solve_ivp(lambda s, y, t=t, p=p: [y[1], w * w * (y[0] - np.interp(s, t, p))], (t[0], t[-1]),
                         [com[sel][0], com_vel[sel][0]], t_eval=t, rtol=1e-10, atol=1e-12,
                         max_step=t[1] - t[0])
         worst = max(worst, float(np.abs(sol.y[0] - com[sel]).max()))

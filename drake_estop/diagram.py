@@ -29,12 +29,17 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_estop.gait import GaitParameters, NominalPattern
 from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver
-from drake_estop.model import (ALL_JOINTS, LEFT_SOLE, RIGHT_SOLE, UPPER_BODY_JOINTS,
-                               joint_position_indices, load_humanoid,
-                               nominal_standing_configuration)
+from drake_estop.model import (
+    ALL_JOINTS,
+    LEFT_SOLE,
+    RIGHT_SOLE,
+    UPPER_BODY_JOINTS,
+    joint_position_indices,
+    load_humanoid,
+    nominal_standing_configuration,
+)
 from drake_estop.planner import PHASES, StopParameters
-from drake_estop.systems import (add_stop_controller, connect_reference,
-                                 reference_vector, REFERENCE_LAYOUT)
+from drake_estop.systems import REFERENCE_LAYOUT, add_stop_controller, connect_reference, reference_vector
 
 #: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
 IK_COM_BOUND = 1e-3
@@ -361,8 +366,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     Meshcat without a replay file (so a person can press the button), else
     as fast as possible.
     """
-    from drake_estop.visualization import (add_floor, make_meshcat, set_side_camera,
-                                           start_recording, write_replay)
+    from drake_estop.visualization import add_floor, make_meshcat, set_side_camera, start_recording, write_replay
 
     if html is not None and meshcat is None:
         meshcat = make_meshcat()

@@ -207,13 +207,6 @@ def zmp_point(t, w, slowdown, grad, hess):
 
 
 @numba.njit(**_JIT)
-def target_point(t, w, slowdown):
-    """:func:`stop_condition._zmp_from_terms` without derivatives."""
-    e3sq = math.exp(2.0 * w * slowdown)
-    return (e3sq * t[0] - t[6]) / (e3sq * t[12] + t[15] - 1.0)
-
-
-@numba.njit(**_JIT)
 def slowdown_point(t, w, target):
     """:func:`stop_condition._slowdown_point` value (NaN where infeasible)."""
     denominator = t[0] - target * t[12]

@@ -17,8 +17,8 @@ their position limits; joints that sit on a limit and would be pushed
 further out are removed from the step.
 """
 
-from dataclasses import dataclass
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -26,11 +26,17 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.model import (ALL_JOINTS, FLOATING_BASE, LEFT_SOLE,
-                               LEG_JOINTS, RIGHT_SOLE, UPPER_BODY_JOINTS,
-                               joint_position_indices, joint_velocity_indices,
-                               nominal_standing_configuration)
-
+from drake_estop.model import (
+    ALL_JOINTS,
+    FLOATING_BASE,
+    LEFT_SOLE,
+    LEG_JOINTS,
+    RIGHT_SOLE,
+    UPPER_BODY_JOINTS,
+    joint_position_indices,
+    joint_velocity_indices,
+    nominal_standing_configuration,
+)
 
 # --------------------------------------------------------------------------
 # Small rotation helpers in numpy (much cheaper than pydrake calls).

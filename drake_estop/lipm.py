@@ -229,13 +229,6 @@ class LipmTrajectory:
                 w * w * (cosh_part * ch + sinh_part * sh) + horner(_derivative(rate), tau),
                 horner(zmp, tau), horner(zmp_rate, tau), horner(_derivative(zmp_rate), tau))
 
-    def zmp_derivatives(self, t):
-        """ZMP rate and acceleration at ``t`` (for a planner starting mid-transition)."""
-        k, tau = self._locate(t)
-        rate = np.array([poly_eval(self.zmp[i], s, 1) for i, s in zip(k, tau)])
-        accel = np.array([poly_eval(self.zmp[i], s, 2) for i, s in zip(k, tau)])
-        return rate, accel
-
 
 def required_start_dcm(durations, zmp_coeffs, final_zmp, w):
     """DCM x + v/w at the start of a chain whose COG stays bounded afterwards.

@@ -1,21 +1,44 @@
 """Humanoid model helpers: file location, joint names, sole geometry, loading.
 
 The model is ``models/humanoid.urdf``, an HRP-2-class humanoid written for this
-project (see ``models/README.md`` for where every number comes from).  It is
-always loaded by file path, never through ``package://`` URLs, so that no
-network access is needed.
+project (see ``models/README.md`` for where every number comes from).  The
+repository keeps ``models/`` at its top level; a wheel ships the same folder as
+``drake_estop/models/`` (package data), found through :mod:`importlib.resources`.
+It is always loaded by file path, never through ``package://`` URLs, and with
+an empty PackageMap, so no network access is needed and the project runs with
+``DRAKE_ALLOW_NETWORK=meshcat`` (or ``none``) set.
 """
 
-from dataclasses import dataclass
-from pathlib import Path
+import os
 import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 from pydrake.multibody.parsing import Parser
 
 from drake_estop.gait import Sole
+from drake_estop.lipm import GRAVITY
 
-MODEL_PATH = Path(__file__).resolve().parents[1] / "models" / "humanoid.urdf"
+MODEL_FILE = "humanoid.urdf"
+
+
+def _models_dir():
+    """The folder holding ``humanoid.urdf``.
+
+    An installed wheel has it as package data, ``drake_estop/models/``; a
+    repository checkout (also an editable install) has it at the top level,
+    next to the package.
+    """
+    packaged = resources.files("drake_estop") / "models"
+    if packaged.is_dir() and (packaged / MODEL_FILE).is_file():
+        # the wheel is installed unpacked, so this is a real folder
+        return Path(str(packaged)).resolve()
+    return Path(__file__).resolve().parents[1] / "models"
+
+
+MODEL_PATH = _models_dir() / MODEL_FILE
 
 FLOATING_BASE = "pelvis"
 TORSO = "torso"
@@ -88,21 +111,50 @@ def _check_model_file(path):
             f"<{root.tag}>, expected <robot>")
 
 
+def offline_parser(plant):
+    """A :class:`Parser` for ``plant`` whose PackageMap is empty.
+
+    Drake's default PackageMap registers the remote ``drake_models`` package,
+    which throws when ``DRAKE_ALLOW_NETWORK`` denies ``package_map`` (e.g.
+    ``DRAKE_ALLOW_NETWORK=meshcat``), even for a model that references no
+    package.  pydrake 1.51 offers no Parser constructor taking a PackageMap, so
+    the variable is lifted only while the Parser is constructed (registering a
+    remote package downloads nothing) and every package is then removed from
+    the parser's map: nothing can be fetched while parsing.  The humanoid
+    needs no ``package://`` URL.
+    """
+    allow = os.environ.pop("DRAKE_ALLOW_NETWORK", None)
+    try:
+        parser = Parser(plant)
+    finally:
+        if allow is not None:
+            os.environ["DRAKE_ALLOW_NETWORK"] = allow
+    package_map = parser.package_map()
+    for name in package_map.GetPackageNames():
+        package_map.Remove(name)
+    return parser
+
+
 def load_humanoid(plant, model_path=MODEL_PATH):
     """Add the humanoid to ``plant`` (not finalized) and return its instance.
 
-    Raises FileNotFoundError or ValueError naming the file when the file is
-    missing or cannot be parsed, instead of a raw parser traceback.
+    Parses with :func:`offline_parser` (no network, whatever
+    ``DRAKE_ALLOW_NETWORK`` says) and sets the plant's gravity to
+    :data:`drake_estop.lipm.GRAVITY`, the one value the planner and the
+    controllers use (Drake's default is 9.81).  Raises FileNotFoundError or
+    ValueError naming the file when the file is missing or cannot be parsed,
+    instead of a raw parser traceback.
     """
     path = Path(model_path)
     _check_model_file(path)
     try:
-        instances = Parser(plant).AddModels(str(path))
+        instances = offline_parser(plant).AddModels(str(path))
     except RuntimeError as err:
         raise ValueError(
             f"could not parse humanoid model file {path}: {err}") from err
     if len(instances) != 1:
         raise ValueError(f"expected one model in {path}, got {len(instances)}")
+    plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -GRAVITY])
     return instances[0]
 
 

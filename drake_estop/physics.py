@@ -72,7 +72,7 @@ from drake_estop.model import (FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, TORSO, UPPE
 from drake_estop.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.rollout import Rollout, rollout
 
-GRAVITY = 9.81
+from drake_estop.lipm import GRAVITY  # the one gravity value
 SIDES = ("left", "right")
 _SOLE_FRAMES = {"left": LEFT_SOLE, "right": RIGHT_SOLE}
 _LEVEL = np.array([1.0, 0.0, 0.0, 0.0])

@@ -358,9 +358,6 @@ class _StopProblem:
     def bounds(self) -> np.ndarray:
         raise NotImplementedError
 
-    def target_bounds(self):
-        raise NotImplementedError
-
     # -- grids ------------------------------------------------------------
     def grid_terms(self, landing, transition):
         """Closed-form terms on a (landing, transition) grid, shared by the grid evaluations."""

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_estop.gait import ARM_JOINTS
+from drake_estop.lipm import GRAVITY
 from drake_estop.planner import StopPlan
 
 LOG_COLUMNS = ("t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "com_vz", "com_ax", "com_ay",
@@ -134,7 +135,7 @@ def stop_metrics(plan: StopPlan, data: Rollout) -> dict:
         # eq. 5: ZMP error the crouch introduces (angular momentum neglected)
         z, _, zdd = plan.com_height(data.times)
         crouch_error = np.abs(data.com_acc[:, 0] * ((plan.pattern.params.com_height) * zdd
-                                                     - (z - plan.pattern.params.com_height) * 9.80665)
-                              / (9.80665 * (zdd + 9.80665)))
+                                                     - (z - plan.pattern.params.com_height) * GRAVITY)
+                              / (GRAVITY * (zdd + GRAVITY)))
         metrics["crouch_zmp_error_max_m"] = float(crouch_error.max())
     return metrics

@@ -72,7 +72,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, Valu
 
 from drake_estop.gait import Sole
 
-GRAVITY = 9.81
+from drake_estop.lipm import GRAVITY  # the one gravity value
 SIDES = ("left", "right")
 _LIFT_ON_GROUND = 1e-9
 

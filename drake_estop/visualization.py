@@ -32,8 +32,7 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba,
-                              Sphere)
+from pydrake.geometry import Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba, Sphere
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
@@ -61,8 +60,9 @@ def make_meshcat(port=None):
 
     ``DRAKE_ALLOW_NETWORK=meshcat`` is set only while the server is created
     and restored afterwards: in Drake 1.51 a process-wide "meshcat" value
-    also disables the PackageMap, which then makes ``Parser.AddModels`` of
-    the humanoid URDF throw (drake_models remote), even for a local file.
+    also disables the PackageMap, which makes every default ``Parser`` throw
+    (drake_models remote), even for a local file.  The humanoid itself loads
+    either way (:func:`drake_estop.model.offline_parser`).
     Raises RuntimeError naming the port when it is already in use.
     """
     previous = os.environ.get("DRAKE_ALLOW_NETWORK")

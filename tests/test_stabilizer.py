@@ -8,11 +8,12 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 
 from drake_estop.gait import Sole
+from drake_estop.lipm import GRAVITY
 from drake_estop.model import load_humanoid, nominal_standing_configuration
 from drake_estop.stabilizer import (CogMeasurement, DcmStabilizer, DesiredStateInterpolator,
                                     saturation_scale, support_corners)
 
-G = 9.81
+G = GRAVITY
 Z = 0.8
 OMEGA = math.sqrt(G / Z)
 LEVEL = [1.0, 0.0, 0.0, 0.0]
