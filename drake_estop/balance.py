@@ -54,7 +54,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from drake_estop.gait import Sole
 from drake_estop.stabilizer import saturation_scale, support_corners
 
-GRAVITY = 9.81
+from drake_estop.lipm import GRAVITY  # noqa: E402
 import os
 SIGN = float(os.environ.get("SIGN", "-1"))
 SIDES = ("left", "right")

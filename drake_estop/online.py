@@ -61,7 +61,8 @@ def _ankle_indices(plant):
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None,
-                         balance: BalanceParameters | None = None) -> OnlineHandles:
+                         balance: BalanceParameters | None = None, pushes=(),
+                         replan_threshold: float = 0.03) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring)."""
     from drake_estop.diagram import initial_configuration as pattern_initial_configuration
 
@@ -69,11 +70,14 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     dt = stop_params.servo_period
     builder = DiagramBuilder()
     plant, scene_graph, instance, _ = add_physics_plant(builder, physics)
+    from drake_estop.perturbations import add_pelvis_push
+    add_pelvis_push(builder, plant, pushes)
     soles = [plant.GetBodyByName(_SOLE_FRAMES[side]) for side in SIDES]
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
 
-    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time)
+    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
+                                           replan_threshold=replan_threshold)
     kin_plant, _, _ = _ik()
     q0 = pattern_initial_configuration(kin_plant, pattern)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
@@ -126,14 +130,16 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
 
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
-               balance: BalanceParameters | None = None, pattern: NominalPattern | None = None):
+               balance: BalanceParameters | None = None, pattern: NominalPattern | None = None, pushes=(),
+               replan_threshold: float = 0.03):
     """Walk, stop at ``estop_time`` with the online controller, and check the success criteria."""
     from drake_estop.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
     physics = physics or PhysicsParameters()
     stop_params = stop_params or StopParameters()
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
-    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics, balance=balance)
+    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics, balance=balance,
+                                   pushes=pushes, replan_threshold=replan_threshold)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)

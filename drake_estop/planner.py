@@ -903,15 +903,35 @@ def _choose_halt(ends, midpoint, polygon, params, w):
     return best[0], [_halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
 
 
-def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin):
+def _polygon_y_range(polygon: SupportPolygon, x: float, margin: float):
+    """The y interval of ``polygon`` (``margin`` inside) at abscissa ``x``, or None."""
+    low, high = -np.inf, np.inf
+    for (nx, ny), d in zip(polygon._normals, polygon._offsets):
+        bound = d - margin - nx * x
+        if ny > 1e-12:
+            high = min(high, bound / ny)
+        elif ny < -1e-12:
+            low = max(low, bound / ny)
+        elif bound < 0:
+            return None
+    return (low, high) if low <= high else None
+
+
+def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin, polygon=None, sagittal=None):
     """Lateral ZMP of phases (ii)-(iii): the sagittal phase times, and the value
     that also zeroes the lateral COG velocity at the slowdown end (same stop
-    condition, eq. 17), clipped to the fore sole."""
+    condition, eq. 17), clipped to the fore sole (or, with ``polygon``, to the
+    support polygon's width at the ``sagittal`` target)."""
     rate = float(state.zmp_rate[1]) if kind == "double" else 0.0
     accel = float(state.zmp_accel[1]) if kind == "double" else 0.0
     start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
     wanted = state.zmp[1] + target_zmp(start, w, solution.landing, solution.transition,
                                        solution.slowdown, derivatives=False)
+    if polygon is not None:
+        interval = _polygon_y_range(polygon, sagittal, margin)
+        if interval is None:
+            raise InfeasibleStop("zmp_margin: the sagittal ZMP target leaves the support polygon")
+        return float(np.clip(wanted, *interval))
     outer, inner = (sole.outer, sole.inner) if fore_side == "left" else (sole.inner, sole.outer)
     return float(np.clip(wanted, fore_xy[1] - inner + margin, fore_xy[1] + outer - margin))
 
@@ -933,11 +953,15 @@ def _zmp_segments(state, solution, targets, kind):
     return segs
 
 
-def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParameters):
+def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParameters, zmp_region: str = "fore"):
     """The phase-parameter problem (III.A or III.B) from ``state``.
 
     Returns ``(problem, kind, context)`` with ``kind`` "single" or "double";
     ``context`` carries the feet the plan needs. Exposed for reference solves.
+    ``zmp_region`` (double support): "fore" keeps ZMP_max on the fore sole
+    (III.B: the ZMP moves from the rear to the fore foot); "polygon" allows
+    the whole sagittal extent of both soles (re-plans after a push, where the
+    COG may have to be stopped over the rear foot).
     """
     w = pattern.w
     sole = pattern.params.sole
@@ -958,15 +982,21 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
     fore_x = state.feet[fore][0]
     low = fore_x - sole.heel + params.zmp_margin - state.zmp[0]
     high = fore_x + sole.toe - params.zmp_margin - state.zmp[0]
+    if zmp_region == "polygon":
+        low = min(state.feet[rear][0], fore_x) - sole.heel + params.zmp_margin - state.zmp[0]
+        high = max(state.feet[rear][0], fore_x) + sole.toe - params.zmp_margin - state.zmp[0]
+    elif zmp_region != "fore":
+        raise ValueError(f"zmp_region must be 'fore' or 'polygon', got {zmp_region!r}")
     rear_ankle = state.feet[rear][0] - state.zmp[0]
     return _DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
 
 
-def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case):
+def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
+               zmp_region: str = "fore"):
     w = pattern.w
     sole = pattern.params.sole
     t_solve = time.perf_counter()
-    problem, kind, feet = stop_problem(pattern, state, params)
+    problem, kind, feet = stop_problem(pattern, state, params, zmp_region)
     solution = _solve(problem, kind)
     if kind == "single":
         support, swing = feet["support"], feet["swing"]
@@ -989,9 +1019,10 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     slowdown_end = transition_end + solution.slowdown
     midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
     sagittal_target = state.zmp[0] + solution.target
-    lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin)
     polygon = soles_polygon(sole, tuple((s, float(final_feet[s][0]), float(final_feet[s][1]))
                                         for s in ("left", "right")))
+    lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin,
+                                     polygon if zmp_region == "polygon" else None, sagittal_target)
     targets = (sagittal_target, lateral_target)
     segs = _zmp_segments(state, solution, targets, kind)
     # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
@@ -1151,18 +1182,29 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
 
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None:
-    """Re-plan the landing of a single-support stop at tick ``t`` from the measured COG.
+    """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
-    acceleration, eq. 12-13) and swing-foot state, and from the measured COG
-    position and velocity (eq. 10-11); landing time, step length and the
-    later phases are solved again (eq. 21-26). Returns None where no landing
-    is left to change (after ``landing_time - min_landing_time``, or a plan
-    that does not land a foot). Raises :class:`InfeasibleStop` when no
-    one-step stop exists from that state.
+    acceleration: eq. 12-13) and feet, and from the measured COG position and
+    velocity (eq. 10-11):
+
+    * landing phase, while the landing can still move (before
+      ``landing_time - min_landing_time``): landing time, step length and the
+      later phases are solved again (III.A, eq. 21-26);
+    * after the landing, in the ZMP transition or the slowdown: the stop is
+      solved again as a double-support stop on the landed feet (III.B,
+      eq. 29-31).
+
+    Returns None where nothing is left to re-plan (the halt, a plan that has
+    not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
+    stop exists from that state.
     """
     params = plan.params
-    if plan.landing_foot is None or plan.x is None or not plan.start_time <= t < plan.landing_time - params.min_landing_time:
+    if plan.x is None or t < plan.start_time:
+        return None
+    single = plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
+    double = plan.landing_time <= t < plan.slowdown_end
+    if not (single or double):
         return None
     h = 1e-3
     axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
@@ -1173,11 +1215,16 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
     feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
     upper, upper_rate = plan.upper_body(t)
-    state = replace(plan.start_state, time=float(t), com=np.asarray(com_xy, float)[:2].copy(),
-                    com_vel=np.asarray(com_vel_xy, float)[:2].copy(), zmp=zmp, zmp_rate=rate, zmp_accel=accel,
-                    feet=now, feet_vel=feet_vel, feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
+    changes = dict(time=float(t), com=np.asarray(com_xy, float)[:2].copy(),
+                   com_vel=np.asarray(com_vel_xy, float)[:2].copy(), zmp=zmp, zmp_rate=rate, zmp_accel=accel,
+                   feet=now, feet_vel=feet_vel, feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
+    if double:
+        rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
+                else plan.start_state.rear_foot)
+        changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
     wall = time.perf_counter()
-    new = _plan_from(plan.pattern, state, params, plan.signal_time, plan.case)
+    new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
+                     zmp_region="polygon" if double else "fore")
     new.crouch_start = plan.start_time if plan.crouch_start is None else plan.crouch_start
     return _finish(new, wall)
 

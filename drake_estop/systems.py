@@ -234,10 +234,12 @@ class _PlanHandle:
     mutated after it is made, so sharing it is safe and keeps the tick cheap.
     """
 
-    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time")
+    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend")
 
-    def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None):
+    def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
+                 blend=None):
         self.plan = plan
+        self.blend = blend  # (start, dp (2), dv (2), duration): see StopPlannerSystem._blended
         self.wall_time = wall_time
         self.replans = replans
         self.replan_failures = replan_failures
@@ -280,15 +282,17 @@ class StopPlannerSystem(_ReferenceSystem):
     update fails and the Simulator raises with the planner's message.
     """
 
-    def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.02,
-                 bias_time_constant: float = 0.5):
+    def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.03,
+                 bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2):
         super().__init__()
-        for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant)):
+        for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
+                            ("filter_time_constant", filter_time_constant), ("blend_time", blend_time)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         self._pattern = pattern
         self._params = params
         self._replan_threshold = float(replan_threshold)
+        self._blend_time = float(blend_time)
         warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
@@ -298,7 +302,12 @@ class StopPlannerSystem(_ReferenceSystem):
         # low-passed (measured - reference) COG position and velocity while walking: the servo's
         # steady tracking error, which a plan from the measured state must not turn into a jump
         self._bias_alpha = params.servo_period / (bias_time_constant + params.servo_period)
+        # and the measured COG low-passed over filter_time_constant: landing impacts put 0.1 m/s
+        # spikes of a few ms on the COG velocity (3 cm of DCM) that are no reason to re-plan
+        self._filter_alpha = params.servo_period / (filter_time_constant + params.servo_period)
         self._bias_state = self.DeclareDiscreteState(4)
+        self._filtered_state = self.DeclareDiscreteState(4)
+        self._filter_started = self.DeclareDiscreteState(1)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
@@ -341,47 +350,64 @@ class StopPlannerSystem(_ReferenceSystem):
         return np.concatenate([com[:2], vel[:2]])
 
     def _measured(self, context):
-        """Measured COG (xy) and velocity less the walking tracking bias, or None."""
-        raw = self._raw_measured(context)
-        if raw is None:
+        """Low-passed measured COG (xy) and velocity less the walking tracking bias, or None."""
+        if context.get_discrete_state(self._filter_started).value()[0] == 0.0:
             return None
-        corrected = raw - context.get_discrete_state(self._bias_state).value()
+        corrected = (context.get_discrete_state(self._filtered_state).value()
+                     - context.get_discrete_state(self._bias_state).value())
         return corrected[:2], corrected[2:]
 
-    def _track_bias(self, context, state):
+    def _filter(self, context, state, track_bias):
+        """Low-pass the measured COG; while walking, also the tracking bias against the pattern."""
         raw = self._raw_measured(context)
         if raw is None:
             return
-        pos, vel, _, _ = self._pattern.com([context.get_time()])
-        bias = context.get_discrete_state(self._bias_state).value()
-        reference = np.concatenate([pos[0], vel[0]])
-        state.get_mutable_discrete_state(self._bias_state).set_value(
-            bias + self._bias_alpha * (raw - reference - bias))
+        filtered = context.get_discrete_state(self._filtered_state).value()
+        started = context.get_discrete_state(self._filter_started).value()[0] != 0.0
+        filtered = filtered + self._filter_alpha * (raw - filtered) if started else raw
+        state.get_mutable_discrete_state(self._filtered_state).set_value(filtered)
+        state.get_mutable_discrete_state(self._filter_started).set_value([1.0])
+        if track_bias:
+            pos, vel, _, _ = self._pattern.com([context.get_time()])
+            bias = context.get_discrete_state(self._bias_state).value()
+            reference = np.concatenate([pos[0], vel[0]])
+            state.get_mutable_discrete_state(self._bias_state).set_value(
+                bias + self._bias_alpha * (filtered - reference - bias))
 
     def _update(self, context, state):
         """Plan on the first tick that sees the latched stop; then re-plan (at most once a tick)
         while the measured DCM leaves the plan's by more than ``replan_threshold``."""
         handle = self._handle(context)
-        if handle.plan is not None:
-            return self._maybe_replan(context, state, handle)
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
+        self._filter(context, state, track_bias=not latched)
+        if handle.plan is not None:
+            self._maybe_replan(context, state, handle)
+            return EventStatus.Succeeded()
         if not latched:
-            self._track_bias(context, state)
             return EventStatus.Succeeded()
         measured = self._measured(context)
+        now = max(signal_time, context.get_time())
+        if measured is not None and self._deviation(self._pattern, now, measured) <= self._replan_threshold:
+            measured = None  # the robot follows the reference: plan from it, continuous with the command
         start = time.perf_counter()
         try:
             if measured is None:
                 plan = plan_stop(self._pattern, signal_time, self._params)
             else:  # from the state measured now (this tick, at or after the signal's)
-                plan = plan_stop(self._pattern, max(signal_time, context.get_time()), self._params,
-                                 measured=measured)
+                plan = plan_stop(self._pattern, now, self._params, measured=measured)
                 plan.signal_time = min(plan.signal_time, signal_time)
         except (InfeasibleStop, ValueError) as error:
             return EventStatus.Failed(self, f"stop planning failed: {error}")
-        handle = _PlanHandle(plan, time.perf_counter() - start)
+        handle = _PlanHandle(plan, time.perf_counter() - start, blend=self._blend_into(context, plan))
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
         return EventStatus.Succeeded()
+
+    @staticmethod
+    def _deviation(reference, t, measured):
+        """Distance [m] between the measured DCM ``x + v / omega`` and ``reference``'s at ``t``."""
+        pos, vel, _, _ = reference.com([t])
+        omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
+        return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)))
 
     def _maybe_replan(self, context, state, handle):
         measured = self._measured(context)
@@ -389,10 +415,7 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
-        pos, vel, _, _ = plan.com([t])
-        omega = plan.pattern.w
-        deviation = (measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)
-        if float(np.linalg.norm(deviation)) <= self._replan_threshold:
+        if self._deviation(plan, t, measured) <= self._replan_threshold:
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:
@@ -405,17 +428,57 @@ class StopPlannerSystem(_ReferenceSystem):
         if new is None and failures == handle.replan_failures:
             return EventStatus.DidNothing()  # nothing left to re-plan (the foot has landed)
         updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
-                              max(handle.max_wall_time, wall))
+                              max(handle.max_wall_time, wall),
+                              self._blend_into(context, new) if new is not None else handle.blend)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
     def _calc_reference(self, context):
-        return reference_vector(context.get_time(), pattern=self._pattern,
-                                plan=self.plan(context))
+        handle = self._handle(context)
+        t = context.get_time()
+        return self._blended(reference_vector(t, pattern=self._pattern, plan=handle.plan), handle.blend, t)
+
+    @staticmethod
+    def _blended(reference, blend, t):
+        """``reference`` with the COG command blended from the previous command into a new plan.
+
+        A plan from the measured state starts where the robot is, not where
+        its command was; stepping the command there would step the joint
+        targets (the stiff servos then strike the floor). The COG command is
+        the plan plus a quintic that starts at the old command's offset
+        ``dp`` and rate ``dv`` and fades to zero, at rest, over ``duration``.
+        """
+        if blend is None:
+            return reference
+        start, dp, dv, duration = blend
+        s = (t - start) / duration
+        if not 0.0 <= s < 1.0:
+            return reference
+        h0 = 1 - 10 * s**3 + 15 * s**4 - 6 * s**5
+        h1 = s - 6 * s**3 + 8 * s**4 - 3 * s**5
+        d0 = (-30 * s**2 + 60 * s**3 - 30 * s**4) / duration
+        d1 = 1 - 18 * s**2 + 32 * s**3 - 15 * s**4
+        out = reference.copy()
+        out[_SLICES["com"]][:2] += dp * h0 + dv * duration * h1
+        out[_SLICES["com_vel"]][:2] += dp * d0 + dv * d1
+        return out
+
+    def _blend_into(self, context, plan):
+        """The blend from the command now in force into ``plan`` (None if it starts continuous)."""
+        t = context.get_time()
+        if plan.start_time > t + 1e-9:
+            return None
+        current = self._reference.Eval(context)
+        pos, vel, _, _ = plan.com([t])
+        dp = current[_SLICES["com"]][:2] - pos[0]
+        dv = current[_SLICES["com_vel"]][:2] - vel[0]
+        if max(np.max(np.abs(dp)), np.max(np.abs(dv))) < 1e-9:
+            return None
+        return (t, dp, dv, self._blend_time)
 
 
 def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
-                        button_name="Emergency stop"):
+                        button_name="Emergency stop", replan_threshold=0.03):
     """Add an EStopTrigger and a StopPlannerSystem wired together.
 
     Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
@@ -425,7 +488,7 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
         servo_period=params.servo_period, scheduled_time=estop_time,
         meshcat=meshcat, button_name=button_name))
     planner = builder.AddNamedSystem("stop_planner", StopPlannerSystem(
-        pattern=pattern, params=params))
+        pattern=pattern, params=params, replan_threshold=replan_threshold))
     builder.Connect(trigger.stop_port, planner.stop_port)
     return trigger, planner
 
