@@ -253,7 +253,10 @@ _MEAN = slice(8, 14)  # KF means (c, cdot) for x, y, z
 _COV = slice(14, 23)  # KF covariances (p00, p01, p11) for x, y, z
 _T_LAST = 23  # time of the last update [s]
 _UPDATED = 24  # 1 after the first update
-_HEADER = 25  # then the last outputs: q (nq), com (3), com_vel (3)
+_FOOT = (slice(25, 28), slice(28, 31))  # averaged world position of the left, right sole while loaded [m]
+_LOADED = (31, 32)  # ticks each sole has been loaded (0: unloaded)
+_D_LP = slice(33, 35)  # hybrid model: low-passed IMU-minus-force horizontal acceleration [m/s^2]
+_HEADER = 35  # then the last outputs: q (nq), com (3), com_vel (3)
 
 
 class StateEstimator(LeafSystem):
@@ -332,20 +335,26 @@ class StateEstimator(LeafSystem):
     """
 
     def __init__(self, *, plant, servo_period: float, initial_q=None, true_state: bool = False,
-                 model: str = "force", attitude_gain: float = 0.5, accel_gate: float = 2.0,
-                 stance_hysteresis: float = 0.1, min_contact_force: float = 20.0,
-                 com_noise: float = 1e-3, accel_noise: float = 2.0, vertical_accel_noise: float = 2.0,
+                 model: str = "hybrid", attitude_gain: float = 0.05, accel_compensation: bool = True,
+                 accel_gate: float = 2.0,
+                 stance_hysteresis: float = 0.1, min_contact_force: float = 20.0, foot_window: int = 40,
+                 push_threshold: float = 0.5, push_filter_time: float = 0.01,
+                 com_noise: float = 2e-3, accel_noise: float = 1.0, vertical_accel_noise: float = 2.0,
                  com_height: float = WALKING_COM_HEIGHT):
         super().__init__()
-        if model not in ("force", "lipm", "imu"):
-            raise ValueError(f"model must be 'force', 'lipm' or 'imu', got {model!r}")
+        if model not in ("force", "lipm", "imu", "hybrid"):
+            raise ValueError(f"model must be 'force', 'lipm', 'imu' or 'hybrid', got {model!r}")
         self._plant = plant
         self._period = float(servo_period)
         self._true = bool(true_state)
         self._model = model
         self._k_att = float(attitude_gain)
+        self._compensate = bool(accel_compensation)
         self._gate = float(accel_gate)
         self._hyst = float(stance_hysteresis)
+        self._foot_window = float(max(int(foot_window), 1))
+        self._push_threshold = float(push_threshold)
+        self._push_tau = float(push_filter_time)
         self._min_force = float(min_contact_force)
         self._r = float(com_noise) ** 2
         self._sa = float(accel_noise)
@@ -420,6 +429,8 @@ class StateEstimator(LeafSystem):
         x[_COV] = np.tile([self._r, 0.0, 1e-4], 3)
         x[_T_LAST] = 0.0
         x[_UPDATED] = 0.0
+        for side in (0, 1):
+            x[_FOOT[side]] = feet[side] + shift
         q_out = q.copy()
         q_out[self._base_q + 4:self._base_q + 7] += shift
         x[_HEADER:_HEADER + self._nq] = q_out
@@ -473,9 +484,15 @@ class StateEstimator(LeafSystem):
         quat = x[_QUAT]
         R = _quat_to_matrix(quat)
         w = np.array(gyro, float)
-        a_norm = math.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)
-        if a_norm > 0 and abs(a_norm - GRAVITY) < self._gate:
-            w = w + self._k_att * np.cross(acc / a_norm, R[2, :])  # R^T e_z = third row of R
+        fz = wrench[5]
+        if self._compensate and fz > self._min_force:
+            # remove the COG's horizontal acceleration (Newton on the measured ground force)
+            up = acc - R[:2, :].T @ (GRAVITY * wrench[3:5] / fz)
+        else:
+            up = acc
+        a_norm = math.sqrt(up[0] ** 2 + up[1] ** 2 + up[2] ** 2)
+        if self._k_att > 0 and a_norm > 0 and abs(a_norm - GRAVITY) < self._gate:
+            w = w + self._k_att * np.cross(up / a_norm, R[2, :])  # R^T e_z = third row of R
         if dt > 0:
             quat = _quat_multiply(quat, _quat_exp(w * dt))
             quat = quat / math.sqrt(quat @ quat)
@@ -490,12 +507,22 @@ class StateEstimator(LeafSystem):
         com_rel = plant.CalcCenterOfMassPositionInWorld(scratch)
         stance = int(x[_STANCE])
         anchor = x[_ANCHOR].copy()
+        base = anchor - feet[stance]
+        # the loaded non-stance sole: average its position since it was loaded (noise)
+        foot_avg = [x[_FOOT[0]].copy(), x[_FOOT[1]].copy()]
+        loaded = [x[_LOADED[0]], x[_LOADED[1]]]
+        for side in (0, 1):
+            if forces[side] > self._min_force:
+                loaded[side] = min(loaded[side] + 1.0, self._foot_window)
+                foot_avg[side] += (base + feet[side] - foot_avg[side]) / loaded[side]
+            else:
+                loaded[side] = 0.0
+                foot_avg[side] = base + feet[side]
         total = forces[0] + forces[1]
         if total > self._min_force:
             other = 1 - stance
             if forces[other] > forces[stance] + self._hyst * total:
-                base = anchor - feet[stance]
-                anchor = base + feet[other]
+                anchor = foot_avg[other].copy()
                 anchor[2] = 0.0
                 stance = other
         base = anchor - feet[stance]
@@ -504,8 +531,9 @@ class StateEstimator(LeafSystem):
 
         # 3. COG filters
         mean, cov = x[_MEAN].copy(), x[_COV].copy()
-        fz = wrench[5]
         a_world = _quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, GRAVITY])
+        a_force = GRAVITY * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
+        d_lp = x[_D_LP] + (dt / (self._push_tau + dt)) * (a_world[:2] - a_force - x[_D_LP])
         for axis in range(3):
             m, P = mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3]
             sigma = self._sz if axis == 2 else self._sa
@@ -524,8 +552,11 @@ class StateEstimator(LeafSystem):
                     u = 0.0
                 elif self._model == "imu":
                     u = a_world[axis]
+                elif self._model == "hybrid":
+                    d = d_lp[axis]
+                    u = a_force[axis] + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
                 else:
-                    u = GRAVITY * wrench[3 + axis] / fz if fz > self._min_force else 0.0
+                    u = a_force[axis]
             Q = sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
             m, P = _kf_step(m, P, A, B, u, Q, com_meas[axis], self._r)
             mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3] = m, P
@@ -534,6 +565,9 @@ class StateEstimator(LeafSystem):
         y[_QUAT], y[_STANCE], y[_ANCHOR] = quat, stance, anchor
         y[_MEAN], y[_COV] = mean, cov
         y[_T_LAST], y[_UPDATED] = t, 1.0
+        y[_FOOT[0]], y[_FOOT[1]] = foot_avg
+        y[_D_LP] = d_lp
+        y[_LOADED[0]], y[_LOADED[1]] = loaded
         out = _HEADER + self._nq
         y[_HEADER:out] = q
         y[out:out + 3] = mean[0::2]
