@@ -212,6 +212,10 @@ def _quat_to_matrix(q):
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
+def _cross(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _quat_multiply(a, b):
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -299,33 +303,66 @@ class StateEstimator(LeafSystem):
     Per tick (dt = time since the last update):
 
     1. **Attitude** (complementary / Mahony filter on SO(3)): integrate the
-       gyro, ``R <- R Exp((w + k_att e) dt)`` with ``e = a_hat x R^T e_z``
-       (accelerometer direction vs the estimated up direction, pelvis frame),
-       applied only while ``| |a| - g | < accel_gate``. It corrects roll and
-       pitch with a time constant ``1 / attitude_gain`` (2 s by default:
-       walking accelerations of ~1 m/s^2 would tilt a faster filter; the
-       noise-free gyro integrates exactly); yaw is the gyro's alone.
+       gyro, ``R <- R Exp((w + k_att e) dt)`` with ``e = u_hat x R^T e_z``,
+       ``u`` the accelerometer's specific force minus the COG's horizontal
+       acceleration from the measured ground force (``g f_xy / f_z``,
+       ``accel_compensation``), applied only while ``| |u| - g | < accel_gate``.
+       Roll and pitch are pulled to gravity with the time constant
+       ``1 / attitude_gain`` (20 s); yaw is the gyro's alone. Measured on a
+       3.3 s closed-loop walk: gain 0.5 uncompensated tilted the estimate by
+       up to 1.27 deg (the walk's accelerations; 18 mm of COG error), 0.5
+       compensated 0.51 deg, 0.05-0.02 compensated 0.10-0.12 deg; the pure
+       gyro (gain 0) 0.08 deg but it drifts with gyro noise (random walk
+       0.01 rad/s * sqrt(5 ms * t): 0.13 deg after 10 s).
     2. **Leg kinematics anchored on the stance foot**: the encoders and R
        give the soles' and the COG's positions relative to the pelvis
        (nominal model, one forward kinematics per tick in a scratch plant
        context held in a cache entry). The stance foot is the one with the
        larger normal force (switching needs a margin of
-       ``stance_hysteresis`` of the total force); when it becomes stance its
-       current estimated position, with z = 0 (assumed flat on the floor),
-       is anchored; the pelvis position is ``anchor - p_sole_rel``. The
+       ``stance_hysteresis`` of the total force). The other sole's world
+       position is averaged over the last ``foot_window`` ticks while it is
+       loaded (above ``min_contact_force``); when it becomes stance that
+       average, with z = 0 (assumed flat on the floor), is anchored (with
+       encoder noise the averaging halves the COG error of the walk: 4.4 ->
+       1.9 mm RMS). The pelvis position is ``anchor - p_sole_rel``; the
        soles' orientation is not used.
     3. **COG and COG velocity**: a 2-state Kalman filter per axis on
-       ``[c, cdot]`` with the kinematic COG as measurement (std
-       ``com_noise``). Horizontal prediction (``model="force"``, default):
-       the measured ground force gives the COG acceleration by Newton,
-       ``c'' = g f_xy / f_z`` (mass-free; exact for any angular momentum of
-       the limbs, unlike the LIPM; pushes are unmodelled and seen through
-       the position correction); ``model="lipm"``: ``c'' = omega^2 (c - p_cop)``,
-       ``omega = sqrt(g / 0.814)`` (exact discretisation). Process noise
-       ``accel_noise`` [m/s^2] white acceleration. Vertical: constant
-       velocity model (``vertical_accel_noise``).
+       ``[c, cdot]`` (white-acceleration process noise ``accel_noise``
+       [m/s^2]) corrected by the kinematic COG (std ``com_noise`` [m]),
+       predicted with an acceleration input ``u``:
 
-    ``true_state=True`` bypasses all of this: ``q`` is the true plant q and
+       * ``model="force"``: Newton on the measured ground force,
+         ``u = g f_xy / f_z`` (mass-free; exact whatever the limbs' angular
+         momentum). Blind to forces that do not go through the feet: under
+         a pelvis push the feet push back and ``u`` has the wrong sign.
+       * ``model="imu"``: the pelvis accelerometer rotated to the world,
+         ``u = (R a_S)_xy``: sees pushes, but the pelvis does not
+         accelerate like the COG while the legs swing.
+       * ``model="hybrid"`` (default): ``u = g f_xy / f_z + s(d)``, ``d`` the
+         IMU-minus-force acceleration low-passed with
+         ``push_filter_time`` (10 ms), ``s`` a dead zone of
+         ``push_threshold`` (0.5 m/s^2): the force model while the two
+         agree, the IMU's extra acceleration when something else pushes.
+       * ``model="lipm"``: ``c'' = omega^2 (c - p_cop)``,
+         ``omega = sqrt(g / 0.814)`` (exact discretisation): the LIPM of the
+         issue, kept for comparison; it ignores the limbs' angular momentum.
+
+       Vertical: a constant-velocity model (``vertical_accel_noise``).
+
+       Measured COG-velocity error (horizontal norm, RMS / max, mm/s; seed 1
+       for the noise) with the defaults ``accel_noise = 1``,
+       ``com_noise = 2e-3``::
+
+                          walk 3.3 s         walk + noise      17 N s push, standing (during / 0.1 s after)
+            force          8.7 / 21           9.7 / 27          126 / 182, 100 / 185
+            imu           16.8 / 47          18.2 / 55           11 / 22,   19 / 39
+            hybrid         4.8 / 12           6.7 / 19           42 / 54,   33 / 56
+            lipm          29.9 / 77          29.8 / 75          102 / 150,  91 / 153
+
+       (hybrid with a 0.25 m/s^2 dead zone: walk 6.8 / 27, push 31 / 38.)
+       COG position error on the walk: 1.0 / 2.3 mm, with noise 1.9 / 4.2 mm.
+
+        ``true_state=True`` bypasses all of this: ``q`` is the true plant q and
     ``com``/``com_vel`` are computed from the true q, v with the nominal
     model (for debugging the controller without estimation errors).
 
@@ -492,7 +529,7 @@ class StateEstimator(LeafSystem):
             up = acc
         a_norm = math.sqrt(up[0] ** 2 + up[1] ** 2 + up[2] ** 2)
         if self._k_att > 0 and a_norm > 0 and abs(a_norm - GRAVITY) < self._gate:
-            w = w + self._k_att * np.cross(up / a_norm, R[2, :])  # R^T e_z = third row of R
+            w = w + self._k_att * _cross(up / a_norm, R[2, :])  # R^T e_z = third row of R
         if dt > 0:
             quat = _quat_multiply(quat, _quat_exp(w * dt))
             quat = quat / math.sqrt(quat @ quat)

@@ -198,3 +198,14 @@ def test_push_through_applied_spatial_force_changes_com_velocity_by_impulse_over
     expected = push.impulse / mass
     assert np.allclose(dv, expected, rtol=0.02, atol=1e-4), (dv, expected)
     assert system.force_at(0.05)[0] == 120.0
+
+
+def test_friction_reaches_the_ground_geometry():
+    from pydrake.geometry import Role  # noqa: F401
+    params = ground_friction(Perturbations(friction=0.5), PhysicsParameters())
+    builder = DiagramBuilder()
+    plant, scene_graph, _, ground_id = add_physics_plant(builder, params)
+    ground = scene_graph.model_inspector().GetProximityProperties(ground_id).GetProperty(
+        "material", "coulomb_friction")
+    combined = CalcContactFrictionFromSurfaceProperties(ground, CoulombFriction(SOLE_MU_STATIC, SOLE_MU_DYNAMIC))
+    assert combined.dynamic_friction() == pytest.approx(0.5)
