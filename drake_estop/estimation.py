@@ -27,6 +27,31 @@ Blocks (all sampled at the servo period through periodic discrete events)::
   the COG and the COG velocity (see its docstring for the filters and the
   measured accuracy).
 * :func:`add_state_estimation` adds and connects all of the above.
+
+Wiring (in the physics diagram; ``q0`` is the posture the simulation starts
+from, ``perturbations`` a :class:`drake_estop.perturbations.Perturbations`)::
+
+    soles = [plant.GetBodyByName(LEFT_SOLE), plant.GetBodyByName(RIGHT_SOLE)]  # this order
+    cop = builder.AddNamedSystem("cop_estimator", CopEstimator(
+        plant=plant, scene_graph=scene_graph, bodies=soles))
+    builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
+    estimator = add_state_estimation(builder, plant, cop, servo_period=0.005,
+                                     perturbations=perturbations, initial_q=q0,
+                                     true_state=False)
+    builder.Connect(estimator.com_port, controller_measured_com_input)
+    builder.Connect(estimator.com_vel_port, controller_measured_com_vel_input)
+    builder.Connect(estimator.sensors.cop_port, controller_measured_cop_input)  # same latency/noise path
+    # estimator.q_port: full q estimate; estimator.stance_port: 0 left / 1 right
+
+A note on Drake's event order, measured on this plant: the discrete
+``MultibodyPlant`` (sampled output ports) has already stepped when the other
+systems' periodic discrete updates at t_k read its outputs (they see the
+state of t_k + 1 ms), while a publish event at t_k (a ``VectorLogSink``)
+sees the state of t_k. Everything the controller's discrete updates read
+at a tick is therefore mutually consistent. A logger on the estimator's
+outputs makes it compute twice per tick (once for the log, once for its
+update), which doubles its cost in wall-clock benchmarks but not in the
+per-update work.
 """
 
 from __future__ import annotations
