@@ -389,7 +389,8 @@ class StateEstimator(LeafSystem):
 
         ``true_state=True`` bypasses all of this: ``q`` is the true plant q and
     ``com``/``com_vel`` are computed from the true q, v with the nominal
-    model (for debugging the controller without estimation errors).
+    model (for debugging the controller without estimation errors; no
+    latency and no noise either; ``stance`` still from the foot forces).
 
     The initial pose (``initial_q``, nq) is the robot's known start pose
     (it sets the attitude, the stance anchor and the COG filter); the
