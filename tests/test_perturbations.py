@@ -160,7 +160,7 @@ def test_pelvis_push_output_in_isolation(humanoid):
     push = PelvisPush(plant=plant, pushes=[Push(0.1, 30.0, -20.0, 0.05), Push(0.12, 5.0, 0.0, 0.01)])
     context = push.CreateDefaultContext()
     pelvis = plant.GetBodyByName(FLOATING_BASE)
-    for t, count in ((0.0, 0), (0.1, 1), (0.125, 2), (0.14, 1), (0.1501, 0)):
+    for t, count in ((0.0, 0), (0.1, 1), (0.125, 2), (0.14, 1), (0.15, 0)):
         context.SetTime(t)
         forces = push.applied_spatial_force_port.Eval(context)
         assert len(forces) == count
@@ -196,7 +196,7 @@ def test_push_through_applied_spatial_force_changes_com_velocity_by_impulse_over
     v1 = plant.CalcCenterOfMassTranslationalVelocityInWorld(plant_context)
     dv = (v1 - v0)[:2]
     expected = push.impulse / mass
-    assert np.allclose(dv, expected, rtol=0.02, atol=1e-4), (dv, expected)
+    assert np.allclose(dv, expected, rtol=1e-3, atol=1e-5), (dv, expected)
     assert system.force_at(0.05)[0] == 120.0
 
 
