@@ -1,5 +1,7 @@
 """State-estimator accuracy and per-tick cost against the simulated truth.
 
+Imports the installed package (``pip install -e .``, or PYTHONPATH=. from the repository).
+
     python benchmarks/bench_estimation.py            # standing + push (about 30 s)
     python benchmarks/bench_estimation.py --walk     # + a 3.3 s closed-loop walk (about 1 min)
     python benchmarks/bench_estimation.py --closed-loop  # + the walk with the estimate fed back (about 30 s)
@@ -38,22 +40,17 @@ Measured 2026-11-25 (2 cores shared, load ~4):
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from pydrake.systems.analysis import Simulator  # noqa: E402
-from pydrake.systems.framework import DiagramBuilder  # noqa: E402
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput  # noqa: E402
-
-from drake_estop import estimation, physics  # noqa: E402
-from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration  # noqa: E402
-from drake_estop.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors  # noqa: E402
+from drake_estop import estimation, physics
+from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
+from drake_estop.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors
 
 DT = 0.005
 

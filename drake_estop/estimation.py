@@ -61,12 +61,11 @@ import math
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
+from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
 
-GRAVITY = 9.81
 #: Noise standard deviations of ``--sensor-noise`` (issue 13).
 ENCODER_NOISE = 1e-3  # [rad]
 GYRO_NOISE = 0.01  # [rad/s]
@@ -422,7 +421,8 @@ class StateEstimator(LeafSystem):
         self._r = float(com_noise) ** 2
         self._sa = float(accel_noise)
         self._sz = float(vertical_accel_noise)
-        self._omega = math.sqrt(GRAVITY / com_height)
+        self._g = float(-plant.gravity_field().gravity_vector()[2])  # the robot's local g (Drake: 9.81)
+        self._omega = math.sqrt(self._g / com_height)
         self._nq = plant.num_positions()
         self._q_idx = actuated_position_indices(plant)
         na = len(self._q_idx)
@@ -550,11 +550,11 @@ class StateEstimator(LeafSystem):
         fz = wrench[5]
         if self._compensate and fz > self._min_force:
             # remove the COG's horizontal acceleration (Newton on the measured ground force)
-            up = acc - R[:2, :].T @ (GRAVITY * wrench[3:5] / fz)
+            up = acc - R[:2, :].T @ (self._g * wrench[3:5] / fz)
         else:
             up = acc
         a_norm = math.sqrt(up[0] ** 2 + up[1] ** 2 + up[2] ** 2)
-        if self._k_att > 0 and a_norm > 0 and abs(a_norm - GRAVITY) < self._gate:
+        if self._k_att > 0 and a_norm > 0 and abs(a_norm - self._g) < self._gate:
             w = w + self._k_att * _cross(up / a_norm, R[2, :])  # R^T e_z = third row of R
         if dt > 0:
             quat = _quat_multiply(quat, _quat_exp(w * dt))
@@ -594,8 +594,8 @@ class StateEstimator(LeafSystem):
 
         # 3. COG filters
         mean, cov = x[_MEAN].copy(), x[_COV].copy()
-        a_world = _quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, GRAVITY])
-        a_force = GRAVITY * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
+        a_world = _quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, self._g])
+        a_force = self._g * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
         d_lp = x[_D_LP] + (dt / (self._push_tau + dt)) * (a_world[:2] - a_force - x[_D_LP])
         for axis in range(3):
             m, P = mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3]

@@ -9,9 +9,17 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-from drake_estop.estimation import (ACCELEROMETER_NOISE, ENCODER_NOISE, GYRO_NOISE, SIGNALS, RobotSensors,
-                                    StateEstimator, actuated_position_indices, add_state_estimation,
-                                    noise_sample)
+from drake_estop.estimation import (
+    ACCELEROMETER_NOISE,
+    ENCODER_NOISE,
+    GYRO_NOISE,
+    SIGNALS,
+    RobotSensors,
+    StateEstimator,
+    actuated_position_indices,
+    add_state_estimation,
+    noise_sample,
+)
 from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
 from drake_estop.perturbations import Perturbations, Push, add_pelvis_push
 from drake_estop.physics import CopEstimator, PhysicsParameters, actuated_indices, add_physics_plant

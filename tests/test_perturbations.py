@@ -1,7 +1,6 @@
 """Perturbations of the simulated robot: validation, CLI options, model errors, friction, pushes."""
 
 import argparse
-import math
 
 import numpy as np
 import pytest
@@ -10,9 +9,18 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_estop.model import FLOATING_BASE, TORSO
-from drake_estop.perturbations import (SOLE_MU_DYNAMIC, SOLE_MU_STATIC, PelvisPush, Perturbations, Push,
-                                       add_pelvis_push, add_perturbation_arguments, apply_model_errors,
-                                       ground_friction, perturbations_from_args)
+from drake_estop.perturbations import (
+    SOLE_MU_DYNAMIC,
+    SOLE_MU_STATIC,
+    PelvisPush,
+    Perturbations,
+    Push,
+    add_pelvis_push,
+    add_perturbation_arguments,
+    apply_model_errors,
+    ground_friction,
+    perturbations_from_args,
+)
 from drake_estop.physics import PhysicsParameters, actuated_indices, add_physics_plant
 
 
@@ -137,7 +145,6 @@ def test_ground_friction_realises_the_effective_dynamic_coefficient():
 
 def test_model_soles_have_the_assumed_friction(humanoid):
     from pydrake.geometry import Role
-    import drake_estop.physics  # noqa: F401
     builder = DiagramBuilder()
     plant, scene_graph, _, ground_id = add_physics_plant(builder, PhysicsParameters())
     inspector = scene_graph.model_inspector()
@@ -201,7 +208,6 @@ def test_push_through_applied_spatial_force_changes_com_velocity_by_impulse_over
 
 
 def test_friction_reaches_the_ground_geometry():
-    from pydrake.geometry import Role  # noqa: F401
     params = ground_friction(Perturbations(friction=0.5), PhysicsParameters())
     builder = DiagramBuilder()
     plant, scene_graph, _, ground_id = add_physics_plant(builder, params)
