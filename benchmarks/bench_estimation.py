@@ -1,0 +1,256 @@
+"""State-estimator accuracy and per-tick cost against the simulated truth.
+
+Imports the installed package (``pip install -e .``, or PYTHONPATH=. from the repository).
+
+    python benchmarks/bench_estimation.py            # standing + push (about 30 s)
+    python benchmarks/bench_estimation.py --walk     # + a 3.3 s closed-loop walk (about 1 min)
+    python benchmarks/bench_estimation.py --closed-loop  # + the walk with the estimate fed back (about 30 s)
+
+Standing: the humanoid on the contact plant (``physics.add_physics_plant``),
+PD servos holding ``nominal_standing_configuration``, the estimator open loop
+(``estimation.add_state_estimation``), 2 s. Push: 170 N forward on the pelvis
+for 0.1 s at 0.3 s (17 N s), errors during the push and in the 0.1 s after.
+Walk: the lead's ``physics.build_closed_loop_diagram`` (no stop) with
+estimators attached open loop through a DiagramBuilder hook (temporary: until
+the estimator is wired into that diagram). Truth: the COG of the simulated
+plant (its context's parameters) from the logged state.
+
+Errors are the norm of the COG error (3D) and of the horizontal COG-velocity
+error, RMS / max over the 5 ms log; noise with seed 1. Cost: the estimator's
+own CPU time per tick (``time.thread_time`` around its step with the inputs
+already evaluated), and the same including the sensors and the CoP
+estimator upstream.
+
+Measured 2026-11-25 (2 cores shared, load ~4):
+
+    standing, no noise         COG 0.15 / 0.17 mm   vel 0.2 / 0.8 mm/s
+    standing, noise            COG 1.10 / 1.96 mm   vel 4.9 / 11.3 mm/s
+    standing, latency 1        COG 0.15 / 0.18 mm   vel 0.1 / 0.8 mm/s
+    standing, mass x1.1        COG 0.16 / 0.19 mm   vel 0.2 / 0.8 mm/s
+    standing, torso COM +2 cm  COG 6.48 / 6.51 mm   (model error: the estimator keeps the nominal model)
+    walk, no noise (hybrid)    COG 0.97 / 2.25 mm   vel 4.8 / 11.6 mm/s
+    walk, noise (hybrid)       COG 1.89 / 4.22 mm   vel 6.7 / 18.6 mm/s
+    closed loop (the estimate replaces the true COG / CoP of the DCM stabiliser, 3.3 s walk):
+        walks in every case (min pelvis z 0.638 m, as with the true COG); true COG vs the run with
+        true feedback: no noise 2.3 / 10.9 mm, noise 5.5 / 14.4 mm, noise + latency 1 2.5 / 5.2 mm
+    cost: estimator CPU median 0.19-0.26 ms, p99 0.37-0.63 ms, max <= 0.97 ms;
+          with sensors + CoP upstream median 0.58-0.74 ms, p99 <= 1.42 ms, max <= 1.94 ms
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+
+from drake_estop import estimation, physics
+from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
+from drake_estop.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors
+
+DT = 0.005
+
+
+class _Timer:
+    """Per-tick CPU time of StateEstimator._step (inputs evaluated first, so upstream work is separate)."""
+
+    def __init__(self):
+        self.own, self.total = [], []
+        self._orig = estimation.StateEstimator._step
+        timer = self
+
+        def timed(system, context, t_and_more_x, *rest):
+            start = time.thread_time()
+            for port in (system.encoders_port, system.gyro_port, system.accelerometer_port,
+                         system.foot_forces_port, system.cop_port, system.wrench_port):
+                port.Eval(context)
+            mid = time.thread_time()
+            result = timer._orig(system, context, t_and_more_x, *rest)
+            end = time.thread_time()
+            timer.own.append(end - mid)
+            timer.total.append(end - start)
+            return result
+        estimation.StateEstimator._step = timed
+
+    def restore(self):
+        estimation.StateEstimator._step = self._orig
+
+    @staticmethod
+    def stats(values):
+        v = np.array(values) * 1e3
+        return f"median {np.median(v):.3f} p99 {np.percentile(v, 99):.3f} max {v.max():.3f} ms"
+
+
+def _truth(plant, perturbations, states):
+    context = plant.CreateDefaultContext()
+    apply_model_errors(plant, context, perturbations)
+    com, vel = [], []
+    for x in states:
+        plant.SetPositionsAndVelocities(context, x)
+        com.append(plant.CalcCenterOfMassPositionInWorld(context))
+        vel.append(plant.CalcCenterOfMassTranslationalVelocityInWorld(context))
+    return np.array(com), np.array(vel)
+
+
+def _errors(com, vel, true_com, true_vel, mask=None):
+    n = min(len(com), len(true_com))
+    ec = np.linalg.norm(com[:n] - true_com[:n], axis=1)
+    ev = np.linalg.norm((vel[:n] - true_vel[:n])[:, :2], axis=1)
+    if mask is not None:
+        ec, ev = ec[mask[:n]], ev[mask[:n]]
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))  # noqa: E731
+    return (f"COG {rms(ec) * 1e3:5.2f} / {ec.max() * 1e3:5.2f} mm   "
+            f"vel {rms(ev) * 1e3:5.1f} / {ev.max() * 1e3:5.1f} mm/s")
+
+
+def standing(perturbations, duration=2.0, pushes=(), **options):
+    builder = DiagramBuilder()
+    plant, scene_graph, instance, _ = physics.add_physics_plant(builder, physics.PhysicsParameters())
+    soles = [plant.GetBodyByName(n) for n in (LEFT_SOLE, RIGHT_SOLE)]
+    cop = builder.AddSystem(physics.CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
+    builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
+    q0 = nominal_standing_configuration(plant)
+    q_idx, _ = physics.actuated_indices(plant)
+    hold = builder.AddSystem(ConstantVectorSource(np.concatenate([q0[q_idx], np.zeros(len(q_idx))])))
+    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    add_pelvis_push(builder, plant, pushes)
+    estimator = estimation.add_state_estimation(builder, plant, cop, servo_period=DT, perturbations=perturbations,
+                                                initial_q=q0, **options)
+    logs = [LogVectorOutput(p, builder, DT) for p in (plant.get_state_output_port(), estimator.com_port,
+                                                      estimator.com_vel_port)]
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    plant.SetPositions(plant_context, q0)
+    apply_model_errors(plant, plant_context, perturbations)
+    simulator.AdvanceTo(duration)
+    states, com, vel = (log.FindLog(context).data().T for log in logs)
+    return (com, vel) + _truth(plant, perturbations, states)
+
+
+def walk(variants, duration=3.3):
+    from drake_estop.diagram import initial_configuration
+    from drake_estop.gait import NominalPattern
+
+    pattern = NominalPattern()
+    kin_plant, _, _ = physics._ik()
+    q0 = initial_configuration(kin_plant, pattern)
+    logs = {}
+
+    class Hook(DiagramBuilder):  # attach the estimators before the lead's diagram is built
+        def Build(self):
+            plant = next(s for s in self.GetSystems() if s.get_name() == "plant")
+            cop = next(s for s in self.GetSystems() if isinstance(s, physics.CopEstimator))
+            for name, (perturbations, options) in variants.items():
+                est = estimation.add_state_estimation(self, plant, cop, servo_period=DT, perturbations=perturbations,
+                                                      initial_q=q0, name_prefix=name + "_", **options)
+                logs[name] = (LogVectorOutput(est.com_port, self, DT), LogVectorOutput(est.com_vel_port, self, DT))
+            return super().Build()
+
+    original = physics.DiagramBuilder
+    physics.DiagramBuilder = Hook
+    try:
+        handles = physics.build_closed_loop_diagram(estop_time=None, pattern=pattern)
+    finally:
+        physics.DiagramBuilder = original
+    simulator = Simulator(handles.diagram)
+    context = simulator.get_mutable_context()
+    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
+    simulator.AdvanceTo(duration)
+    true_com, true_vel = _truth(handles.plant, Perturbations(),
+                                handles.loggers["state"].FindLog(context).data().T)
+    for name, (com_log, vel_log) in logs.items():
+        com, vel = com_log.FindLog(context).data().T, vel_log.FindLog(context).data().T
+        print(f"  walk {name:22s} {_errors(com, vel, true_com, true_vel)}")
+
+
+def closed_loop(perturbations_list, duration=3.3):
+    """The walk with the estimate fed back to the DCM stabiliser instead of the true COG and CoP."""
+    from drake_estop.diagram import initial_configuration
+    from drake_estop.gait import NominalPattern
+
+    pattern = NominalPattern()
+    kin_plant, _, _ = physics._ik()
+    q0 = initial_configuration(kin_plant, pattern)
+
+    def run(perturbations):
+        class Hook(DiagramBuilder):
+            def Build(self):
+                if perturbations is not None:
+                    systems = {system.get_name(): system for system in self.GetSystems()}
+                    plant, cop = systems["plant"], systems["cop_estimator"]
+                    stab, measurement = systems["dcm_stabilizer"], systems["cog_measurement"]
+                    est = estimation.add_state_estimation(self, plant, cop, servo_period=DT,
+                                                          perturbations=perturbations, initial_q=q0)
+                    for old, new, port in ((measurement.com_port, est.com_port, stab.measured_com_port),
+                                           (measurement.com_vel_port, est.com_vel_port, stab.measured_com_vel_port),
+                                           (cop.cop_port, est.sensors.cop_port, stab.measured_cop_port)):
+                        self.Disconnect(old, port)
+                        self.Connect(new, port)
+                return super().Build()
+
+        original = physics.DiagramBuilder
+        physics.DiagramBuilder = Hook
+        try:
+            handles = physics.build_closed_loop_diagram(estop_time=None, pattern=pattern)
+        finally:
+            physics.DiagramBuilder = original
+        simulator = Simulator(handles.diagram)
+        context = simulator.get_mutable_context()
+        handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
+        simulator.AdvanceTo(duration)
+        states = handles.loggers["state"].FindLog(context).data().T
+        return _truth(handles.plant, Perturbations(), states)[0], states[:, 6]
+
+    base, z = run(None)
+    print(f"  closed loop, true COG feedback: min pelvis z {z.min():.3f} m")
+    for perturbations in perturbations_list:
+        com, z = run(perturbations)
+        d = np.linalg.norm((com - base)[:, :2], axis=1)
+        print(f"  closed loop, estimator (noise {perturbations.sensor_noise}, latency {perturbations.latency_ticks}):"
+              f" min pelvis z {z.min():.3f} m, true COG vs the true-feedback run"
+              f" {np.sqrt(np.mean(d ** 2)) * 1e3:.2f} / {d.max() * 1e3:.2f} mm")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--walk", action="store_true", help="also the 3.3 s closed-loop walk")
+    parser.add_argument("--closed-loop", action="store_true", help="also the walk with the estimate fed back")
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    timer = _Timer()
+    try:
+        for label, perturbations in (("no noise", Perturbations()),
+                                     ("noise", Perturbations(sensor_noise=True, seed=1)),
+                                     ("latency 1", Perturbations(latency_ticks=1)),
+                                     ("mass x1.1", Perturbations(mass_scale=1.1)),
+                                     ("torso COM +2 cm", Perturbations(torso_com_offset=0.02))):
+            print(f"  standing, {label:16s} {_errors(*standing(perturbations))}")
+        print(f"  cost: estimator CPU {timer.stats(timer.own)}; with sensors + CoP upstream {timer.stats(timer.total)}")
+    finally:
+        timer.restore()
+    push = [Push(0.3, 170.0, 0.0, 0.1)]
+    for model in ("force", "imu", "hybrid", "lipm"):
+        com, vel, true_com, true_vel = standing(Perturbations(), duration=0.6, pushes=push, model=model)
+        t = DT * np.arange(len(true_com))
+        during = _errors(com, vel, true_com, true_vel, (t >= 0.3) & (t < 0.4))
+        after = _errors(com, vel, true_com, true_vel, (t >= 0.4) & (t < 0.5))
+        print(f"  17 N s push, {model:6s} during: {during}   after: {after}")
+    if args.walk:
+        variants = {}
+        for noise in (False, True):
+            for model in ("force", "imu", "hybrid", "lipm"):
+                variants[f"{model}_noise{int(noise)}"] = (Perturbations(sensor_noise=noise, seed=1), dict(model=model))
+        walk(variants)
+    if args.closed_loop:
+        closed_loop([Perturbations(), Perturbations(sensor_noise=True, seed=1),
+                     Perturbations(sensor_noise=True, seed=1, latency_ticks=1)])
+
+
+if __name__ == "__main__":
+    main()
