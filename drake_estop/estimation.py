@@ -64,6 +64,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
+from drake_estop.timing import timed
 from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
 
 #: Noise standard deviations of ``--sensor-noise`` (issue 13).
@@ -139,6 +140,7 @@ class RobotSensors(LeafSystem):
     """
 
     def __init__(self, *, plant, servo_period: float, latency_ticks: int = 0, noise: bool = False, seed: int = 0,
+                 timer=None,
                  encoder_noise: float = ENCODER_NOISE, gyro_noise: float = GYRO_NOISE,
                  accelerometer_noise: float = ACCELEROMETER_NOISE):
         super().__init__()
@@ -171,7 +173,7 @@ class RobotSensors(LeafSystem):
             {self.time_ticket(), self.all_input_ports_ticket()})
         if self._latency:
             self._buffer = self.DeclareDiscreteState(self._latency * self._size)
-            self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._shift)
+            self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._shift, timer))
             self.DeclareInitializationDiscreteUpdateEvent(self._fill)
             prerequisites = {self.xd_ticket()}
         else:
@@ -396,7 +398,7 @@ class StateEstimator(LeafSystem):
     default is the plant's default positions.
     """
 
-    def __init__(self, *, plant, servo_period: float, initial_q=None, true_state: bool = False,
+    def __init__(self, *, plant, servo_period: float, initial_q=None, true_state: bool = False, timer=None,
                  model: str = "hybrid", attitude_gain: float = 0.05, accel_compensation: bool = True,
                  accel_gate: float = 2.0,
                  stance_hysteresis: float = 0.1, min_contact_force: float = 20.0, foot_window: int = 40,
@@ -450,7 +452,7 @@ class StateEstimator(LeafSystem):
             "estimate", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_HEADER + self._nq + 6)),
                                       calc=self._calc_estimate),
             {self.time_ticket(), self.all_input_ports_ticket(), self.xd_ticket()})
-        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._update, timer))
         ticket = {self._estimate.ticket()}
         out = _HEADER + self._nq
         self.q_port = self.DeclareVectorOutputPort(
@@ -643,7 +645,7 @@ class StateEstimator(LeafSystem):
 
 
 def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, perturbations=None,
-                         true_state: bool = False, initial_q=None, name_prefix: str = "",
+                         true_state: bool = False, initial_q=None, name_prefix: str = "", timer=None,
                          **estimator_options) -> StateEstimator:
     """Add the pelvis IMU, :class:`RobotSensors` and :class:`StateEstimator` and connect them.
 
@@ -675,7 +677,7 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     builder.Connect(plant.get_body_spatial_velocities_output_port(), accel.get_body_velocities_input_port())
     builder.Connect(plant.get_body_spatial_accelerations_output_port(), accel.get_body_accelerations_input_port())
     sensors = builder.AddNamedSystem(f"{name_prefix}robot_sensors", RobotSensors(
-        plant=plant, servo_period=servo_period, latency_ticks=latency, noise=noise, seed=seed))
+        plant=plant, servo_period=servo_period, latency_ticks=latency, noise=noise, seed=seed, timer=timer))
     builder.Connect(plant.get_state_output_port(), sensors.state_port)
     builder.Connect(gyro.get_measurement_output_port(), sensors.gyro_in_port)
     builder.Connect(accel.get_measurement_output_port(), sensors.accelerometer_in_port)
@@ -683,7 +685,8 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     builder.Connect(cop_estimator.cop_port, sensors.cop_in_port)
     builder.Connect(cop_estimator.wrench_port, sensors.wrench_in_port)
     estimator = builder.AddNamedSystem(f"{name_prefix}state_estimator", StateEstimator(
-        plant=plant, servo_period=servo_period, initial_q=initial_q, true_state=true_state, **estimator_options))
+        plant=plant, servo_period=servo_period, initial_q=initial_q, true_state=true_state, timer=timer,
+        **estimator_options))
     for signal in SIGNALS:
         builder.Connect(getattr(sensors, f"{signal}_port"), getattr(estimator, f"{signal}_port"))
     if true_state:

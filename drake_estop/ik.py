@@ -26,6 +26,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
+from drake_estop.timing import timed
 from drake_estop.model import (
     ALL_JOINTS,
     FLOATING_BASE,
@@ -399,7 +400,7 @@ class WholeBodyIK(LeafSystem):
     """
 
     def __init__(self, *, plant, servo_period=0.005, initial_q=None,
-                 solver=None):
+                 solver=None, timer=None):
         super().__init__()
         self._solver = solver or WholeBodyIkSolver(plant)
         self._plant = plant
@@ -416,7 +417,7 @@ class WholeBodyIK(LeafSystem):
                           calc=lambda context, value: None),
             {self.nothing_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(servo_period, 0.0,
-                                                self._update)
+                                                timed(self._update, timer))
 
     def _declare_indices(self, plant):
         """Joint indices and velocity limits used by the limit check."""

@@ -2,42 +2,95 @@
 
 ::
 
-    WalkingPatternSource/EStopTrigger -> StopPlannerSystem --com, com_vel, zmp, feet--> BalanceController
-    StopPlannerSystem --feet, upper_body--> WholeBodyIK <--com-- BalanceController
-    WholeBodyIK --q--> DesiredStateInterpolator <--joint_offset (ankles)-- BalanceController
-        --desired_state--> MultibodyPlant (PD servos, SAP contact)
-    MultibodyPlant --state--> state estimate --com, com_vel--> BalanceController (and the planner)
-    MultibodyPlant --contact_results--> FootForceSensors --wrenches--> BalanceController
-                                    \\-> CopEstimator (logged CoP)
+    EStopTrigger -> StopPlannerSystem --com, com_vel, feet, upper_body--> WholeBodyIK --q-->
+        DesiredStateInterpolator --desired_state--> MultibodyPlant (PD servos, SAP contact)
+    MultibodyPlant --state, IMU (Gyroscope, Accelerometer), contact results (CopEstimator)-->
+        RobotSensors (noise, latency) --> StateEstimator --com, com_vel--> StopPlannerSystem
+    PelvisPush --applied_spatial_force--> MultibodyPlant (perturbations of the simulated robot only)
 
-Every block is a LeafSystem updated by periodic discrete events at the servo
-period; nothing is computed ahead of the tick that uses it (the nominal walk
-is the pattern, built before the run).
+Every controller block (sensors, estimator, planner, IK, servo targets) is a
+LeafSystem updated by a periodic discrete event at the servo period. After
+the signal nothing is computed ahead of the tick that uses it: the planner
+plans on the signal's tick and re-plans on later ticks from the estimated
+state (:class:`drake_estop.systems.StopPlannerSystem`); the IK solves each
+tick's targets on that tick. The nominal walk is the pattern, built before
+the run.
+
+How the controller balances (and what it does not do):
+
+* **The stop is planned from the measured state.** The estimated COG (less
+  the servo's steady tracking bias, learnt while walking) starts the plan
+  when it has left the reference by more than ``replan_threshold`` (3 cm of
+  DCM, ``x + v / omega``); otherwise the plan starts from the reference the
+  robot is tracking. While the measured DCM leaves the plan by more than the
+  threshold, the stop is re-planned from the measured state, at most once a
+  tick: a new landing time and step length while the landing can still move
+  (III.A), a new ZMP target over the whole support polygon after it (III.B).
+  This is where pushes are absorbed: by stepping and by moving the ZMP.
+  The command is blended (0.2 s quintic) from the old plan into the new one,
+  so the stiff servos see no step.
+* **The plan leaves the servos room**: :data:`CONTROLLER_STOP_PARAMETERS`
+  plans with a 3 cm ZMP margin and the longer halts (1.0-1.5 s), so the
+  multibody ZMP error of the motion (the limbs' angular momentum, up to
+  12 cm for tens of ms while the swing leg decelerates) less often pushes
+  the centre of pressure over a sole edge.
+* **Not done (measured, see the README):** a torque-level balance law. A DCM
+  law realised through the COG target (the earlier ``DcmStabilizer``) and an
+  ankle-torque (foot damping) law on the stiff position servos were both
+  tried in this diagram and both made the walk itself fall (the centre of
+  pressure already sits on a toe or heel for tens of ms in every step
+  because of the swing leg's momentum, so a correction through the COG
+  acceleration saturates at once). Tracking that momentum needs it in the
+  plan (a multibody ZMP model) or a whole-body inverse-dynamics controller.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from drake_estop.balance import BalanceController, BalanceParameters
+from drake_estop.estimation import add_state_estimation
 from drake_estop.gait import GaitParameters, NominalPattern
 from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver
-from drake_estop.physics import (_SOLE_FRAMES, SIDES, CopEstimator, JointReference, PhysicsParameters,
-                                 _ik, actuated_indices, add_physics_plant, analyse, snap_time)
+from drake_estop.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
+from drake_estop.physics import (
+    _SOLE_FRAMES,
+    SIDES,
+    CopEstimator,
+    JointReference,
+    PhysicsParameters,
+    _ik,
+    actuated_indices,
+    add_physics_plant,
+    analyse,
+    snap_time,
+)
 from drake_estop.planner import StopParameters
-from drake_estop.stabilizer import CogMeasurement, DesiredStateInterpolator
+from drake_estop.stabilizer import DesiredStateInterpolator
 from drake_estop.systems import add_stop_controller, connect_reference
+from drake_estop.timing import TickTimer
+
+#: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s.
+CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5))
+
+
+def controller_stop_parameters(params: StopParameters | None = None) -> StopParameters:
+    """``params`` (default: the paper's) with the controller's ZMP margin and halt durations."""
+    base = params or StopParameters()
+    return replace(base, zmp_margin=max(base.zmp_margin, CONTROLLER_STOP_PARAMETERS.zmp_margin),
+                   halt_durations=CONTROLLER_STOP_PARAMETERS.halt_durations)
 
 
 @dataclass
 class OnlineHandles:
+    """Systems of :func:`build_online_diagram`."""
+
     diagram: object
     plant: object
     scene_graph: object
@@ -46,66 +99,53 @@ class OnlineHandles:
     loggers: dict
     trigger: object
     planner: object
-    balance: object
     ik: object
     estimator: object
+    push: object
     initial_q: np.ndarray
-
-
-def _ankle_indices(plant):
-    """Actuated-joint (desired_state) indices of each ankle's pitch and roll."""
-    names = [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()]
-    return {side: (names.index(f"{side[0]}_ankle_pitch"), names.index(f"{side[0]}_ankle_roll"))
-            for side in SIDES}
+    timer: TickTimer
+    physics: PhysicsParameters
 
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
-                         physics: PhysicsParameters | None = None,
-                         balance: BalanceParameters | None = None, pushes=(),
-                         replan_threshold: float = 0.03) -> OnlineHandles:
-    """The closed-loop physics diagram of the online controller (see the module docstring)."""
+                         physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
+                         true_state: bool = False, replan_threshold: float = 0.03) -> OnlineHandles:
+    """The closed-loop physics diagram of the online controller (see the module docstring).
+
+    ``perturbations`` change the simulated robot only (friction here, pushes
+    through the plant's applied-spatial-force input, sensor noise and
+    latency in the sensors; the masses in :func:`run_online`'s context).
+    ``true_state`` feeds the estimator's outputs from the true plant state
+    (debugging).
+    """
     from drake_estop.diagram import initial_configuration as pattern_initial_configuration
 
-    physics = physics or PhysicsParameters()
+    perturbations = perturbations or Perturbations()
+    physics = ground_friction(perturbations, physics or PhysicsParameters())
     dt = stop_params.servo_period
+    timer = TickTimer(dt)
     builder = DiagramBuilder()
     plant, scene_graph, instance, _ = add_physics_plant(builder, physics)
-    from drake_estop.perturbations import add_pelvis_push
-    add_pelvis_push(builder, plant, pushes)
+    push = add_pelvis_push(builder, plant, perturbations.pushes)
     soles = [plant.GetBodyByName(_SOLE_FRAMES[side]) for side in SIDES]
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
 
-    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-                                           replan_threshold=replan_threshold)
     kin_plant, _, _ = _ik()
     q0 = pattern_initial_configuration(kin_plant, pattern)
-    ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
-        plant=kin_plant, servo_period=dt, initial_q=q0, solver=WholeBodyIkSolver(kin_plant)))
-    connect_reference(builder, planner, ik)
-    estimator = builder.AddNamedSystem("state_estimator", CogMeasurement(plant=plant))
-    builder.Connect(plant.get_state_output_port(), estimator.state_port)
+    estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
+                                     true_state=true_state, initial_q=q0, timer=timer)
+    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
+                                           replan_threshold=replan_threshold, timer=timer)
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
+    ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
+        plant=kin_plant, servo_period=dt, initial_q=q0, solver=WholeBodyIkSolver(kin_plant), timer=timer))
+    connect_reference(builder, planner, ik)
     q_idx, _ = actuated_indices(plant)
-    ctrl = builder.AddNamedSystem("balance_controller", BalanceController(
-        servo_period=dt, sole=pattern.params.sole, num_actuated=len(q_idx), ankle_indices=_ankle_indices(plant),
-        total_mass=plant.CalcTotalMass(plant.CreateDefaultContext()), params=balance))
-    builder.Connect(planner.com_port, ctrl.planned_com_port)
-    builder.Connect(planner.com_vel_port, ctrl.planned_com_vel_port)
-    builder.Connect(planner.zmp_port, ctrl.planned_zmp_port)
-    builder.Connect(planner.left_foot_port, ctrl.left_foot_port)
-    builder.Connect(planner.right_foot_port, ctrl.right_foot_port)
-    builder.Connect(estimator.com_port, ctrl.measured_com_port)
-    builder.Connect(estimator.com_vel_port, ctrl.measured_com_vel_port)
-    builder.Connect(cop.cop_port, ctrl.measured_cop_port)
-    builder.Connect(cop.body_normal_forces_port, ctrl.foot_forces_port)
-    builder.Disconnect(planner.com_port, ik.com_port)
-    builder.Connect(ctrl.com_port, ik.com_port)
     desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
         q_indices=q_idx, initial_q=q0, servo_period=dt))
     builder.Connect(ik.q_port, desired.q_port)
-    builder.Connect(ctrl.joint_offset_port, desired.joint_offset_port)
     builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
 
     period = physics.log_period
@@ -117,32 +157,50 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         "ik_q": LogVectorOutput(ik.q_port, builder, period),
         "ik_com_error": LogVectorOutput(ik.com_error_port, builder, period),
         "ik_foot_error": LogVectorOutput(ik.foot_error_port, builder, period),
-        "commanded_zmp": LogVectorOutput(ctrl.commanded_zmp_port, builder, period),
-        "com_offset": LogVectorOutput(ctrl.com_offset_port, builder, period),
-        "dcm_error": LogVectorOutput(ctrl.dcm_error_port, builder, period),
-        "joint_offset": LogVectorOutput(ctrl.joint_offset_port, builder, period),
+        "com_est": LogVectorOutput(estimator.com_port, builder, period),
+        "com_vel_est": LogVectorOutput(estimator.com_vel_port, builder, period),
     }
     diagram = builder.Build()
     diagram.set_name("estop_online")
-    return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ctrl, ik,
-                         estimator, q0)
+    return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
+                         push, q0, timer, physics)
+
+
+def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
+    """Per logged tick, the number of joints whose measured speed exceeds the model's velocity limit."""
+    v = states[:, plant.num_positions():]
+    limit = plant.GetVelocityUpperLimits()
+    finite = np.isfinite(limit)
+    return np.sum(np.abs(v[:, finite]) > limit[finite], axis=1)
 
 
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
-               balance: BalanceParameters | None = None, pattern: NominalPattern | None = None, pushes=(),
-               replan_threshold: float = 0.03):
-    """Walk, stop at ``estop_time`` with the online controller, and check the success criteria."""
+               perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
+               true_state: bool = False, replan_threshold: float = 0.03):
+    """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
+
+    ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
+    for the controller's margins, as the CLI does). Returns the
+    :class:`drake_estop.physics.PhysicsResult` of :func:`drake_estop.physics.analyse`
+    with ``online`` added: ``tick_compute`` (median / p99 / max seconds of the
+    controller's own work per servo tick after the signal), ``replans``,
+    ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
+    over its velocity limit, measured) and the estimator's COG log.
+    """
     from drake_estop.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
-    physics = physics or PhysicsParameters()
-    stop_params = stop_params or StopParameters()
+    perturbations = perturbations or Perturbations()
+    stop_params = stop_params or controller_stop_parameters()
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
-    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics, balance=balance,
-                                   pushes=pushes, replan_threshold=replan_threshold)
+    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
+                                   perturbations=perturbations, true_state=true_state,
+                                   replan_threshold=replan_threshold)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
-    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
+    plant_context = handles.plant.GetMyMutableContextFromRoot(context)
+    handles.plant.SetPositions(plant_context, handles.initial_q)
+    apply_model_errors(handles.plant, plant_context, perturbations)
     simulator.Initialize()
     dt = stop_params.servo_period
     planner_context = handles.planner.GetMyContextFromRoot(context)
@@ -154,13 +212,22 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
     simulator.AdvanceTo(end)
     wall = time.perf_counter() - start
+    plan = handles.planner.plans(planner_context)  # the plan and its re-plans, each from its start
     q_log = handles.loggers["ik_q"].FindLog(context)
     com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
     foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
     failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
     reference = JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, 0.0)
-    result = analyse(handles, context, plan, reference, physics, wall)
-    result.online = {name: handles.loggers[name].FindLog(context).data().T
-                     for name in ("commanded_zmp", "com_offset", "dcm_error", "joint_offset")}
-    result.replans = handles.planner.replans(planner_context)
+    result = analyse(handles, context, plan, reference, handles.physics, wall)
+    states = handles.loggers["state"].FindLog(context).data().T
+    replans, replan_failures = handles.planner.replans(planner_context)
+    result.online = {
+        "controller": "online",
+        "tick_compute": handles.timer.summary(since=plan.signal_time),
+        "replans": int(replans),
+        "replan_failures": int(replan_failures),
+        "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
+        "com_est": handles.loggers["com_est"].FindLog(context).data().T,
+        "perturbations": perturbations,
+    }
     return result

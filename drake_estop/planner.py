@@ -158,7 +158,7 @@ class StopPlan:
     upper_body_peak: np.ndarray | None = None  # eq. 33
     swing_start: dict = field(default_factory=dict)
     continuous_solution: tuple | None = None
-    crouch_start: float | None = None  # a re-plan keeps the crouch of the plan it replaces
+    crouch_window: tuple | None = None  # (start, end): a re-plan keeps the crouch of the plan it replaces
 
     @property
     def steps_after_signal(self) -> int:
@@ -208,10 +208,10 @@ class StopPlan:
         if depth == 0.0:
             zeros = np.zeros_like(times)
             return z0 + zeros, zeros, zeros.copy()
-        start = self.start_time if self.crouch_start is None else self.crouch_start
-        duration = self.halt_end - start
+        start, end = self.crouch_window or (self.start_time, self.halt_end)
+        duration = end - start
         s = np.clip((times - start) / duration, 0.0, 1.0)
-        inside = (times > start) & (times < self.halt_end)
+        inside = (times > start) & (times < end)
         z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
         zd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside
         zdd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside
@@ -1225,7 +1225,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     wall = time.perf_counter()
     new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
                      zmp_region="polygon" if double else "fore")
-    new.crouch_start = plan.start_time if plan.crouch_start is None else plan.crouch_start
+    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
     return _finish(new, wall)
 
 

@@ -392,12 +392,9 @@ class DesiredStateInterpolator(LeafSystem):
         name: DesiredStateInterpolator
         input_ports:
         - q
-        - joint_offset
         output_ports:
         - desired_state
 
-    ``joint_offset`` (num actuated, optional) is added to the actuated
-    targets (ankle offsets of :class:`drake_estop.balance.BalanceController`).
     ``q`` (nq) is read with direct feedthrough (connect a discrete source
     such as :class:`drake_estop.ik.WholeBodyIK`, whose value changes only at
     the servo ticks). The state holds the previous tick's actuated positions
@@ -422,31 +419,22 @@ class DesiredStateInterpolator(LeafSystem):
         n = len(self._idx)
         initial = np.asarray(initial_q, float)
         self.q_port = self.DeclareVectorInputPort("q", len(initial))
-        # optional: added to the actuated targets (e.g. BalanceController's ankle offsets)
-        self.joint_offset_port = self.DeclareVectorInputPort("joint_offset", n)
         # [q_a of the previous tick, time of the last tick]
         self._state = self.DeclareDiscreteState(np.concatenate([initial[self._idx], [0.0]]))
         self.desired_state_port = self.DeclareVectorOutputPort(
             "desired_state", BasicVector(2 * n), self._calc,
-            prerequisites_of_calc={self.q_port.ticket(), self.joint_offset_port.ticket(), self.xd_ticket(),
-                               self.time_ticket()})
+            prerequisites_of_calc={self.q_port.ticket(), self.xd_ticket(), self.time_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
 
-    def _targets(self, context):
-        q = self.q_port.Eval(context)[self._idx]
-        if self.joint_offset_port.HasValue(context):
-            q = q + self.joint_offset_port.Eval(context)
-        return q
-
     def _update(self, context, discrete_state):
-        q = self._targets(context)
+        q = self.q_port.Eval(context)[self._idx]
         discrete_state.set_value(self._state, np.concatenate([q, [context.get_time()]]))
         return EventStatus.Succeeded()
 
     def _calc(self, context, output):
         state = context.get_discrete_state(self._state).value()
         previous, tick = state[:-1], state[-1]
-        q = self._targets(context)
+        q = self.q_port.Eval(context)[self._idx]
         v = (q - previous) / self._dt
         base = q if self._extrapolate else previous
         output.SetFromVector(np.concatenate([base + (context.get_time() - tick) * v, v]))

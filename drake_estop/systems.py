@@ -32,6 +32,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
+from drake_estop.timing import timed
 from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
@@ -234,11 +235,12 @@ class _PlanHandle:
     mutated after it is made, so sharing it is safe and keeps the tick cheap.
     """
 
-    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend")
+    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None):
+                 blend=None, history=None):
         self.plan = plan
+        self.history = history if history is not None else ((plan,) if plan is not None else ())
         self.blend = blend  # (start, dp (2), dv (2), duration): see StopPlannerSystem._blended
         self.wall_time = wall_time
         self.replans = replans
@@ -250,6 +252,64 @@ class _PlanHandle:
 
     def __copy__(self):
         return self
+
+
+class PlanSequence:
+    """A stop plan and its re-plans, evaluated as one plan: each in force from its start time.
+
+    Offers what :func:`drake_estop.physics.analyse` reads of a
+    :class:`drake_estop.planner.StopPlan` (``com``, ``com_height``,
+    ``feet``, ``support_sides``, ``phase``; the last plan's end state).
+    """
+
+    def __init__(self, plans):
+        self.plans = tuple(plans)
+        self._starts = np.array([p.start_time for p in self.plans[1:]])
+
+    def __getattr__(self, name):  # the final plan's attributes (halt_end, final_feet, pattern, ...)
+        return getattr(self.plans[-1], name)
+
+    @property
+    def signal_time(self):
+        return self.plans[0].signal_time
+
+    def _index(self, t):
+        return int(np.searchsorted(self._starts, t + 1e-12, side="right"))
+
+    def _at(self, t):
+        return self.plans[self._index(t)]
+
+    def com(self, times):
+        times = np.atleast_1d(np.asarray(times, float))
+        index = np.searchsorted(self._starts, times + 1e-12, side="right")
+        out = [np.zeros((len(times), 2)) for _ in range(4)]
+        for k in np.unique(index):
+            mask = index == k
+            for o, v in zip(out, self.plans[k].com(times[mask])):
+                o[mask] = v
+        return tuple(out)
+
+    def com_height(self, times):
+        times = np.atleast_1d(np.asarray(times, float))
+        index = np.searchsorted(self._starts, times + 1e-12, side="right")
+        out = [np.zeros(len(times)) for _ in range(3)]
+        for k in np.unique(index):
+            mask = index == k
+            for o, v in zip(out, self.plans[k].com_height(times[mask])):
+                o[mask] = v
+        return tuple(out)
+
+    def feet(self, t):
+        return self._at(t).feet(t)
+
+    def support_sides(self, t, feet=None):
+        return self._at(t).support_sides(t, feet)
+
+    def polygon(self, t):
+        return self._at(t).polygon(t)
+
+    def phase(self, t):
+        return self._at(t).phase(t)
 
 
 class StopPlannerSystem(_ReferenceSystem):
@@ -283,7 +343,8 @@ class StopPlannerSystem(_ReferenceSystem):
     """
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.03,
-                 bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2):
+                 bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
+                 timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time)):
@@ -312,7 +373,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, timed(self._update, timer))
 
     @property
     def pattern(self):
@@ -335,6 +396,11 @@ class StopPlannerSystem(_ReferenceSystem):
     def plan_wall_time(self, context):
         """Wall-clock seconds the update spent in ``plan_stop`` (nan before)."""
         return self._handle(context).wall_time
+
+    def plans(self, context) -> PlanSequence | None:
+        """Every plan made since the signal, each in force from its start (None before the latch)."""
+        history = self._handle(context).history
+        return PlanSequence(history) if history else None
 
     def replans(self, context):
         """``(re-plans made, re-plans that found no feasible stop)`` since the signal."""
@@ -429,7 +495,8 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()  # nothing left to re-plan (the foot has landed)
         updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
                               max(handle.max_wall_time, wall),
-                              self._blend_into(context, new) if new is not None else handle.blend)
+                              self._blend_into(context, new) if new is not None else handle.blend,
+                              handle.history + ((new,) if new is not None else ()))
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
@@ -478,7 +545,7 @@ class StopPlannerSystem(_ReferenceSystem):
 
 
 def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
-                        button_name="Emergency stop", replan_threshold=0.03):
+                        button_name="Emergency stop", replan_threshold=0.03, timer=None):
     """Add an EStopTrigger and a StopPlannerSystem wired together.
 
     Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
@@ -488,7 +555,7 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
         servo_period=params.servo_period, scheduled_time=estop_time,
         meshcat=meshcat, button_name=button_name))
     planner = builder.AddNamedSystem("stop_planner", StopPlannerSystem(
-        pattern=pattern, params=params, replan_threshold=replan_threshold))
+        pattern=pattern, params=params, replan_threshold=replan_threshold, timer=timer))
     builder.Connect(trigger.stop_port, planner.stop_port)
     return trigger, planner
 
