@@ -1143,9 +1143,9 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     ``measured``: optional ``(com_xy, com_vel_xy)`` of the robot at that tick
     (a state estimate); the plan then starts from it, so the continuity
     conditions (eq. 10-11) hold against what the robot is doing, with the
-    ZMP continuous with the pattern's (eq. 12-13). Only the signal's own
-    support phase uses it: a next-step fallback (III.C) starts from the
-    nominal state at its later tick.
+    ZMP continuous with the pattern's (eq. 12-13). A next-step fallback
+    (III.C) starts at a later tick from the pattern's state there plus the
+    measured deviation propagated by the LIPM.
     """
     params = params or StopParameters()
     if measured is not None:
@@ -1163,8 +1163,8 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     while t <= horizon:
         support, index, _ = pattern.support_at(t)
         state = pattern.state(t)
-        if measured is not None and t == t0:
-            state = replace(state, com=measured[0].copy(), com_vel=measured[1].copy())
+        if measured is not None:
+            state = _with_deviation(state, pattern, t0, measured)
         if support == "standing" and t == t0:
             return _finish(_trivial_plan(pattern, state, params, t0, "standing"), wall)
         if support == "standing" or index >= len(pattern.steps):
@@ -1179,6 +1179,17 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s")
+
+
+def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, measured) -> PatternState:
+    """``state`` (the pattern's at ``state.time`` >= ``t0``) with the COG moved by the measured deviation
+    at ``t0``, propagated under the pattern's ZMP: the LIPM is linear, so the deviation evolves on its
+    own (eq. 6, 9 with a zero ZMP): ``d(t) = d0 cosh(w s) + d0' / w sinh(w s)``."""
+    pos, vel, _, _ = pattern.com([t0])
+    d0, v0 = measured[0] - pos[0], measured[1] - vel[0]
+    w, s = pattern.w, state.time - t0
+    ch, sh = math.cosh(w * s), math.sinh(w * s)
+    return replace(state, com=state.com + d0 * ch + v0 / w * sh, com_vel=state.com_vel + d0 * w * sh + v0 * ch)
 
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None:

@@ -415,19 +415,13 @@ class StopPlannerSystem(_ReferenceSystem):
             return None
         return np.concatenate([com[:2], vel[:2]])
 
-    def _measured(self, context):
-        """Low-passed measured COG (xy) and velocity less the walking tracking bias, or None."""
-        if context.get_discrete_state(self._filter_started).value()[0] == 0.0:
-            return None
-        corrected = (context.get_discrete_state(self._filtered_state).value()
-                     - context.get_discrete_state(self._bias_state).value())
-        return corrected[:2], corrected[2:]
-
     def _filter(self, context, state, track_bias):
-        """Low-pass the measured COG; while walking, also the tracking bias against the pattern."""
+        """Low-pass the measured COG (into ``state``); while walking, also the tracking bias against the
+        pattern. Returns this tick's bias-corrected ``(com_xy, com_vel_xy)``, or None without a measurement."""
         raw = self._raw_measured(context)
+        bias = context.get_discrete_state(self._bias_state).value()
         if raw is None:
-            return
+            return None
         filtered = context.get_discrete_state(self._filtered_state).value()
         started = context.get_discrete_state(self._filter_started).value()[0] != 0.0
         filtered = filtered + self._filter_alpha * (raw - filtered) if started else raw
@@ -435,23 +429,22 @@ class StopPlannerSystem(_ReferenceSystem):
         state.get_mutable_discrete_state(self._filter_started).set_value([1.0])
         if track_bias:
             pos, vel, _, _ = self._pattern.com([context.get_time()])
-            bias = context.get_discrete_state(self._bias_state).value()
-            reference = np.concatenate([pos[0], vel[0]])
-            state.get_mutable_discrete_state(self._bias_state).set_value(
-                bias + self._bias_alpha * (filtered - reference - bias))
+            bias = bias + self._bias_alpha * (filtered - np.concatenate([pos[0], vel[0]]) - bias)
+            state.get_mutable_discrete_state(self._bias_state).set_value(bias)
+        corrected = filtered - bias
+        return corrected[:2], corrected[2:]
 
     def _update(self, context, state):
         """Plan on the first tick that sees the latched stop; then re-plan (at most once a tick)
         while the measured DCM leaves the plan's by more than ``replan_threshold``."""
         handle = self._handle(context)
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
-        self._filter(context, state, track_bias=not latched)
+        measured = self._filter(context, state, track_bias=not latched)
         if handle.plan is not None:
-            self._maybe_replan(context, state, handle)
+            self._maybe_replan(context, state, handle, measured)
             return EventStatus.Succeeded()
         if not latched:
             return EventStatus.Succeeded()
-        measured = self._measured(context)
         now = max(signal_time, context.get_time())
         if measured is not None and self._deviation(self._pattern, now, measured) <= self._replan_threshold:
             measured = None  # the robot follows the reference: plan from it, continuous with the command
@@ -475,8 +468,7 @@ class StopPlannerSystem(_ReferenceSystem):
         omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
         return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)))
 
-    def _maybe_replan(self, context, state, handle):
-        measured = self._measured(context)
+    def _maybe_replan(self, context, state, handle, measured):
         if measured is None:
             return EventStatus.DidNothing()
         t = context.get_time()

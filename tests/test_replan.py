@@ -1,0 +1,257 @@
+"""Planning from the measured state and re-planning (planner functions and StopPlannerSystem in isolation)."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.systems import PlanSequence, StopPlannerSystem
+
+DT = 0.005
+
+
+def _state_at(plan, t):
+    pos, vel, _, zmp = plan.com([t])
+    return pos[0], vel[0], zmp[0]
+
+
+def _slowdown_end_velocity(plan):
+    _, vel, _, _ = plan.com([plan.slowdown_end])
+    return vel[0]
+
+
+def test_plan_from_the_reference_state_equals_the_nominal_plan(pattern, params):
+    nominal = plan_stop(pattern, 3.1, params)
+    pos, vel, _ = _state_at(nominal, 3.1)
+    measured = plan_stop(pattern, 3.1, params, measured=(pos, vel))
+    assert measured.case == nominal.case
+    assert measured.step_length == pytest.approx(nominal.step_length, abs=1e-9)
+    assert measured.halt_end == pytest.approx(nominal.halt_end, abs=1e-9)
+
+
+def test_plan_from_a_measured_state_starts_there_and_stops(pattern, params):
+    t = 3.1
+    pos, vel, zmp = _state_at(plan_stop(pattern, t, params), t)
+    faster = vel + np.array([0.02, 0.0])
+    plan = plan_stop(pattern, t, params, measured=(pos, faster))
+    assert plan.case == "one-step"
+    start_pos, start_vel, start_zmp = _state_at(plan, plan.start_time)
+    np.testing.assert_allclose(start_pos, pos, atol=1e-12)  # eq. 10
+    np.testing.assert_allclose(start_vel, faster, atol=1e-12)  # eq. 11
+    np.testing.assert_allclose(start_zmp, zmp, atol=1e-12)  # eq. 12: the ZMP stays continuous
+    assert plan.step_length > plan_stop(pattern, t, params).step_length  # a faster COG needs a longer step
+    assert abs(_slowdown_end_velocity(plan)[0]) < 1e-6  # eq. 17
+
+
+def test_a_next_step_fallback_carries_the_measured_deviation(pattern, params):
+    """Where the deviation makes a one-step stop infeasible, the fallback starts from the pattern's
+    later state plus the deviation propagated by the LIPM, not from the nominal state."""
+    t = 3.1
+    pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
+    faster = vel + np.array([0.05, 0.0])
+    plan = plan_stop(pattern, t, params, measured=(pos, faster))
+    assert plan.case == "next-step"
+    s = plan.start_time - plan_stop(pattern, t, params).start_time
+    w = pattern.w
+    nominal_pos, nominal_vel, _, _ = pattern.com([plan.start_time])
+    start_pos, start_vel, _ = _state_at(plan, plan.start_time)
+    np.testing.assert_allclose(start_pos[0] - nominal_pos[0][0], 0.05 / w * np.sinh(w * s), atol=1e-9)
+    np.testing.assert_allclose(start_vel[0] - nominal_vel[0][0], 0.05 * np.cosh(w * s), atol=1e-9)
+
+
+@pytest.mark.parametrize("value", [(np.nan, 0.0), (np.inf, 1.0)])
+def test_plan_stop_rejects_a_non_finite_measured_state(pattern, params, value):
+    with pytest.raises(ValueError, match="measured"):
+        plan_stop(pattern, 3.1, params, measured=(np.array(value), np.zeros(2)))
+
+
+def test_replan_in_the_landing_phase_moves_the_landing(pattern, params):
+    plan = plan_stop(pattern, 3.0, params)
+    t = 3.05
+    pos, vel, zmp = _state_at(plan, t)
+    pushed = vel + np.array([0.02, 0.0])
+    new = replan_stop(plan, t, pos, pushed)
+    assert new.start_time == pytest.approx(t)
+    assert new.step_length > plan.step_length
+    start_pos, start_vel, start_zmp = _state_at(new, t)
+    np.testing.assert_allclose(start_vel, pushed, atol=1e-12)
+    np.testing.assert_allclose(start_zmp, zmp, atol=1e-9)
+    # the swing foot continues from where the old plan had it, at the same velocity
+    np.testing.assert_allclose(new.feet(t)[new.landing_foot], plan.feet(t)[plan.landing_foot], atol=1e-12)
+    h = 1e-4
+    v_old = (plan.feet(t + h)[plan.landing_foot] - plan.feet(t - h)[plan.landing_foot]) / (2 * h)
+    v_new = (new.feet(t + h)[new.landing_foot] - new.feet(t)[new.landing_foot]) / h
+    np.testing.assert_allclose(v_new, v_old, atol=2e-3)
+    assert abs(_slowdown_end_velocity(new)[0]) < 1e-6
+    assert new.min_zmp_margin >= params.zmp_margin - 1e-9
+
+
+def test_replan_after_the_landing_may_stop_the_cog_over_the_rear_foot(pattern, params):
+    """III.B keeps ZMP_max on the fore sole; a re-plan after a backward push may use the whole polygon."""
+    plan = plan_stop(pattern, 3.4, params)
+    t = plan.landing_time + 0.05
+    pos, vel, _ = _state_at(plan, t)
+    slowed = np.array([0.05, vel[1]])
+    new = replan_stop(plan, t, pos, slowed)
+    assert new.start_support == "double"
+    rear = next(s for s in new.final_feet if s != plan.landing_foot)
+    fore_heel = plan.final_feet[plan.landing_foot][0] - pattern.params.sole.heel
+    target = new.start_state.zmp[0] + new.zmp_max
+    assert target < fore_heel  # behind the fore sole: between the feet or on the rear foot
+    assert target > new.final_feet[rear][0] - pattern.params.sole.heel
+    assert abs(_slowdown_end_velocity(new)[0]) < 1e-6
+    # the COG ends at rest at the feet's midpoint (eq. 27-28)
+    end_pos, end_vel, _ = _state_at(new, new.halt_end + 0.2)
+    np.testing.assert_allclose(end_pos, 0.5 * (new.final_feet["left"] + new.final_feet["right"]), atol=1e-6)
+    np.testing.assert_allclose(end_vel, 0.0, atol=1e-6)
+
+
+def test_replan_keeps_the_crouch_of_the_plan_it_replaces(pattern, params):
+    plan = plan_stop(pattern, 3.0, params)
+    t = 3.05
+    pos, vel, _ = _state_at(plan, t)
+    new = replan_stop(plan, t, pos, vel + np.array([0.02, 0.0]))
+    z_old = plan.com_height([t])[0][0]
+    z_new = new.com_height([t])[0][0]
+    assert z_new == pytest.approx(z_old, abs=1e-12)
+
+
+def test_nothing_to_replan_in_the_halt(pattern, params):
+    plan = plan_stop(pattern, 3.4, params)
+    t = plan.slowdown_end + 0.1
+    pos, vel, _ = _state_at(plan, t)
+    assert replan_stop(plan, t, pos, vel) is None
+
+
+def test_replan_raises_when_no_stop_exists(pattern, params):
+    plan = plan_stop(pattern, 3.4, params)
+    t = plan.landing_time + 0.02
+    pos, _, _ = _state_at(plan, t)
+    with pytest.raises(InfeasibleStop):
+        replan_stop(plan, t, pos, np.array([3.0, 0.0]))  # 3 m/s: no ZMP in the feet stops it
+
+
+def test_plan_sequence_evaluates_each_plan_from_its_start(pattern, params):
+    first = plan_stop(pattern, 3.0, params)
+    t = 3.05
+    pos, vel, _ = _state_at(first, t)
+    second = replan_stop(first, t, pos, vel + np.array([0.02, 0.0]))
+    sequence = PlanSequence([first, second])
+    times = np.array([3.02, 3.049, 3.06, 3.5])
+    got = sequence.com(times)[0]
+    np.testing.assert_allclose(got[:2], first.com(times[:2])[0])
+    np.testing.assert_allclose(got[2:], second.com(times[2:])[0])
+    assert sequence.signal_time == first.signal_time
+    assert sequence.halt_end == second.halt_end
+    np.testing.assert_allclose(sequence.feet(3.02)[first.landing_foot], first.feet(3.02)[first.landing_foot])
+    np.testing.assert_allclose(sequence.feet(3.3)[second.landing_foot], second.feet(3.3)[second.landing_foot])
+
+
+# -- StopPlannerSystem with the measured-state inputs ---------------------------------------------
+
+
+def _planner_diagram(pattern, params, stop, com, com_vel, **kwargs):
+    builder = DiagramBuilder()
+    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=params, **kwargs))
+    for port, value in ((planner.stop_port, stop), (planner.measured_com_port, com),
+                        (planner.measured_com_vel_port, com_vel)):
+        source = builder.AddSystem(ConstantVectorSource(np.asarray(value, float)))
+        builder.Connect(source.get_output_port(), port)
+    diagram = builder.Build()
+    return diagram, planner
+
+
+def test_planner_plans_from_the_reference_when_the_robot_follows_it(pattern, params):
+    t = 3.1
+    pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*vel, 0.0])
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(t)
+    simulator.Initialize()
+    simulator.AdvanceTo(t + DT / 2)
+    context = planner.GetMyContextFromRoot(simulator.get_context())
+    plan = planner.plan(context)
+    assert plan.start_time == pytest.approx(t)
+    assert plan.step_length == pytest.approx(plan_stop(pattern, t, params).step_length, abs=1e-9)
+    assert planner.replans(context) == (0, 0)
+
+
+def test_planner_plans_from_the_measured_state_after_a_push_and_blends_the_command(pattern, params):
+    t = 3.2
+    pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
+    pushed = vel + np.array([0.05, 0.0])  # 1.4 cm of DCM: past a 1 cm threshold
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*pushed, 0.0],
+                                        replan_threshold=0.01)
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(t)
+    simulator.Initialize()
+    context = planner.GetMyContextFromRoot(simulator.get_context())
+    simulator.AdvanceTo(t + DT / 2)
+    plan = planner.plan(context)
+    np.testing.assert_allclose(plan.com([plan.start_time])[1][0], pushed, atol=1e-9)
+    assert plan.step_length > plan_stop(pattern, t, params).step_length
+    # the command starts where the old one was (no step for the stiff servos) and joins the plan
+    tc = context.get_time()
+    old_pos, old_vel, _, _ = pattern.com([tc])
+    np.testing.assert_allclose(planner.com_port.Eval(context)[:2], old_pos[0], atol=2e-5)
+    np.testing.assert_allclose(planner.com_vel_port.Eval(context)[:2], old_vel[0], atol=0.01)
+    plan_pos, plan_vel, _, _ = plan.com([tc])
+    assert np.linalg.norm(plan_vel[0] - old_vel[0]) > 0.04  # the plan itself starts at the measured 5 cm/s more
+
+
+def test_blend_starts_at_the_old_command_and_ends_on_the_plan_at_rest():
+    from drake_estop.systems import _SLICES, REFERENCE_SIZE
+    reference = np.zeros(REFERENCE_SIZE)
+    dp, dv, duration = np.array([0.02, -0.01]), np.array([0.1, 0.05]), 0.2
+    blend = (1.0, dp, dv, duration)
+
+    def command(t):
+        out = StopPlannerSystem._blended(reference, blend, t)
+        return out[_SLICES["com"]][:2], out[_SLICES["com_vel"]][:2]
+
+    np.testing.assert_allclose(command(1.0)[0], dp)
+    np.testing.assert_allclose(command(1.0)[1], dv)
+    h = 1e-6
+    np.testing.assert_allclose((command(1.1 + h)[0] - command(1.1 - h)[0]) / (2 * h), command(1.1)[1], atol=1e-6)
+    np.testing.assert_allclose(command(1.0 + duration - 1e-9)[0], 0.0, atol=1e-9)
+    np.testing.assert_allclose(command(1.0 + duration - 1e-9)[1], 0.0, atol=1e-6)
+    np.testing.assert_allclose(command(1.5)[0], 0.0)
+    np.testing.assert_allclose(command(0.9)[0], 0.0)
+
+
+def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(pattern, params):
+    t = 3.0
+    pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
+    # the measured state stays frozen at the signal's: it leaves every new plan again
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*vel, 0.0],
+                                        filter_time_constant=1e-6, replan_threshold=0.005)
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(t)
+    simulator.Initialize()
+    simulator.AdvanceTo(t + 0.1)
+    context = planner.GetMyContextFromRoot(simulator.get_context())
+    replans, failures = planner.replans(context)
+    ticks = int(round(0.1 / DT))
+    assert 1 <= replans + failures <= ticks
+    assert len(planner.plans(context).plans) == replans + 1
+
+
+@pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time"])
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
+def test_planner_rejects_bad_settings(pattern, params, name, value):
+    with pytest.raises(ValueError, match=name):
+        StopPlannerSystem(pattern=pattern, params=params, **{name: value})
+
+
+def test_controller_stop_parameters_keep_the_user_settings():
+    from drake_estop.online import controller_stop_parameters
+    params = controller_stop_parameters(StopParameters(a_ss=7.0, zmp_margin=0.05))
+    assert params.a_ss == 7.0
+    assert params.zmp_margin == 0.05  # a larger margin than the controller's is kept
+    assert controller_stop_parameters().zmp_margin == pytest.approx(0.03)
+    assert min(controller_stop_parameters().halt_durations) >= 1.0
+    assert StopParameters is type(params)
+    assert isinstance(params, StopParameters)
+    assert params != StopParameters()
