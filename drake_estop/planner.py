@@ -347,6 +347,15 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
     return np.array([float(lipm.poly_eval(u, s)) for u in unit])
 
 
+def descent_time(lift: float, params: StopParameters) -> float:
+    """Shortest landing duration from swing height ``lift`` [m], on the servo grid: the quintic
+    descent peaks at 15/8 of its mean speed, kept under ``max_swing_descent_speed``. Capped one
+    tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing window)."""
+    dt = params.servo_period
+    shortest = math.ceil(1.875 * max(lift, 0.0) / params.max_swing_descent_speed / dt - 1e-9) * dt
+    return min(shortest, params.max_landing_time - dt)
+
+
 # ---------------------------------------------------------------------------
 # phase-parameter solvers
 # ---------------------------------------------------------------------------
@@ -949,15 +958,6 @@ def _zmp_segments(state, solution, targets, kind):
             durations = [solution.transition, solution.slowdown]
         segs.append((durations, coeffs))
     return segs
-
-
-def descent_time(lift: float, params: StopParameters) -> float:
-    """Shortest landing duration from swing height ``lift`` [m], on the servo grid: the quintic
-    descent peaks at 15/8 of its mean speed, kept under ``max_swing_descent_speed``. Capped one
-    tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing window)."""
-    dt = params.servo_period
-    shortest = math.ceil(1.875 * max(lift, 0.0) / params.max_swing_descent_speed / dt - 1e-9) * dt
-    return min(shortest, params.max_landing_time - dt)
 
 
 def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParameters):
