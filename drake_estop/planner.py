@@ -72,7 +72,15 @@ class StopParameters:
     max_transition_time: float = 0.8
     min_slowdown_time: float = 0.005
     max_slowdown_time: float = 1.5
-    max_swing_speed: float = 1.2  # mean swing-ankle speed to the landing point [m/s]
+    # mean swing-ankle speed to the landing point [m/s]; the quintic swing from rest peaks at 15/8
+    # of it (2.16 m/s; the nominal swing peaks at 1.76). At 1.2 the hip and ankle pitch of the swing
+    # leg went up to 5.2 rad/s against their 5 rad/s limit (benchmarks/bench_joint_velocity.py)
+    max_swing_speed: float = 1.15
+    # fastest descent of the landing foot [m/s]: landing from swing height h takes at least
+    # 15/8 h / this (the quintic's peak speed), so a foot caught high in the swing is not slammed
+    # down while the landing leg is nearly straight (knee speed = leg-extension rate / sin(knee)).
+    # The nominal swing descends at up to 0.27 m/s (64 h s^3 (1-s)^3 over the single support).
+    max_swing_descent_speed: float = 0.30
     zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
     crouch: bool = True
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
@@ -86,7 +94,10 @@ class StopParameters:
     # the rear ankle where the COG comes to rest (rear) [m]. Measured with the whole-body IK on
     # models/humanoid.urdf at the walking COG height 0.814 m (0.245 and 0.26; a 4 cm crouch adds
     # about 5 cm); beyond them a knee is stretched straight. Conservative: the crouch is ignored.
-    max_fore_reach: float = 0.22
+    # The fore reach keeps the landing knee bent at touchdown: at 0.22 the knee landed straight,
+    # where the knee speed (leg-extension rate / sin(knee)) is unbounded, and the IK drove it at
+    # up to 26 rad/s against its 6 rad/s limit; 0.195 lands it bent by 0.4 rad or more.
+    max_fore_reach: float = 0.195
     max_rear_reach: float = 0.26
     cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
@@ -94,7 +105,8 @@ class StopParameters:
         for name in ("a_ss", "b_ss", "a_ds", "b_ds", "servo_period", "max_step_length",
                      "min_landing_time", "max_landing_time", "min_transition_time",
                      "max_transition_time", "min_slowdown_time", "max_slowdown_time",
-                     "max_swing_speed", "cost_tolerance", "max_fore_reach", "max_rear_reach"):
+                     "max_swing_speed", "cost_tolerance", "max_fore_reach", "max_rear_reach",
+                     "max_swing_descent_speed"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
@@ -317,7 +329,10 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
 
     Quintic Hermite per axis (zero velocity and acceleration at touchdown); the
     lift gets an extra apex bump when the Hermite part alone would dip below
-    the floor or the foot starts on it.
+    the floor, and a clearance bump when the foot is leaving the floor (low and
+    not descending). A foot already coming down is not lifted again: that
+    re-lift, squeezed into the last 0.1 s before touchdown, drove the landing
+    knee at up to 15 rad/s (its limit is 6).
     """
     s = min(max(elapsed / duration, 0.0), 1.0)
     target = np.array([target_xy[0], target_xy[1], 0.0])
@@ -328,9 +343,19 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
     ]
     grid = np.linspace(0, 1, 41)
     lowest = float(np.min(lipm.poly_eval(unit[2], grid)))
-    apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if pos[2] < 0.5 * lift_height else max(0.0, -lowest)
+    leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
+    apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
     unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
     return np.array([float(lipm.poly_eval(u, s)) for u in unit])
+
+
+def descent_time(lift: float, params: StopParameters) -> float:
+    """Shortest landing duration from swing height ``lift`` [m], on the servo grid: the quintic
+    descent peaks at 15/8 of its mean speed, kept under ``max_swing_descent_speed``. Capped one
+    tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing window)."""
+    dt = params.servo_period
+    shortest = math.ceil(1.875 * max(lift, 0.0) / params.max_swing_descent_speed / dt - 1e-9) * dt
+    return min(shortest, params.max_landing_time - dt)
 
 
 # ---------------------------------------------------------------------------
@@ -520,12 +545,13 @@ class _SingleSupportProblem(_StopProblem):
     swing_xy: np.ndarray  # current swing ankle
     landing_y: float  # lateral landing (nominal step width)
     free: tuple = (0, 1, 2)
+    min_landing: float = 0.0  # shortest landing from the swing foot's height (:func:`descent_time`)
 
     def bounds(self):
         """Durations, and the slowdown ZMP = step length + landing_zmp_offset (eq. 20)."""
         p = self.params
         offset = p.landing_zmp_offset
-        return np.array([[p.min_landing_time, p.max_landing_time],
+        return np.array([[max(p.min_landing_time, self.min_landing), p.max_landing_time],
                          [p.min_transition_time, p.max_transition_time],
                          [p.min_step_length + offset, p.max_step_length + offset]])
 
@@ -975,7 +1001,8 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
         problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
-                                        state.feet[swing][:2].copy(), float(state.next_landing[1]))
+                                        state.feet[swing][:2].copy(), float(state.next_landing[1]),
+                                        min_landing=descent_time(float(state.feet[swing][2]), params))
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"

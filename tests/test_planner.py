@@ -7,7 +7,7 @@ import pytest
 
 from drake_estop.checks import lipm_tracking_error
 from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.planner import StopParameters, plan_stop, stop_problem
+from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
 from drake_estop.reference import reference_solve
 from drake_estop.rollout import rollout
 
@@ -90,7 +90,9 @@ def test_one_step_wherever_feasible(stride_plans, pattern, params):
     """Every fallback (III.C) must come from a state where even the generic reference solver
     finds no feasible one-step parameters."""
     fallbacks = [plan for plan in stride_plans if plan.case != "one-step"]
-    assert len(fallbacks) <= len(stride_plans) // 10
+    # 32 of 160 since the landing honours the joint-speed limits (bent-knee fore reach, bounded
+    # swing descent; tests/test_joint_velocity.py); 13 before, when the knee landed straight
+    assert len(fallbacks) <= len(stride_plans) // 4
     for plan in fallbacks:
         problem, kind, _ = stop_problem(pattern, pattern.state(plan.signal_time), params)
         # a generic solver finds no one-step plan that clears every limit by a servo tick / 5 mm
@@ -101,13 +103,20 @@ def test_newton_matches_generic_solver(pattern, params):
     from drake_estop.planner import solve_continuous
 
     start, end = pattern.stride()
-    for fraction in (0.05, 0.25, 0.5, 0.7, 0.85, 0.95):  # single support ends at 0.8
+    compared = 0
+    for fraction in (0.05, 0.25, 0.4, 0.5, 0.6, 0.7, 0.85, 0.95):  # single support ends at 0.8
         t = round(round((start + fraction * (end - start)) / params.servo_period) * params.servo_period, 6)
         problem, kind, _ = stop_problem(pattern, pattern.state(t), params)
-        _, _, cost, _ = solve_continuous(problem, kind)
+        try:
+            _, _, cost, _ = solve_continuous(problem, kind)
+        except InfeasibleStop:  # a fallback state (0.5, 0.7): the generic solver finds none either
+            assert reference_solve(problem, kind, margin=0.005) is None, t
+            continue
+        compared += 1
         ref = reference_solve(problem, kind, starts_per_axis=4)
         assert ref is not None
         assert cost <= ref[0] * 1.001, (t, cost, ref[0])
+    assert compared >= 6
 
 
 def test_paper_single_support_scenario_extends_step(pattern):
