@@ -983,7 +983,7 @@ def _choose_halt(ends, midpoint, polygon, params, w):
     return best[0], [_halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
 
 
-_LATERAL_ROUNDS = 4  # re-solves that raise the slowdown floor until the lateral stop fits the fore sole
+_LATERAL_ROUNDS = 5  # re-solves that raise the slowdown floor until the lateral stop fits the fore sole
 _LATERAL_SLACK = 1e-3  # [m] the floor aims this far inside the lateral ZMP range (tick rounding)
 
 
@@ -1011,29 +1011,38 @@ def _solve_both_axes(pattern, state, params):
     accel = float(state.zmp_accel[1]) if kind == "double" else 0.0
     start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
     limits = {}
+    if kind == "single":
+        touchdown = pattern.steps[pattern.support_at(state.time)[1]]["touchdown"]
+        dt = params.servo_period
+        nominal_landing = max(math.ceil((touchdown - state.time) / dt - 1e-9) * dt, params.min_landing_time + dt)
     for _ in range(_LATERAL_ROUNDS):
         wanted = target_zmp(start, w, solution.landing, solution.transition, solution.slowdown, derivatives=False)
         if low - _LATERAL_SLACK <= wanted <= high + _LATERAL_SLACK:
             break
         bound = low if wanted < low else high
-        floor = slowdown_time(start, w, solution.landing, solution.transition, bound, derivatives=False)
-        if floor > params.min_slowdown_time and floor < params.max_slowdown_time:
-            limits["min_slowdown_time"] = max(floor, limits.get("min_slowdown_time", floor))
-            if kind == "single":  # a later touchdown would need a longer slowdown again
-                limits["max_landing_time"] = max(solution.landing, params.min_landing_time + params.servo_period,
-                                                 ) + 1e-9
-        elif kind == "single":
-            # the lateral COG runs away while the foot swings: no slowdown is long enough, so
-            # land earlier (the latest touchdown from which a slowdown of half the longest fits)
-            ceiling = _latest_landing(start, w, solution.transition, 0.5 * params.max_slowdown_time,
-                                      bound, wanted < low, params.min_landing_time, solution.landing,
-                                      params.servo_period)
-            if ceiling is None:
-                break
-            limits["max_landing_time"] = ceiling
-            limits.pop("min_slowdown_time", None)
+        if kind == "single" and solution.landing > nominal_landing + 1e-9 and "max_landing_time" not in limits:
+            # first keep the touchdown no later than the nominal one: postponing it lets the lateral
+            # COG run out over the support foot's side (the nominal walk bounds that excursion)
+            limits["max_landing_time"] = nominal_landing + 1e-9
         else:
-            break
+            floor = slowdown_time(start, w, solution.landing, solution.transition, bound, derivatives=False)
+            if floor > params.min_slowdown_time and floor < params.max_slowdown_time:
+                limits["min_slowdown_time"] = max(floor, limits.get("min_slowdown_time", floor))
+                if kind == "single":  # a later touchdown would need a longer slowdown again
+                    limits["max_landing_time"] = max(solution.landing, params.min_landing_time + params.servo_period,
+                                                     ) + 1e-9
+            elif kind == "single":
+                # the lateral COG runs away while the foot swings: no slowdown is long enough, so
+                # land earlier (the latest touchdown from which a slowdown of half the longest fits)
+                ceiling = _latest_landing(start, w, solution.transition, 0.5 * params.max_slowdown_time,
+                                          bound, wanted < low, params.min_landing_time, solution.landing,
+                                          params.servo_period)
+                if ceiling is None:
+                    break
+                limits["max_landing_time"] = ceiling
+                limits.pop("min_slowdown_time", None)
+            else:
+                break
         try:
             problem, kind, feet = stop_problem(pattern, state, replace(params, **limits))
             solution = _solve(problem, kind)
