@@ -66,13 +66,15 @@ def test_logged_cog_obeys_lipm_by_independent_integration(stride_plans, pattern)
             assert err < 1e-3, (plan.signal_time, axis, err)
 
 
-def test_zmp_inside_support_polygon_every_tick(stride_plans):
+def test_zmp_inside_support_polygon_every_tick(stride_plans, params):
+    """The ZMP keeps ``zmp_margin`` (1 cm, as the README promises) from the sole edges, not just 0."""
+    assert params.zmp_margin == 0.01
     for plan in stride_plans:
-        assert plan.min_zmp_margin >= 0.0, plan.signal_time
+        assert plan.min_zmp_margin >= params.zmp_margin - 1e-9, plan.signal_time
         # re-check here, independently of the planner's own verification
-        for t in _ticks(plan, plan.start_time, plan.halt_end + 0.5)[::2]:
+        for t in _ticks(plan, plan.start_time, plan.halt_end + 0.5):
             zmp = plan.com([t])[3]
-            assert plan.polygon(t).margin(zmp)[0] >= -1e-9, (plan.signal_time, t)
+            assert plan.polygon(t).margin(zmp)[0] >= params.zmp_margin - 1e-9, (plan.signal_time, t)
 
 
 def test_limits_honoured(stride_plans, params):
@@ -105,9 +107,10 @@ def test_newton_matches_generic_solver(pattern, params):
         t = round(round((start + fraction * (end - start)) / params.servo_period) * params.servo_period, 6)
         problem, kind, _ = stop_problem(pattern, pattern.state(t), params)
         _, _, cost, _ = solve_continuous(problem, kind)
-        ref = reference_solve(problem, kind, starts_per_axis=4)
+        ref = reference_solve(problem, kind, starts_per_axis=3)
         assert ref is not None
-        assert cost <= ref[0] * 1.001, (t, cost, ref[0])
+        # measured: the barrier optimum is 3e-8 .. 2e-7 above SLSQP's (cost_tolerance 1e-6, README)
+        assert abs(cost - ref[0]) <= 1e-6 * ref[0], (t, cost, ref[0])
 
 
 def test_paper_single_support_scenario_extends_step(pattern):
