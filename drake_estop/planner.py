@@ -521,6 +521,7 @@ class _SingleSupportProblem(_StopProblem):
     swing_xy: np.ndarray  # current swing ankle
     landing_y: float  # lateral landing (nominal step width)
     free: tuple = (0, 1, 2)
+    nominal_landing: float = math.nan  # time left to the nominal touchdown [s] (stepping in place keeps it)
 
     def bounds(self):
         """Durations, and the slowdown ZMP = step length + landing_zmp_offset (eq. 20)."""
@@ -787,8 +788,10 @@ def _at_rest_solution(problem, kind):
     is (Z = 0 in eq. 22 / 29; its closed form is 0/0 in T3), so the slowdown cannot be
     found from Z and the barrier method has no interior: land as early as the swing-speed
     and landing-time limits allow, beside the support foot, with the shortest transition and
-    slowdown; :func:`_solve_both_axes` lengthens the slowdown for the lateral plane. None if
-    the state is not at rest or Z = 0 breaks a limit.
+    slowdown; :func:`_solve_both_axes` lengthens the slowdown for the lateral plane. The
+    touchdown is the nominal one when that is later (the foot lands as it would have; an
+    early 0.1 s touchdown from mid-swing slams the foot down). None if the state is not at
+    rest or Z = 0 breaks a limit.
     """
     s, p = problem.start, problem.params
     if max(abs(s.dcm), abs(s.ccm), abs(s.zmp_rate), abs(s.zmp_accel)) > _AT_REST:
@@ -801,7 +804,8 @@ def _at_rest_solution(problem, kind):
     landing = 0.0
     if kind == "single":
         distance = float(problem._distance(problem.step_length(0.0))[0])
-        landing = on_tick(max(p.min_landing_time, distance / p.max_swing_speed))
+        nominal = problem.nominal_landing if math.isfinite(problem.nominal_landing) else 0.0
+        landing = on_tick(max(p.min_landing_time, distance / p.max_swing_speed, min(nominal, p.max_landing_time)))
         if landing > p.max_landing_time + 1e-12:
             return None
     transition, slowdown = on_tick(p.min_transition_time), on_tick(p.min_slowdown_time)
@@ -1115,8 +1119,10 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         swing = "right" if support == "left" else "left"
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
+        touchdown = pattern.steps[pattern.support_at(state.time)[1]]["touchdown"]
         problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
-                                        state.feet[swing][:2].copy(), float(state.next_landing[1]))
+                                        state.feet[swing][:2].copy(), float(state.next_landing[1]),
+                                        nominal_landing=float(touchdown - state.time))
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"

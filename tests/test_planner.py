@@ -227,3 +227,35 @@ def test_non_finite_signal_time_rejected(pattern):
 def test_bad_stop_parameters_name_the_parameter(name, value):
     with pytest.raises(ValueError, match=name):
         StopParameters(**{name: value})
+
+
+@pytest.mark.parametrize("fraction", [0.2, 0.5, 0.9])
+@pytest.mark.parametrize("offset", [0.0, 0.05])
+def test_problem_evaluate_derivatives_match_finite_differences(pattern, fraction, offset):
+    """Cost and every constraint of the Newton problem (bounds, slowdown limits, swing speed, fore
+    and rear reach): analytic gradients against central differences of the values, analytic
+    Hessians against central differences of the gradients."""
+    from drake_estop.planner import solve_continuous
+
+    params = StopParameters(landing_zmp_offset=offset)
+    start, end = pattern.stride()
+    t = round(round((start + fraction * (end - start)) / params.servo_period) * params.servo_period, 6)
+    problem, kind, _ = stop_problem(pattern, pattern.state(t), params)
+    y, _, _, _ = solve_continuous(problem, kind)
+    x = np.array(y)[list(problem.free)] * 0.98 + 0.001  # near the optimum, off the active limits
+    cost, grad, hess, g, gg, gh = problem.evaluate(x)
+    eps = 1e-6
+    n = len(x)
+    for k in range(n):
+        e = np.eye(n)[k] * eps
+        (cp, gp), (cm, gm) = problem.values(x + e), problem.values(x - e)
+        assert grad[k] == pytest.approx((cp - cm) / (2 * eps), rel=1e-5, abs=1e-6), (kind, k)
+        numeric = (np.array(gp) - np.array(gm)) / (2 * eps)
+        np.testing.assert_allclose([row[k] for row in gg], numeric, rtol=1e-5, atol=1e-6)
+        plus, minus = problem.evaluate(x + e), problem.evaluate(x - e)
+        np.testing.assert_allclose([row[k] for row in hess], (np.array(plus[1]) - np.array(minus[1])) / (2 * eps),
+                                   rtol=1e-4, atol=1e-3)
+        for i, h in enumerate(gh):
+            analytic = np.zeros(n) if h is None else np.array(h)[:, k]
+            numeric = (np.array(plus[4][i]) - np.array(minus[4][i])) / (2 * eps)
+            np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-5, err_msg=f"{kind} constraint {i}")
