@@ -259,3 +259,51 @@ def test_problem_evaluate_derivatives_match_finite_differences(pattern, fraction
             analytic = np.zeros(n) if h is None else np.array(h)[:, k]
             numeric = (np.array(plus[4][i]) - np.array(minus[4][i])) / (2 * eps)
             np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-5, err_msg=f"{kind} constraint {i}")
+
+
+def test_zmp_rate_and_acceleration_continuous_at_the_signal(stride_plans, pattern):
+    """Not only the ZMP: its rate and acceleration (eq. 12-14) carry over from the walk at the
+    plan start, as the per-tick evaluation (``evaluate_at``) reports them."""
+    moving = 0
+    for plan in stride_plans:
+        t0 = plan.start_time
+        state = pattern.state(t0)
+        for axis, traj in enumerate((plan.x, plan.y)):
+            walk = pattern.trajectories[axis].evaluate_at(t0 - 1e-9)
+            stop = traj.evaluate_at(t0)
+            after = traj.evaluate_at(t0 + 1e-9)
+            assert stop[3] == pytest.approx(walk[3], abs=1e-8), (plan.signal_time, axis)
+            assert stop[4] == pytest.approx(state.zmp_rate[axis], abs=1e-6), (plan.signal_time, axis)
+            assert stop[5] == pytest.approx(state.zmp_accel[axis], abs=1e-4), (plan.signal_time, axis)
+            assert after[4] == pytest.approx(walk[4], abs=1e-6) and after[5] == pytest.approx(walk[5], abs=1e-4)
+            # the per-tick evaluation agrees with the vectorised one
+            rate, accel = traj.zmp_derivatives([t0 + 0.0123])
+            tick = traj.evaluate_at(t0 + 0.0123)
+            assert tick[4] == pytest.approx(rate[0], rel=1e-9, abs=1e-12)
+            assert tick[5] == pytest.approx(accel[0], rel=1e-9, abs=1e-12)
+            moving += abs(state.zmp_accel[axis]) > 1.0
+    assert moving > 20  # double-support signals: the ZMP accelerates at the signal
+
+
+def test_upper_body_slowdown_is_eq32_and_peaks_at_eq33(stride_plans):
+    """Arms (IV.B): the reported rate is the derivative of the reported angle (eq. 32), it
+    vanishes at the slowdown end where the angle reaches eq. 33's peak, then halts to neutral."""
+    eps = 1e-6
+    swinging = 0
+    for plan in stride_plans[::8]:
+        q0, qd0 = plan.start_state.upper_body, plan.start_state.upper_body_rate
+        swinging += np.abs(qd0).max() > 0.05
+        span = plan.slowdown_end - plan.start_time
+        for s in (0.1, 0.35, 0.6, 0.9):
+            t = plan.start_time + s * span
+            q, qd = plan.upper_body(t)
+            numeric = (plan.upper_body(t + eps)[0] - plan.upper_body(t - eps)[0]) / (2 * eps)
+            np.testing.assert_allclose(qd, numeric, rtol=1e-6, atol=1e-8)
+            np.testing.assert_allclose(qd, qd0 * (1 - s) ** 2, rtol=1e-9, atol=1e-12)
+        q, qd = plan.upper_body(plan.slowdown_end)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+        np.testing.assert_allclose(q, q0 + qd0 * span / 3.0, rtol=1e-9)  # eq. 33
+        np.testing.assert_allclose(plan.upper_body_peak, q, rtol=1e-9)
+        q, qd = plan.upper_body(plan.halt_end + 0.5)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+    assert swinging >= 15  # the arms swing at most of these signals: the checks above bite
