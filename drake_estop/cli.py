@@ -13,38 +13,71 @@ from drake_estop.rollout import rollout, stop_metrics, write_log, write_summary
 _GAIT = GaitParameters()
 _STOP = StopParameters()
 
+# COG heights the humanoid's legs reach (models/README.md): straight legs, and knees at their limit
+COG_HEIGHT_STRAIGHT_LEGS = 0.863
+COG_HEIGHT_LOWEST = 0.54
+
+
+# -- option values: argparse ``type=`` functions; a bad value exits with status 2 and argparse
+# names the option ("argument --crouch-depth: ...")
+
+def number(*, low=None, high=None, low_open=False, high_open=False, integer=False, unit=""):
+    """An argparse ``type=`` that parses a finite number inside [low, high] (ends open if asked)."""
+    def parse(text):
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{'a whole number' if integer else 'a number'} is needed, got {text!r}")
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+        too_low = low is not None and (value < low or (low_open and value == low))
+        too_high = high is not None and (value > high or (high_open and value == high))
+        if too_low or too_high:
+            left = "any" if low is None else f"{'(' if low_open else '['}{low:g}"
+            right = "any" if high is None else f"{high:g}{')' if high_open else ']'}"
+            raise argparse.ArgumentTypeError(f"must be in {left}, {right}{unit}, got {text}")
+        return value
+    parse.__name__ = "integer" if integer else "number"
+    return parse
+
+
+positive_float = number(low=0.0, low_open=True)
+non_negative_float = number(low=0.0)
+finite_float = number()
+port_number = number(low=1, high=65535, integer=True)
+
 
 def _add_gait_and_stop(p, *, estop=True):
     """Gait and stop options shared by ``simulate`` and ``sweep``."""
     g = p.add_argument_group("gait (paper Section V defaults)")
-    g.add_argument("--step-length", type=float, default=_GAIT.step_length,
+    g.add_argument("--step-length", type=non_negative_float, default=_GAIT.step_length,
                    help="nominal step length [m] (default %(default)s)")
-    g.add_argument("--step-time", type=float, default=_GAIT.step_time,
+    g.add_argument("--step-time", type=positive_float, default=_GAIT.step_time,
                    help="nominal step cycle, single + double support [s] (default %(default)s)")
-    g.add_argument("--step-width", type=float, default=_GAIT.step_width,
+    g.add_argument("--step-width", type=positive_float, default=_GAIT.step_width,
                    help="lateral distance between the ankles [m] (default %(default)s)")
-    g.add_argument("--double-support-ratio", type=float, default=_GAIT.double_support_ratio,
+    g.add_argument("--double-support-ratio", type=number(low=0.0, high=1.0, low_open=True, high_open=True), default=_GAIT.double_support_ratio,
                    help="share of the step cycle in double support (default %(default)s)")
-    g.add_argument("--com-height", type=float, default=_GAIT.com_height,
+    g.add_argument("--com-height", type=number(low=COG_HEIGHT_LOWEST, high=COG_HEIGHT_STRAIGHT_LEGS, low_open=True, unit=" m"), default=_GAIT.com_height,
                    help="COG height of the LIPM [m] (default %(default)s, HRP-2's walking pattern)")
-    g.add_argument("--num-steps", type=int, default=_GAIT.num_steps,
+    g.add_argument("--num-steps", type=number(low=2, integer=True), default=_GAIT.num_steps,
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
     s = p.add_argument_group("stop")
     if estop:
-        s.add_argument("--estop-time", type=float, default=3.4,
+        s.add_argument("--estop-time", type=non_negative_float, default=3.4,
                        help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
-    s.add_argument("--servo-period", type=float, default=_STOP.servo_period,
+    s.add_argument("--servo-period", type=number(low=0.0, high=_STOP.min_transition_time, low_open=True, unit=" s"), default=_STOP.servo_period,
                    help="servo / control period [s]; phase boundaries fall on its ticks (default %(default)s)")
     s.add_argument("--no-crouch", action="store_true", help="keep the COG height constant (no IV.A crouch)")
-    s.add_argument("--crouch-depth", type=float, default=_STOP.crouch_depth,
+    s.add_argument("--crouch-depth", type=non_negative_float, default=_STOP.crouch_depth,
                    help="COG lowering during the stop [m] (default %(default)s)")
-    s.add_argument("--a-ss", type=float, default=_STOP.a_ss, help="J_ss swing-speed weight (eq. 24)")
-    s.add_argument("--b-ss", type=float, default=_STOP.b_ss, help="J_ss double-support-time weight (eq. 24)")
-    s.add_argument("--a-ds", type=float, default=_STOP.a_ds, help="J_ds ZMP-displacement weight (eq. 30)")
-    s.add_argument("--b-ds", type=float, default=_STOP.b_ds, help="J_ds double-support-time weight (eq. 30)")
-    s.add_argument("--max-step-length", type=float, default=_STOP.max_step_length,
+    s.add_argument("--a-ss", type=positive_float, default=_STOP.a_ss, help="J_ss swing-speed weight (eq. 24)")
+    s.add_argument("--b-ss", type=positive_float, default=_STOP.b_ss, help="J_ss double-support-time weight (eq. 24)")
+    s.add_argument("--a-ds", type=positive_float, default=_STOP.a_ds, help="J_ds ZMP-displacement weight (eq. 30)")
+    s.add_argument("--b-ds", type=positive_float, default=_STOP.b_ds, help="J_ds double-support-time weight (eq. 30)")
+    s.add_argument("--max-step-length", type=positive_float, default=_STOP.max_step_length,
                    help="longest landing step from the support ankle [m] (default %(default)s)")
-    s.add_argument("--max-swing-speed", type=float, default=_STOP.max_swing_speed,
+    s.add_argument("--max-swing-speed", type=positive_float, default=_STOP.max_swing_speed,
                    help="mean swing-ankle speed limit to the landing point [m/s] (default %(default)s)")
     s.add_argument("--quantisation", choices=("resolve", "round"), default="resolve",
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
@@ -72,13 +105,13 @@ def _add_simulate(sub):
     d.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "
                         "'Emergency stop' button stops the robot)")
-    d.add_argument("--meshcat-port", type=int, default=None, help="Meshcat port (default: a free one)")
+    d.add_argument("--meshcat-port", type=port_number, default=None, help="Meshcat port (default: a free one)")
     d.add_argument("--button-only", action="store_true",
                    help="with --meshcat: no scheduled stop, only the Meshcat button stops the walk")
     o = p.add_argument_group("output")
     o.add_argument("--log", metavar="FILE.csv", help="per-servo-tick log (runs >= 1 s past the halt)")
     o.add_argument("--summary", metavar="FILE.json", help="JSON summary of the stop")
-    o.add_argument("--after-halt", type=float, default=1.0,
+    o.add_argument("--after-halt", type=number(low=1.0, unit=" s"), default=1.0,
                    help="seconds logged after the end of the halt (default %(default)s, at least 1)")
     p.set_defaults(func=_simulate)
 
@@ -99,6 +132,11 @@ def _parameters(args):
         raise ValueError(f"step_length must be >= 0, got {gait.step_length}")
     if args.after_halt < 1.0 or not math.isfinite(args.after_halt):
         raise ValueError(f"after_halt must be at least 1 s, got {args.after_halt}")
+    if not args.no_crouch and gait.com_height - stop.crouch_depth < COG_HEIGHT_LOWEST:
+        raise ValueError(f"crouch_depth {stop.crouch_depth} m takes the COG from {gait.com_height} m below "
+                         f"{COG_HEIGHT_LOWEST} m, the lowest the legs reach (knees at their limit)")
+    if getattr(args, "meshcat_port", None) is not None and not args.meshcat:
+        raise ValueError("meshcat_port needs --meshcat")
     return gait, stop
 
 
@@ -204,7 +242,7 @@ def _add_sweep(sub):
     )
     _add_gait_and_stop(p, estop=False)
     o = p.add_argument_group("sweep")
-    o.add_argument("--every", type=float, default=0.02, help="signal spacing [s] (default %(default)s)")
+    o.add_argument("--every", type=positive_float, default=0.02, help="signal spacing [s] (default %(default)s)")
     o.add_argument("--csv", default="out/sweep.csv", help="table (default %(default)s)")
     o.add_argument("--png", default="out/stop_map.png", help="stop map figure (default %(default)s)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -218,16 +256,22 @@ def _sweep(args) -> int:
     if not (math.isfinite(args.every) and args.every > 0):
         raise ValueError(f"every must be a positive number of seconds, got {args.every}")
     start, end = NominalPattern(gait).stride()
+    if args.every > end - start:
+        raise ValueError(f"every {args.every} s is longer than the stride ({end - start:.3f} s)")
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,
                   progress=not args.no_progress)
     write_sweep(table, args.csv, args.png)
     wins = sum(bool(row.get("success")) for row in table)
+    failed = [row for row in table if not row.get("success")]
     print(f"{wins}/{len(table)} stops met every criterion ({100 * wins / len(table):.0f} %); "
           f"table {args.csv}, stop map {args.png}")
-    for row in table:
-        if not row.get("success"):
-            reason = row.get("error") or ", ".join(k for k in CRITERIA if row.get(k) is False)
-            print(f"  failed at {row['signal_time']:.3f} s: {reason}")
+    for row in failed:
+        reason = row.get("error") or ", ".join(k for k in CRITERIA if row.get(k) is False)
+        print(f"  FAILED at {row['signal_time']:.3f} s: {reason}")
+    if failed:
+        print(f"sweep FAILED: {len(failed)} stop(s) missed a criterion, signal times "
+              + ", ".join(f"{row['signal_time']:.3f}" for row in failed) + " s", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -244,7 +288,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as stop:  # argparse printed the usage and the bad option (status 2); --help: 0
+        if stop.code == 2:
+            return 2
+        raise
     try:
         return args.func(args)
     except (ValueError, InfeasibleStop, FileNotFoundError, RuntimeError) as error:

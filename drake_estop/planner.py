@@ -39,8 +39,8 @@ from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_fo
 from drake_estop.geometry import SupportPolygon
 from drake_estop.newton import barrier_newton
 from drake_estop.stop_condition import (StopStart, _rest_from_grid_terms, _slowdown_from_grid_terms,
-                                        _target_from_grid_terms, _terms_grid, slowdown_time_grid, stop_point,
-                                        target_zmp)
+                                        _target_from_grid_terms, _terms_grid, slowdown_time, slowdown_time_grid,
+                                        stop_point, target_zmp)
 
 try:  # compiled solver core (numba); the pure-Python path below stays the reference
     from drake_estop import fastcore as _fastcore
@@ -546,6 +546,7 @@ class _SingleSupportProblem(_StopProblem):
     landing_y: float  # lateral landing (nominal step width)
     free: tuple = (0, 1, 2)
     min_landing: float = 0.0  # shortest landing from the swing foot's height (:func:`descent_time`)
+    nominal_landing: float = math.nan  # time left to the nominal touchdown [s] (stepping in place keeps it)
 
     def bounds(self):
         """Durations, and the slowdown ZMP = step length + landing_zmp_offset (eq. 20)."""
@@ -723,11 +724,49 @@ def _grid_start(problem, kind):
     return None
 
 
+def _limit_names(problem, kind):
+    """Names of the limits behind :meth:`constraints_grid` (in its order), then the ZMP-target bounds."""
+    names = ["min_slowdown_time", "max_slowdown_time"]
+    names += ["max_swing_speed", "max_fore_reach", "max_rear_reach"] if kind == "single" else ["max_rear_reach"]
+    if kind == "single":
+        return names + ["min_step_length", "max_step_length"]
+    return names + ["zmp_margin (ZMP_max behind the fore sole's heel)", "zmp_margin (ZMP_max past the fore sole's toe)"]
+
+
+def _infeasible_reason(problem, kind, samples=41):
+    """Why no grid point is feasible, naming the limits (for the InfeasibleStop message).
+
+    Evaluates every limit on the duration grid times ``samples`` ZMP targets across their
+    bounds: a limit is named if dropping it alone leaves a feasible point, or else if it is
+    violated everywhere; "stop condition" if no non-negative slowdown stops the COG.
+    """
+    bounds = problem.bounds()
+    t1, t2 = _grid_axes(kind, tuple(tuple(row) for row in bounds[:2].tolist()))
+    z = np.linspace(bounds[2, 0], bounds[2, 1], samples)[None, None, :]
+    y = [t1, t2, z]
+    terms = problem.grid_terms(t1, t2)
+    t3 = problem.slowdown(y, terms)
+    stops = np.isfinite(t3)
+    margins = [np.where(stops, g, 0.0) for g in problem.constraints_grid(y, t3, terms)]
+    margins += [z - bounds[2, 0] + 0 * t1, bounds[2, 1] - z + 0 * t1]
+    names = _limit_names(problem, kind)
+    ok = [np.broadcast_to(m >= 0, t3.shape) for m in margins]
+    blocking = [name for k, name in enumerate(names)
+                if np.any(stops & functools.reduce(np.logical_and, [o for j, o in enumerate(ok) if j != k]))]
+    if not np.any(stops):
+        blocking = [(f"min_step_length/max_step_length: no step in [{bounds[2, 0]:.3f}, {bounds[2, 1]:.3f}] m "
+                     "stops the COG (stop condition, eq. 22)") if kind == "single" else
+                    "zmp_margin: no ZMP_max on the fore sole stops the COG (stop condition, eq. 29)"]
+    elif not blocking:
+        blocking = [name for name, o in zip(names, ok) if not np.any(o & stops)] or ["a combination of limits"]
+    return f"no feasible {kind}-support stop from this state: limited by " + ", ".join(blocking)
+
+
 def solve_continuous(problem, kind):
     """Interior-point Newton optimum before quantisation: ``(y, t3, cost, iterations)``."""
     if COMPILED and _fastcore is not None:
         _, (y0, y1, t3, y2, cost), iterations, status = _fastcore.solve(*_compiled_args(problem, kind), False)
-        _compiled_status(status, kind)
+        _compiled_status(status, kind, problem)
         return np.array([y0, y1, y2]), float(t3), float(cost), int(iterations)
     return _solve_continuous_python(problem, kind)
 
@@ -739,10 +778,10 @@ def _compiled_args(problem, kind):
     return _fastcore.pack(problem, kind), t1.ravel(), t2.ravel(), _TARGET_SAMPLES
 
 
-def _compiled_status(status, kind):
+def _compiled_status(status, kind, problem):
     """The Python path's exceptions for the compiled solver's status codes."""
     if status == _fastcore.NO_GRID_START:
-        raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
+        raise InfeasibleStop(_infeasible_reason(problem, kind))
     if status == _fastcore.NO_QUANTISATION:
         raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
     if status == _fastcore.INFEASIBLE_START:
@@ -753,7 +792,7 @@ def _solve_continuous_python(problem, kind):
     """:func:`solve_continuous` in pure Python (the reference the compiled path follows)."""
     start = _grid_start(problem, kind)
     if start is None:
-        raise InfeasibleStop(f"no feasible {kind}-support stop from this state")
+        raise InfeasibleStop(_infeasible_reason(problem, kind))
     y0, cost0, strict = start
     if not strict:  # no interior: the corner of the limits is the only candidate
         return y0, float(problem.slowdown(y0)), cost0, 0
@@ -767,10 +806,54 @@ def _solve_continuous_python(problem, kind):
     return y, t3, float(problem.cost_grid(y, t3)), result.iterations
 
 
+def _at_rest_solution(problem, kind):
+    """Phase parameters when the sagittal COG is at rest over a ZMP at rest (stepping in place).
+
+    Then the stop condition holds for every slowdown duration with the ZMP kept where it
+    is (Z = 0 in eq. 22 / 29; its closed form is 0/0 in T3), so the slowdown cannot be
+    found from Z and the barrier method has no interior: land as early as the swing-speed
+    and landing-time limits allow, beside the support foot, with the shortest transition and
+    slowdown; :func:`_solve_both_axes` lengthens the slowdown for the lateral plane. The
+    touchdown is the nominal one when that is later (the foot lands as it would have; an
+    early 0.1 s touchdown from mid-swing slams the foot down). None if the state is not at
+    rest or Z = 0 breaks a limit.
+    """
+    s, p = problem.start, problem.params
+    if max(abs(s.dcm), abs(s.ccm), abs(s.zmp_rate), abs(s.zmp_accel)) > _AT_REST:
+        return None
+    bounds = problem.bounds()
+    if not bounds[2, 0] <= 0.0 <= bounds[2, 1]:
+        return None
+    dt = p.servo_period
+    on_tick = lambda t: math.ceil(t / dt - 1e-9) * dt  # noqa: E731
+    landing = 0.0
+    if kind == "single":
+        distance = float(problem._distance(problem.step_length(0.0))[0])
+        nominal = problem.nominal_landing if math.isfinite(problem.nominal_landing) else 0.0
+        landing = on_tick(max(p.min_landing_time, distance / p.max_swing_speed, min(nominal, p.max_landing_time)))
+        if landing > p.max_landing_time + 1e-12:
+            return None
+    transition, slowdown = on_tick(p.min_transition_time), on_tick(p.min_slowdown_time)
+    # the COG stays over the start ZMP: rear reach to it, and in single support the fore reach
+    values = [p.max_rear_reach + problem.rear_ankle]
+    if kind == "single":
+        values.append(p.max_fore_reach - problem.step_length(0.0))
+    if min(values) < 0 or transition > p.max_transition_time + 1e-12 or slowdown > p.max_slowdown_time + 1e-12:
+        return None
+    cost = float(problem.cost_grid([landing, transition, 0.0], slowdown))
+    return PhaseSolution(landing, transition, slowdown, 0.0, cost, 0, (landing, transition, slowdown, 0.0))
+
+
+_AT_REST = 1e-12  # [m], [m/s], [m/s^2]: a sagittal start state this close to rest is at rest
+
+
 def _solve(problem, kind) -> PhaseSolution:
+    at_rest = _at_rest_solution(problem, kind)
+    if at_rest is not None:
+        return at_rest
     if COMPILED and _fastcore is not None:
         q, cont, iterations, status = _fastcore.solve(*_compiled_args(problem, kind), True)
-        _compiled_status(status, kind)
+        _compiled_status(status, kind, problem)
         (t1, t2, t3, z, cost), cont = q.tolist(), cont.tolist()[:4]
         if problem.params.quantisation == "resolve":
             # Z once more with numpy at the chosen ticks: equal to the Python path's to the bit
@@ -943,6 +1026,93 @@ def _polygon_y_range(polygon: SupportPolygon, x: float, margin: float):
     return (low, high) if low <= high else None
 
 
+_LATERAL_ROUNDS = 5  # re-solves that raise the slowdown floor until the lateral stop fits the fore sole
+_LATERAL_SLACK = 1e-3  # [m] the floor aims this far inside the lateral ZMP range (tick rounding)
+
+
+def _solve_both_axes(pattern, state, params, zmp_region="fore"):
+    """Solve the sagittal phase parameters (III.A / III.B) so that the lateral plane stops too.
+
+    The paper solves the sagittal plane and reuses its phase times laterally. With short or
+    no steps the sagittal stop is easy and its optimum has the shortest transition and
+    slowdown, far too short to stop the lateral sway with the ZMP on the fore sole; the halt
+    then cannot absorb the lateral velocity left over. So: if the lateral ZMP that stops the
+    lateral COG at the slowdown end (same stop condition, eq. 17) lies beyond the fore sole,
+    the slowdown duration that brings it onto the sole (closed form, eq. 21) becomes the
+    floor of the slowdown time and the sagittal problem is solved again, for a few rounds.
+    Returns ``(problem, kind, feet, solution)``.
+    """
+    problem, kind, feet = stop_problem(pattern, state, params, zmp_region)
+    solution = _solve(problem, kind)
+    if zmp_region == "polygon":  # a re-plan: the lateral ZMP may use the polygon's width (_lateral_target)
+        return problem, kind, feet, solution
+    sole, w = pattern.params.sole, pattern.w
+    fore_side = feet["swing"] if kind == "single" else feet["fore"]
+    fore_y = float(state.next_landing[1]) if kind == "single" else float(state.feet[fore_side][1])
+    outer, inner = (sole.outer, sole.inner) if fore_side == "left" else (sole.inner, sole.outer)
+    low = fore_y - inner + params.zmp_margin + _LATERAL_SLACK - float(state.zmp[1])
+    high = fore_y + outer - params.zmp_margin - _LATERAL_SLACK - float(state.zmp[1])
+    rate = float(state.zmp_rate[1]) if kind == "double" else 0.0
+    accel = float(state.zmp_accel[1]) if kind == "double" else 0.0
+    start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
+    limits = {}
+    if kind == "single":
+        touchdown = pattern.steps[state.step_index]["touchdown"]
+        dt = params.servo_period
+        nominal_landing = max(math.ceil((touchdown - state.time) / dt - 1e-9) * dt, params.min_landing_time + dt)
+    for _ in range(_LATERAL_ROUNDS):
+        wanted = target_zmp(start, w, solution.landing, solution.transition, solution.slowdown, derivatives=False)
+        if low - _LATERAL_SLACK <= wanted <= high + _LATERAL_SLACK:
+            break
+        bound = low if wanted < low else high
+        if kind == "single" and solution.landing > nominal_landing + 1e-9 and "max_landing_time" not in limits:
+            # first keep the touchdown no later than the nominal one: postponing it lets the lateral
+            # COG run out over the support foot's side (the nominal walk bounds that excursion)
+            limits["max_landing_time"] = nominal_landing + 1e-9
+        else:
+            floor = slowdown_time(start, w, solution.landing, solution.transition, bound, derivatives=False)
+            if floor > params.min_slowdown_time and floor < params.max_slowdown_time:
+                limits["min_slowdown_time"] = max(floor, limits.get("min_slowdown_time", floor))
+                if kind == "single":  # a later touchdown would need a longer slowdown again
+                    limits["max_landing_time"] = max(solution.landing, params.min_landing_time + params.servo_period,
+                                                     ) + 1e-9
+            elif kind == "single":
+                # the lateral COG runs away while the foot swings: no slowdown is long enough, so
+                # land earlier (the latest touchdown from which a slowdown of half the longest fits)
+                ceiling = _latest_landing(start, w, solution.transition, 0.5 * params.max_slowdown_time,
+                                          bound, wanted < low, params.min_landing_time, solution.landing,
+                                          params.servo_period)
+                if ceiling is None:
+                    break
+                limits["max_landing_time"] = ceiling
+                limits.pop("min_slowdown_time", None)
+            else:
+                break
+        try:
+            problem, kind, feet = stop_problem(pattern, state, replace(params, **limits), zmp_region)
+            solution = _solve(problem, kind)
+        except (InfeasibleStop, ValueError):
+            break
+    return problem, kind, feet, solution
+
+
+def _latest_landing(start, w, transition, slowdown, bound, below, earliest, latest, dt):
+    """Latest touchdown on a servo tick in [earliest, latest) whose lateral stop ZMP, for the
+    given transition and slowdown, has not passed ``bound`` (from below the range if ``below``),
+    so that a slowdown up to that long reaches the fore sole (bisection over ticks), or None."""
+    def inside(t1):
+        wanted = target_zmp(start, w, t1, transition, slowdown, derivatives=False)
+        return wanted >= bound if below else wanted <= bound
+
+    lo, hi = math.ceil(earliest / dt - 1e-9), math.floor(latest / dt + 1e-9) - 1
+    if hi < lo or not inside(lo * dt):
+        return None
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if inside(mid * dt) else (lo, mid - 1)
+    return max(lo * dt, earliest + 1e-9) if lo * dt <= earliest else lo * dt
+
+
 def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin, polygon=None, sagittal=None):
     """Lateral ZMP of phases (ii)-(iii): the sagittal phase times, and the value
     that also zeroes the lateral COG velocity at the slowdown end (same stop
@@ -1000,9 +1170,11 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         swing = "right" if support == "left" else "left"
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
+        touchdown = pattern.steps[state.step_index]["touchdown"]
         problem = _SingleSupportProblem(start, w, params, float(state.zmp[0]),
                                         state.feet[swing][:2].copy(), float(state.next_landing[1]),
-                                        min_landing=descent_time(float(state.feet[swing][2]), params))
+                                        min_landing=descent_time(float(state.feet[swing][2]), params),
+                                        nominal_landing=float(touchdown - state.time))
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"
@@ -1023,8 +1195,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     w = pattern.w
     sole = pattern.params.sole
     t_solve = time.perf_counter()
-    problem, kind, feet = stop_problem(pattern, state, params, zmp_region)
-    solution = _solve(problem, kind)
+    problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":
         support, swing = feet["support"], feet["swing"]
         step_length = problem.step_length(solution.target)
@@ -1056,8 +1227,10 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     ends = [lipm.chain_end_state(d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
             for a, (d, c) in enumerate(segs)]
     halt_durations, halt_coeffs, margin = _choose_halt(ends, midpoint, polygon, params, w)
-    if margin < 0:
-        raise InfeasibleStop("halt ZMP leaves the support polygon for every halt duration")
+    if margin < params.zmp_margin - 1e-9:
+        raise InfeasibleStop(f"halt ZMP keeps at most {margin * 1e3:.1f} mm from the support polygon's edge "
+                             f"for every halt duration (zmp_margin {params.zmp_margin * 1e3:.1f} mm, "
+                             f"halt_durations up to {max(params.halt_durations)} s)")
     halt = sum(halt_durations)
     x_traj, y_traj = (
         lipm.LipmTrajectory.from_zmp(t0, list(d) + halt_durations + [1.0],
@@ -1187,6 +1360,7 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     t = t0
     case = "one-step"
     horizon = t0 + 2.0 * pattern.params.step_time
+    reasons = []
     while t <= horizon:
         support, index, _ = pattern.support_at(t)
         state = pattern.state(t)
@@ -1202,10 +1376,12 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             continue
         try:
             return _finish(_plan_from(pattern, state, params, t0, case), wall)
-        except InfeasibleStop:
+        except InfeasibleStop as error:
+            reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
-    raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s")
+    raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s; "
+                         f"at the signal: {reasons[0]}; last try at t={t:.3f} s: {reasons[-1]}")
 
 
 def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, measured) -> PatternState:

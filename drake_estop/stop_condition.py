@@ -288,6 +288,16 @@ def _rest_point(terms, w: float, target: float, t3: float, tg, th):
     return value, grad, hess
 
 
+def rest_position(start: StopStart, w: float, landing: float, transition: float, target: float):
+    """Rest position of the COG (the rear-reach constraint's value) with gradient and Hessian in
+    (landing, transition, target), the slowdown duration eliminated through the stop condition
+    (:func:`slowdown_time`); the one-point view of :func:`stop_point` the derivative tests check."""
+    point = stop_point(start, w, landing, transition, target)
+    if point[1] is None:
+        return float("nan"), np.zeros(3), np.zeros((3, 3))
+    return point[3], np.array(point[4]), np.array(point[5])
+
+
 def stop_point(start: StopStart, w: float, landing: float, transition: float, target: float,
                derivatives: bool = True):
     """Slowdown duration (eq. 21) and rest position at one point from one evaluation of

@@ -4,6 +4,7 @@ import csv
 import json
 
 import pytest
+from html_checks import external_fetches, missing_from_replay
 
 from drake_estop.cli import main
 from drake_estop.planner import PHASES
@@ -43,7 +44,8 @@ def test_diagram_run_logs_joints_and_ik_errors(tmp_path):
     data = json.load(open(summary))
     assert data["ik"]["ik_ticks_over_bounds"] == {"com": 0, "foot_position": 0, "foot_rotation": 0}
     assert data["realtime_factor"] > 0
-    assert html.stat().st_size > 100_000
+    page = html.read_text()
+    assert missing_from_replay(page) == [] and external_fetches(page) == []
 
 
 def test_button_only_needs_meshcat(capsys):
@@ -70,7 +72,51 @@ def test_no_crouch_keeps_height(tmp_path):
 def test_bad_input_names_the_parameter(args, name, capsys):
     assert main(["simulate", *args]) == 2
     err = capsys.readouterr().err
-    assert name in err and "Traceback" not in err
+    assert (name in err or "--" + name.replace("_", "-") in err) and "Traceback" not in err
+
+
+# every numeric option: non-finite values and values outside the physical range exit with status 2
+SIMULATE_BAD = [
+    ("--step-length", "-0.1"), ("--step-length", "nan"), ("--step-time", "0"), ("--step-time", "inf"),
+    ("--step-width", "-0.2"), ("--step-width", "0.05"), ("--double-support-ratio", "1"),
+    ("--double-support-ratio", "0"), ("--com-height", "5"), ("--com-height", "0.3"), ("--num-steps", "1"),
+    ("--num-steps", "2.5"), ("--estop-time", "nan"), ("--servo-period", "0"), ("--servo-period", "0.5"),
+    ("--crouch-depth", "5"), ("--crouch-depth", "0.3"), ("--crouch-depth", "-0.01"), ("--crouch-depth", "inf"),
+    ("--a-ss", "-1"), ("--b-ss", "0"), ("--a-ds", "nan"), ("--b-ds", "-5"), ("--max-step-length", "0"),
+    ("--max-swing-speed", "-1"), ("--meshcat-port", "-5"), ("--meshcat-port", "0"), ("--meshcat-port", "70000"),
+    ("--after-halt", "0.5"), ("--after-halt", "inf"),
+]
+
+
+@pytest.mark.parametrize("option, value", SIMULATE_BAD)
+def test_simulate_rejects_bad_numbers(option, value, capsys):
+    assert main(["simulate", "--kinematic", option, value]) == 2
+    err = capsys.readouterr().err
+    name = option[2:].replace("-", "_")
+    assert option in err or name in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("option, value", [
+    ("--every", "0"), ("--every", "-0.1"), ("--every", "nan"), ("--every", "5"), ("--step-length", "inf"),
+    ("--com-height", "-1"), ("--crouch-depth", "5"), ("--servo-period", "-0.005"), ("--num-steps", "x"),
+    ("--max-swing-speed", "0"),
+])
+def test_sweep_rejects_bad_numbers(option, value, capsys):
+    assert main(["sweep", "--no-progress", option, value]) == 2
+    err = capsys.readouterr().err
+    assert option in err or option[2:].replace("-", "_") in err, err
+
+
+def test_meshcat_port_needs_meshcat(capsys):
+    assert main(["simulate", "--kinematic", "--meshcat-port", "7001"]) == 2
+    assert "meshcat_port" in capsys.readouterr().err
+
+
+def test_crouch_depth_five_metres_rejected_not_logged(tmp_path, capsys):
+    log = tmp_path / "log.csv"
+    assert main(["simulate", "--kinematic", "--crouch-depth", "5", "--log", str(log)]) == 2
+    assert not log.exists() and "crouch" in capsys.readouterr().err
 
 
 def test_help_explains_options(capsys):
@@ -108,8 +154,26 @@ def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
     rows = list(csv.DictReader(open(table)))
     assert len(rows) == 2 and {"signal_time", "case", "step_length", "time_to_rest", "cog_travel",
                                "success"} <= set(rows[0])
+    assert [row["success"] for row in rows] == ["True", "True"]  # exit 0 means every stop passed
     assert figure.stat().st_size > 1000
     assert "stops met every criterion" in capsys.readouterr().out
+
+
+def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, capsys):
+    from drake_estop import physics
+
+    def fake_sweep(gait, stop, **kwargs):
+        return [{"signal_time": 3.05, "case": "one-step", "success": True},
+                {"signal_time": 3.25, "case": "one-step", "success": False, "no_fall": False},
+                {"signal_time": 3.45, "success": False, "error": "InfeasibleStop: test"}]
+
+    monkeypatch.setattr(physics, "sweep", fake_sweep)
+    monkeypatch.setattr(physics, "write_sweep", lambda *args: None)
+    assert main(["sweep", "--no-progress", "--csv", str(tmp_path / "s.csv"), "--png", str(tmp_path / "m.png")]) == 1
+    out, err = capsys.readouterr()
+    assert "1/3 stops met every criterion" in out
+    assert "3.250" in err and "3.450" in err and "3.050" not in err
+    assert "3.250 s: no_fall" in out and "3.450 s: InfeasibleStop: test" in out
 
 
 def test_sweep_rejects_bad_spacing(capsys):

@@ -17,8 +17,7 @@ from drake_estop.gait import GaitParameters
 from drake_estop.model import ALL_JOINTS
 from drake_estop.planner import StopParameters
 from drake_estop.visualization import html_mentions, make_meshcat
-
-ROBOT_LINKS = ("pelvis", "torso", "l_thigh", "r_thigh", "l_shank", "r_shank", "l_foot", "r_foot")
+from html_checks import ROBOT_LINKS, external_fetches, missing_from_replay
 
 
 def _simulate(tmp_path_factory, signal, stop_params):
@@ -142,10 +141,19 @@ def test_replay_html_contains_robot_and_overlays(result):
     html = result.html.read_text()
     assert html.lstrip().lower().startswith("<!doctype html") or "<html" in html[:500]
     assert html_mentions(html, ROBOT_LINKS) == set(ROBOT_LINKS)
-    overlays = ("estop/nominal/cog", "estop/plan/zmp", "estop/markers/cog",
-                "estop/support", "estop/phase/stopped", "set_animation")
-    assert html_mentions(html, overlays) == set(overlays)
-    assert "ws://" not in html or "embedded" in html  # replay needs no server
+    assert missing_from_replay(html) == []  # robot, traces, phase label, animation
+    assert external_fetches(html) == []  # the replay opens offline
+
+
+def test_html_checks_fail_on_an_empty_page():
+    """The checks above bite: an empty Meshcat page (2.2 MB, with "ws://" and "embedded")
+    lacks every one of them, and a page loading a script from a CDN is caught."""
+    html = make_meshcat().StaticHtml()
+    assert len(html) > 1_000_000 and "ws://" in html and "embedded" in html
+    assert set(missing_from_replay(html)) >= set(ROBOT_LINKS) | {"estop/phase/stopped", "estop/plan/zmp"}
+    assert external_fetches(html) == []
+    assert external_fetches('<script src="https://cdn.example.org/three.js"></script>')
+    assert external_fetches("import * as THREE from 'https://unpkg.com/three';")
 
 
 def test_plan_computed_inside_the_diagram_quickly(result):

@@ -18,6 +18,8 @@ GAITS = {
     "default": GaitParameters(),
     "short-fast": GaitParameters(step_length=0.2, step_time=0.6),
     "long-slow": GaitParameters(step_length=0.35, step_time=1.0, double_support_ratio=0.3),
+    "in-place": GaitParameters(step_length=0.0),
+    "short": GaitParameters(step_length=0.02),
 }
 PARAMS = {
     "paper": StopParameters(),
@@ -52,7 +54,8 @@ def _problems(gait_name, every=1):
             yield name, t, stop_problem(pattern, state, params)
 
 
-@pytest.mark.parametrize("gait_name,every", [("default", 1), ("short-fast", 3), ("long-slow", 3)])
+@pytest.mark.parametrize("gait_name,every", [("default", 1), ("short-fast", 3), ("long-slow", 3), ("in-place", 5),
+                                             ("short", 5)])
 def test_solve_matches_python(monkeypatch, gait_name, every):
     compared = infeasible = 0
     for name, t, (problem, kind, _) in _problems(gait_name, every):
@@ -87,10 +90,13 @@ def test_solve_continuous_matches_python(monkeypatch, pattern, params, stride_ti
         assert _close(fast[1], slow[1]) and _close(fast[2], slow[2]) and fast[3] == slow[3], t
 
 
-def test_plans_identical(monkeypatch, pattern, params, stride_times):
+@pytest.mark.parametrize("gait_name", ["default", "short", "in-place"])
+def test_plans_identical(monkeypatch, params, gait_name):
     """Whole plans: phase times, step length / ZMP_max and the ZMP polynomials (halt included)
-    equal to the bit in "resolve" mode (Z is re-evaluated with numpy at the chosen ticks)."""
-    for t in stride_times[::4]:
+    equal to the bit in "resolve" mode (Z is re-evaluated with numpy at the chosen ticks).
+    Short steps exercise the lateral re-solves, stepping in place the at-rest solution."""
+    pattern = NominalPattern(GAITS[gait_name])
+    for t in stride_ticks(pattern, params)[::4 if gait_name == "default" else 8]:
         fast, slow = _paths(monkeypatch, lambda: plan_stop(pattern, t, params))
         assert fast.case == slow.case and fast.newton_iterations == slow.newton_iterations
         for field in ("start_time", "landing_time", "transition_end", "slowdown_end", "halt_end", "cost",
@@ -160,5 +166,5 @@ def test_infeasible_start_reported(pattern, params, stride_times):
     *_, status = fastcore.barrier_newton(d, x0, 1e-2, 1e-8)
     assert status == -1
     with pytest.raises(ValueError):
-        planner._compiled_status(fastcore.INFEASIBLE_START, kind)
+        planner._compiled_status(fastcore.INFEASIBLE_START, kind, problem)
     assert len(x0) == n

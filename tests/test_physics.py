@@ -1,5 +1,7 @@
 """Closed-loop physics: CoP estimator, dynamics filter, and the paper's two stops on the simulated humanoid."""
 
+import csv
+import json
 import math
 
 import numpy as np
@@ -208,9 +210,29 @@ def test_sweep_row_and_stop_map(physics_runs, tmp_path):
     table = [sweep_row(physics_runs[t]) for t in SCENARIOS]
     table.append({"signal_time": 3.6, "success": False, "error": "RuntimeError: test"})
     write_sweep(table, tmp_path / "sweep.csv", tmp_path / "sweep.png")
-    text = (tmp_path / "sweep.csv").read_text().splitlines()
-    assert len(text) == 4 and "success" in text[0] and "case" in text[0]
+    rows = list(csv.DictReader(open(tmp_path / "sweep.csv")))
+    assert len(rows) == 3 and "case" in rows[0]
+    assert [row["success"] for row in rows] == ["True", "True", "False"]
+    for row in rows[:2]:  # each criterion column of a passing stop reads True
+        assert all(row[name] == "True" for name in CRITERIA), row
     assert (tmp_path / "sweep.png").stat().st_size > 10_000
+
+
+def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
+    """A physics criterion shown failing: leg servos 100x too weak (300 N m/rad) let the
+    standing robot collapse; ``no_fall`` turns False and ``simulate --physics`` exits 1."""
+    from drake_estop import physics
+    from drake_estop.cli import main
+
+    weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
+                                         for key, kp in PhysicsParameters().gains))
+    original = physics.run_physics
+    monkeypatch.setattr(physics, "run_physics", lambda *args, **kwargs: original(*args, physics=weak, **kwargs))
+    summary = tmp_path / "s.json"
+    assert main(["simulate", "--physics", "--estop-time", "0", "--summary", str(summary)]) == 1
+    result = json.load(open(summary))["physics"]
+    assert result["success"] is False and result["criteria"]["no_fall"] is False
+    assert result["numbers"]["pelvis_z_min_m"] < PhysicsParameters().pelvis_height_bounds[0]
 
 
 def test_physics_parameters_validate():

@@ -66,13 +66,15 @@ def test_logged_cog_obeys_lipm_by_independent_integration(stride_plans, pattern)
             assert err < 1e-3, (plan.signal_time, axis, err)
 
 
-def test_zmp_inside_support_polygon_every_tick(stride_plans):
+def test_zmp_inside_support_polygon_every_tick(stride_plans, params):
+    """The ZMP keeps ``zmp_margin`` (1 cm, as the README promises) from the sole edges, not just 0."""
+    assert params.zmp_margin == 0.01
     for plan in stride_plans:
-        assert plan.min_zmp_margin >= 0.0, plan.signal_time
+        assert plan.min_zmp_margin >= params.zmp_margin - 1e-9, plan.signal_time
         # re-check here, independently of the planner's own verification
-        for t in _ticks(plan, plan.start_time, plan.halt_end + 0.5)[::2]:
+        for t in _ticks(plan, plan.start_time, plan.halt_end + 0.5):
             zmp = plan.com([t])[3]
-            assert plan.polygon(t).margin(zmp)[0] >= -1e-9, (plan.signal_time, t)
+            assert plan.polygon(t).margin(zmp)[0] >= params.zmp_margin - 1e-9, (plan.signal_time, t)
 
 
 def test_limits_honoured(stride_plans, params):
@@ -113,9 +115,10 @@ def test_newton_matches_generic_solver(pattern, params):
             assert reference_solve(problem, kind, margin=0.005) is None, t
             continue
         compared += 1
-        ref = reference_solve(problem, kind, starts_per_axis=4)
+        ref = reference_solve(problem, kind, starts_per_axis=3)
         assert ref is not None
-        assert cost <= ref[0] * 1.001, (t, cost, ref[0])
+        # measured: the barrier optimum is 3e-8 .. 2e-7 above SLSQP's (cost_tolerance 1e-6, README)
+        assert abs(cost - ref[0]) <= 1e-6 * ref[0], (t, cost, ref[0])
     assert compared >= 6
 
 
@@ -233,3 +236,84 @@ def test_non_finite_signal_time_rejected(pattern):
 def test_bad_stop_parameters_name_the_parameter(name, value):
     with pytest.raises(ValueError, match=name):
         StopParameters(**{name: value})
+
+
+@pytest.mark.parametrize("fraction", [0.2, 0.35, 0.9])  # single support (one-step states) and double
+@pytest.mark.parametrize("offset", [0.0, 0.05])
+def test_problem_evaluate_derivatives_match_finite_differences(pattern, fraction, offset):
+    """Cost and every constraint of the Newton problem (bounds, slowdown limits, swing speed, fore
+    and rear reach): analytic gradients against central differences of the values, analytic
+    Hessians against central differences of the gradients."""
+    from drake_estop.planner import solve_continuous
+
+    params = StopParameters(landing_zmp_offset=offset)
+    start, end = pattern.stride()
+    t = round(round((start + fraction * (end - start)) / params.servo_period) * params.servo_period, 6)
+    problem, kind, _ = stop_problem(pattern, pattern.state(t), params)
+    y, _, _, _ = solve_continuous(problem, kind)
+    x = np.array(y)[list(problem.free)] * 0.98 + 0.001  # near the optimum, off the active limits
+    cost, grad, hess, g, gg, gh = problem.evaluate(x)
+    eps = 1e-6
+    n = len(x)
+    for k in range(n):
+        e = np.eye(n)[k] * eps
+        (cp, gp), (cm, gm) = problem.values(x + e), problem.values(x - e)
+        assert grad[k] == pytest.approx((cp - cm) / (2 * eps), rel=1e-5, abs=1e-6), (kind, k)
+        numeric = (np.array(gp) - np.array(gm)) / (2 * eps)
+        np.testing.assert_allclose([row[k] for row in gg], numeric, rtol=1e-5, atol=1e-6)
+        plus, minus = problem.evaluate(x + e), problem.evaluate(x - e)
+        np.testing.assert_allclose([row[k] for row in hess], (np.array(plus[1]) - np.array(minus[1])) / (2 * eps),
+                                   rtol=1e-4, atol=1e-3)
+        for i, h in enumerate(gh):
+            analytic = np.zeros(n) if h is None else np.array(h)[:, k]
+            numeric = (np.array(plus[4][i]) - np.array(minus[4][i])) / (2 * eps)
+            np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-5, err_msg=f"{kind} constraint {i}")
+
+
+def test_zmp_rate_and_acceleration_continuous_at_the_signal(stride_plans, pattern):
+    """Not only the ZMP: its rate and acceleration (eq. 12-14) carry over from the walk at the
+    plan start, as the per-tick evaluation (``evaluate_at``) reports them."""
+    moving = 0
+    for plan in stride_plans:
+        t0 = plan.start_time
+        state = pattern.state(t0)
+        for axis, traj in enumerate((plan.x, plan.y)):
+            walk = pattern.trajectories[axis].evaluate_at(t0 - 1e-9)
+            stop = traj.evaluate_at(t0)
+            after = traj.evaluate_at(t0 + 1e-9)
+            assert stop[3] == pytest.approx(walk[3], abs=1e-8), (plan.signal_time, axis)
+            assert stop[4] == pytest.approx(state.zmp_rate[axis], abs=1e-6), (plan.signal_time, axis)
+            assert stop[5] == pytest.approx(state.zmp_accel[axis], abs=1e-4), (plan.signal_time, axis)
+            assert after[4] == pytest.approx(walk[4], abs=1e-6) and after[5] == pytest.approx(walk[5], abs=1e-4)
+            # the per-tick evaluation agrees with the vectorised one
+            h, tm = 1e-5, t0 + 0.0123
+            zmp = traj.evaluate(np.array([tm - h, tm, tm + h]))[3]
+            tick = traj.evaluate_at(tm)
+            assert tick[4] == pytest.approx((zmp[2] - zmp[0]) / (2 * h), rel=1e-5, abs=1e-7)
+            assert tick[5] == pytest.approx((zmp[2] - 2 * zmp[1] + zmp[0]) / h**2, rel=1e-3, abs=1e-3)
+            moving += abs(state.zmp_accel[axis]) > 1.0
+    assert moving > 20  # double-support signals: the ZMP accelerates at the signal
+
+
+def test_upper_body_slowdown_is_eq32_and_peaks_at_eq33(stride_plans):
+    """Arms (IV.B): the reported rate is the derivative of the reported angle (eq. 32), it
+    vanishes at the slowdown end where the angle reaches eq. 33's peak, then halts to neutral."""
+    eps = 1e-6
+    swinging = 0
+    for plan in stride_plans[::8]:
+        q0, qd0 = plan.start_state.upper_body, plan.start_state.upper_body_rate
+        swinging += np.abs(qd0).max() > 0.05
+        span = plan.slowdown_end - plan.start_time
+        for s in (0.1, 0.35, 0.6, 0.9):
+            t = plan.start_time + s * span
+            q, qd = plan.upper_body(t)
+            numeric = (plan.upper_body(t + eps)[0] - plan.upper_body(t - eps)[0]) / (2 * eps)
+            np.testing.assert_allclose(qd, numeric, rtol=1e-6, atol=1e-8)
+            np.testing.assert_allclose(qd, qd0 * (1 - s) ** 2, rtol=1e-9, atol=1e-12)
+        q, qd = plan.upper_body(plan.slowdown_end)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+        np.testing.assert_allclose(q, q0 + qd0 * span / 3.0, rtol=1e-9)  # eq. 33
+        np.testing.assert_allclose(plan.upper_body_peak, q, rtol=1e-9)
+        q, qd = plan.upper_body(plan.halt_end + 0.5)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+    assert swinging >= 15  # the arms swing at most of these signals: the checks above bite

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from drake_estop import lipm
-from drake_estop.stop_condition import (StopStart, slowdown_time, slowdown_time_grid, target_zmp,
+from drake_estop.stop_condition import (StopStart, rest_position, slowdown_time, slowdown_time_grid, target_zmp,
                                         target_zmp_grid)
 
 W = lipm.omega(0.814)
@@ -71,3 +71,29 @@ def test_vectorised_versions_agree():
         assert z[idx] == pytest.approx(target_zmp(STARTS[1], W, t1[idx], t2[idx], t3[idx], False), rel=1e-12)
     back = slowdown_time_grid(STARTS[1], W, t1, t2, z)
     np.testing.assert_allclose(back, t3, atol=1e-9)
+
+
+@pytest.mark.parametrize("start", STARTS)
+def test_rest_position_gradient_and_hessian_match_finite_differences(start):
+    """The rear-reach constraint's rest position (slowdown eliminated): analytic derivatives in
+    (landing, transition, target) against central differences; every Hessian entry is checked,
+    so a dropped term of either the value's or the gradient's derivative shows."""
+    landing = 0.25 if start is STARTS[0] else 0.0
+    y = np.array([landing, 0.2, target_zmp(start, W, landing, 0.2, 0.3, derivatives=False)])
+    value, grad, hess = rest_position(start, W, *y)
+    assert np.isfinite(value) and np.all(np.isfinite(hess))
+    eps = 1e-6
+    for k in range(3):
+        e = np.eye(3)[k] * eps
+        plus, minus = rest_position(start, W, *(y + e)), rest_position(start, W, *(y - e))
+        assert grad[k] == pytest.approx((plus[0] - minus[0]) / (2 * eps), rel=1e-6, abs=1e-9), k
+        np.testing.assert_allclose(hess[k], (plus[1] - minus[1]) / (2 * eps), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(hess, hess.T, rtol=1e-12, atol=1e-14)
+
+
+def test_rest_position_is_where_the_simulated_cog_stops():
+    y = (0.3, 0.2, target_zmp(STARTS[0], W, 0.3, 0.2, 0.25, derivatives=False))
+    x0, v0, p0 = 0.05, 0.4, 0.0
+    coeffs = [lipm.pad([p0]), lipm.transition_coeffs(p0, y[2], 0.2), lipm.pad([y[2]])]
+    traj = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.2, 0.25], coeffs, x0, v0, W)
+    assert rest_position(STARTS[0], W, *y)[0] == pytest.approx(traj.evaluate(traj.end_time)[0][0], abs=1e-9)
