@@ -73,9 +73,10 @@ class StopParameters:
     min_slowdown_time: float = 0.005
     max_slowdown_time: float = 1.5
     # mean swing-ankle speed to the landing point [m/s]; the quintic swing from rest peaks at 15/8
-    # of it (2.16 m/s; the nominal swing peaks at 1.76). At 1.2 the hip and ankle pitch of the swing
-    # leg went up to 5.2 rad/s against their 5 rad/s limit (benchmarks/bench_joint_velocity.py)
-    max_swing_speed: float = 1.15
+    # of it (2.1 m/s; the nominal swing peaks at 1.76). At 1.2 the hip and ankle pitch of the swing
+    # leg went up to 5.2 rad/s against their 5 rad/s limit; 1.12 leaves every joint 4 % under its
+    # limit over the stride (benchmarks/bench_joint_velocity.py)
+    max_swing_speed: float = 1.12
     # fastest descent of the landing foot [m/s]: landing from swing height h takes at least
     # 15/8 h / this (the quintic's peak speed), so a foot caught high in the swing is not slammed
     # down while the landing leg is nearly straight (knee speed = leg-extension rate / sin(knee)).
