@@ -7,6 +7,7 @@ import math
 import sys
 
 from drake_estop.gait import GaitParameters, NominalPattern
+from drake_estop.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
 from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.rollout import rollout, stop_metrics, write_log, write_summary
 
@@ -99,8 +100,16 @@ def _add_simulate(sub):
                    help="plan and roll out the reference only (numpy), without the Drake diagram / IK")
     d.add_argument("--physics", action="store_true",
                    help="simulate the humanoid with contact (discrete SAP plant, PD servos tracking the "
-                        "IK joint angles) and check the success criteria; adds cop_x, cop_y, pelvis_z, "
-                        "com_meas_* to the log")
+                        "IK joint angles) under the online controller and check the success criteria; "
+                        "adds cop_x, cop_y, pelvis_z, com_meas_*, com_est_* to the log")
+    d.add_argument("--controller", choices=("online", "offline-filter"), default="online",
+                   help="with --physics: 'online' (default) plans and re-plans from the estimated state "
+                        "tick by tick; 'offline-filter' computes the whole joint reference with the ZMP "
+                        "preview filter at the signal (for comparison; not a real-time controller)")
+    d.add_argument("--true-state", action="store_true",
+                   help="with --physics: feed the controller the true COG instead of the state estimate")
+    add_perturbation_arguments(p.add_argument_group(
+        "perturbations of the simulated robot (--physics; the controller keeps the nominal model)"))
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "
@@ -150,9 +159,15 @@ def _simulate(args) -> int:
         raise ValueError(f"estop_time {estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
     if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
+    perturbations = perturbations_from_args(args)
+    if not args.physics and (perturbations != Perturbations() or args.true_state
+                             or args.controller != "online"):
+        raise ValueError("perturbations, --true-state and --controller need --physics")
+    if args.controller == "offline-filter" and (perturbations != Perturbations() or args.true_state):
+        raise ValueError("perturbations and --true-state need --controller online")
     if args.physics:
         args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
-        plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time)
+        plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations)
     elif args.kinematic:
         if args.html or args.meshcat:
             raise ValueError("--html and --meshcat need the Drake diagram (drop --kinematic)")
@@ -169,7 +184,7 @@ def _simulate(args) -> int:
     summary["metrics"] = stop_metrics(plan, data)
     summary.update(diagram_summary)
     if args.log:
-        write_log(args.log, data, {name: values[:len(data.times)] for name, values in extra.items()})
+        write_log(args.log, data, {name: _fit(values, len(data.times)) for name, values in extra.items()})
     if args.summary:
         write_summary(args.summary, summary)
     times = summary["phase_times"]
@@ -191,19 +206,47 @@ def _simulate(args) -> int:
               f"measured COG at rest {physics['numbers']['rest_after_halt_s']:.2f} s after the planned halt, "
               f"{physics['numbers']['final_cog_offset_m'] * 1e3:.1f} mm from the feet's midpoint; "
               f"real-time factor {physics['numbers']['realtime_factor']:.2f}")
+        if "tick_compute" in summary:
+            tick = summary["tick_compute"]
+            print(f"online controller: {summary['replans']} re-plans ({summary['replan_failures']} found no "
+                  f"stop), work per tick median {tick['median'] * 1e3:.2f} ms, p99 {tick['p99'] * 1e3:.2f} ms, "
+                  f"max {tick['max'] * 1e3:.2f} ms; ticks over a joint-velocity limit "
+                  f"{summary['joint_velocity_violations']}")
         return 0 if not failed else 1
     return 0
 
 
-def _run_physics(args, gait, stop, pattern, estop_time):
-    """Physics run; returns the plan, per-tick measured columns and the summary entry."""
-    from drake_estop.physics import run_physics
+def _fit(values, n):
+    """``values`` cut or NaN-padded to ``n`` log rows."""
+    import numpy as np
 
-    result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
-    columns = {"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
-               "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
-               "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt}
-    summary = {"physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
+    values = np.asarray(values, float)[:n]
+    return np.concatenate([values, np.full(n - len(values), np.nan)]) if len(values) < n else values
+
+
+def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
+    """Physics run; returns the plan, per-tick measured columns and the summary entry."""
+    columns, online = {}, {}
+    if args.controller == "online":
+        from drake_estop.online import controller_stop_parameters, run_online
+
+        result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
+                            pattern=pattern, perturbations=perturbations, true_state=args.true_state)
+        online = {key: result.online[key] for key in
+                  ("tick_compute", "replans", "replan_failures", "joint_velocity_violations")}
+        online["perturbations"] = perturbations.summary()
+        com_est = result.online["com_est"]
+        columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2]})
+    else:
+        from drake_estop.physics import run_physics
+
+        result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
+    columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
+                    "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
+                    "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt})
+    summary = {"controller": args.controller, "success": result.success,
+               "criteria": {k: bool(v) for k, v in result.criteria.items()}, **online,
+               "physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
                            "success": result.success, "numbers": result.numbers()}}
     return result.plan, columns, summary
 
@@ -246,6 +289,8 @@ def _add_sweep(sub):
     o.add_argument("--csv", default="out/sweep.csv", help="table (default %(default)s)")
     o.add_argument("--png", default="out/stop_map.png", help="stop map figure (default %(default)s)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
+    o.add_argument("--controller", choices=("online", "offline-filter"), default="online",
+                   help="the physics controller of every run (default %(default)s; see simulate --help)")
     p.set_defaults(func=_sweep, after_halt=2.5)
 
 
@@ -258,8 +303,13 @@ def _sweep(args) -> int:
     start, end = NominalPattern(gait).stride()
     if args.every > end - start:
         raise ValueError(f"every {args.every} s is longer than the stride ({end - start:.3f} s)")
+    run = None
+    if args.controller == "online":
+        from drake_estop.online import controller_stop_parameters, run_online
+
+        stop, run = controller_stop_parameters(stop), run_online
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,
-                  progress=not args.no_progress)
+                  progress=not args.no_progress, run=run)
     write_sweep(table, args.csv, args.png)
     wins = sum(bool(row.get("success")) for row in table)
     failed = [row for row in table if not row.get("success")]

@@ -64,8 +64,8 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
-from drake_estop.timing import timed
 from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
+from drake_estop.timing import timed
 
 #: Noise standard deviations of ``--sensor-noise`` (issue 13).
 ENCODER_NOISE = 1e-3  # [rad]

@@ -26,7 +26,6 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.timing import timed
 from drake_estop.model import (
     ALL_JOINTS,
     FLOATING_BASE,
@@ -38,6 +37,7 @@ from drake_estop.model import (
     joint_velocity_indices,
     nominal_standing_configuration,
 )
+from drake_estop.timing import timed
 
 # --------------------------------------------------------------------------
 # Small rotation helpers in numpy (much cheaper than pydrake calls).

@@ -20,7 +20,7 @@ How the controller balances (and what it does not do):
 
 * **The stop is planned from the measured state.** The estimated COG (less
   the servo's steady tracking bias, learnt while walking) starts the plan
-  when it has left the reference by more than ``replan_threshold`` (3 cm of
+  when it has left the reference by more than ``replan_threshold`` (5 cm of
   DCM, ``x + v / omega``); otherwise the plan starts from the reference the
   robot is tracking. While the measured DCM leaves the plan by more than the
   threshold, the stop is re-planned from the measured state, at most once a
@@ -109,14 +109,16 @@ class OnlineHandles:
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
-                         true_state: bool = False, replan_threshold: float = 0.03) -> OnlineHandles:
+                         true_state: bool = False, planner_options: dict | None = None) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes
     through the plant's applied-spatial-force input, sensor noise and
     latency in the sensors; the masses in :func:`run_online`'s context).
     ``true_state`` feeds the estimator's outputs from the true plant state
-    (debugging).
+    (debugging). ``planner_options`` go to
+    :class:`drake_estop.systems.StopPlannerSystem` (``replan_threshold``,
+    ``replan_interval``, ...).
     """
     from drake_estop.diagram import initial_configuration as pattern_initial_configuration
 
@@ -136,7 +138,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
                                      true_state=true_state, initial_q=q0, timer=timer)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-                                           replan_threshold=replan_threshold, timer=timer)
+                                           timer=timer, **(planner_options or {}))
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
@@ -174,10 +176,22 @@ def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
     return np.sum(np.abs(v[:, finite]) > limit[finite], axis=1)
 
 
+def joint_velocity_peak(plant, states: np.ndarray, times: np.ndarray) -> dict:
+    """The joint closest to (or furthest over) its velocity limit: name, speed / limit, time."""
+    v = np.abs(states[:, plant.num_positions():])
+    limit = plant.GetVelocityUpperLimits()
+    ratio = np.where(np.isfinite(limit), v / np.where(np.isfinite(limit), limit, 1.0), 0.0)
+    tick, index = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    names = {plant.get_joint(j).velocity_start(): plant.get_joint(j).name() for j in plant.GetJointIndices()
+             if plant.get_joint(j).num_velocities() == 1}
+    return {"joint": names.get(int(index), str(index)), "ratio": float(ratio[tick, index]),
+            "time": float(times[tick])}
+
+
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               true_state: bool = False, replan_threshold: float = 0.03):
+               true_state: bool = False, planner_options: dict | None = None):
     """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
 
     ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
@@ -195,7 +209,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, true_state=true_state,
-                                   replan_threshold=replan_threshold)
+                                   planner_options=planner_options)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     plant_context = handles.plant.GetMyMutableContextFromRoot(context)
@@ -209,10 +223,12 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     plan = handles.planner.plan(planner_context)
     if plan is None:
         raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
-    end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
-    simulator.AdvanceTo(end)
+    end = 0.0
+    while end < (max(plan.halt_end, plan.signal_time) + after_halt) - 1e-9:  # a re-plan may end later
+        end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
+        simulator.AdvanceTo(end)
+        plan = handles.planner.plans(planner_context)  # the plan and its re-plans, each from its start
     wall = time.perf_counter() - start
-    plan = handles.planner.plans(planner_context)  # the plan and its re-plans, each from its start
     q_log = handles.loggers["ik_q"].FindLog(context)
     com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
     foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
@@ -227,6 +243,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "replans": int(replans),
         "replan_failures": int(replan_failures),
         "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
+        "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
+                                                   .FindLog(context).sample_times()),
         "com_est": handles.loggers["com_est"].FindLog(context).data().T,
         "perturbations": perturbations,
     }

@@ -141,6 +141,13 @@ class Perturbations:
         if not (isinstance(self.seed, (int, np.integer)) and not isinstance(self.seed, bool) and self.seed >= 0):
             raise ValueError(f"--seed must be an integer >= 0, got {self.seed!r}")
 
+    def summary(self) -> dict:
+        """The perturbations as JSON-ready values (for run summaries)."""
+        return {"pushes": [[p.time, p.force_x, p.force_y, p.duration] for p in self.pushes],
+                "mass_scale": self.mass_scale, "torso_mass_scale": self.torso_mass_scale,
+                "torso_com_offset": self.torso_com_offset, "friction": self.friction,
+                "latency_ticks": self.latency_ticks, "sensor_noise": self.sensor_noise, "seed": self.seed}
+
     @property
     def model_error(self) -> bool:
         """True if :func:`apply_model_errors` changes anything."""

@@ -880,13 +880,19 @@ def sweep_row(result: PhysicsResult) -> dict:
 
 def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None, *,
           every: float = 0.02, start: float | None = None, duration: float | None = None,
-          progress: bool = True, physics: PhysicsParameters | None = None, after_halt: float = 2.5):
+          progress: bool = True, physics: PhysicsParameters | None = None, after_halt: float = 2.5,
+          run=None):
     """:func:`run_physics` for stop signals every ``every`` s over one stride (default: the
     third step, :meth:`NominalPattern.stride`, single then double support).
 
     Returns a list of :func:`sweep_row` dicts; a run that raises (e.g. an
     infeasible plan) gives a row with ``success`` False and the ``error``.
+    ``run`` (default :func:`run_physics`, the offline-filter reference) is
+    called as ``run(gait_params, stop_params, t, after_halt=..., physics=...,
+    pattern=...)`` and returns a :class:`PhysicsResult`
+    (e.g. :func:`drake_estop.online.run_online`).
     """
+    run = run or run_physics
     from tqdm import tqdm
     gait_params = gait_params or GaitParameters()
     stop_params = stop_params or StopParameters()
@@ -898,8 +904,8 @@ def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters
     table = []
     for t in tqdm(times, desc="physics sweep", unit="run", disable=not progress):
         try:
-            result = run_physics(gait_params, stop_params, float(t), after_halt=after_halt,
-                                 physics=physics, pattern=pattern)
+            result = run(gait_params, stop_params, float(t), after_halt=after_halt, physics=physics,
+                         pattern=pattern)
             table.append(sweep_row(result))
         except Exception as error:  # noqa: BLE001 - recorded in the table
             table.append({"signal_time": float(t), "success": False, "error": f"{type(error).__name__}: {error}"})

@@ -32,8 +32,8 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.timing import timed
 from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
+from drake_estop.timing import timed
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
@@ -235,11 +235,13 @@ class _PlanHandle:
     mutated after it is made, so sharing it is safe and keeps the tick cheap.
     """
 
-    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history")
+    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
+                 "last_try")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None):
+                 blend=None, history=None, last_try=-math.inf):
         self.plan = plan
+        self.last_try = last_try  # time of the last re-plan attempt
         self.history = history if history is not None else ((plan,) if plan is not None else ())
         self.blend = blend  # (start, dp (2), dv (2), duration): see StopPlannerSystem._blended
         self.wall_time = wall_time
@@ -311,6 +313,18 @@ class PlanSequence:
     def phase(self, t):
         return self._at(t).phase(t)
 
+    def upper_body(self, t):
+        return self._at(t).upper_body(t)
+
+    def summary(self) -> dict:
+        """The last plan's summary, with the signal of the first and the number of re-plans."""
+        summary = self.plans[-1].summary()
+        summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
+                       first_plan={"case": self.plans[0].case, "step_length": self.plans[0].step_length,
+                                   "zmp_max": self.plans[0].zmp_max,
+                                   "halt_end": self.plans[0].halt_end})
+        return summary
+
 
 class StopPlannerSystem(_ReferenceSystem):
     """Nominal pattern until the stop latches, then the four-phase stop.
@@ -342,18 +356,20 @@ class StopPlannerSystem(_ReferenceSystem):
     update fails and the Simulator raises with the planner's message.
     """
 
-    def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.03,
+    def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
-                 timer=None):
+                 replan_interval: float = 0.05, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
-                            ("filter_time_constant", filter_time_constant), ("blend_time", blend_time)):
+                            ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
+                            ("replan_interval", replan_interval)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         self._pattern = pattern
         self._params = params
         self._replan_threshold = float(replan_threshold)
         self._blend_time = float(blend_time)
+        self._replan_interval = float(replan_interval)
         warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
@@ -473,6 +489,8 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
+        if t - handle.last_try < self._replan_interval - 1e-9:
+            return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         if self._deviation(plan, t, measured) <= self._replan_threshold:
             return EventStatus.DidNothing()
         start = time.perf_counter()
@@ -488,7 +506,7 @@ class StopPlannerSystem(_ReferenceSystem):
         updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
                               max(handle.max_wall_time, wall),
                               self._blend_into(context, new) if new is not None else handle.blend,
-                              handle.history + ((new,) if new is not None else ()))
+                              handle.history + ((new,) if new is not None else ()), t)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
@@ -537,7 +555,7 @@ class StopPlannerSystem(_ReferenceSystem):
 
 
 def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
-                        button_name="Emergency stop", replan_threshold=0.03, timer=None):
+                        button_name="Emergency stop", timer=None, **planner_options):
     """Add an EStopTrigger and a StopPlannerSystem wired together.
 
     Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
@@ -547,7 +565,7 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
         servo_period=params.servo_period, scheduled_time=estop_time,
         meshcat=meshcat, button_name=button_name))
     planner = builder.AddNamedSystem("stop_planner", StopPlannerSystem(
-        pattern=pattern, params=params, replan_threshold=replan_threshold, timer=timer))
+        pattern=pattern, params=params, timer=timer, **planner_options))
     builder.Connect(trigger.stop_port, planner.stop_port)
     return trigger, planner
 

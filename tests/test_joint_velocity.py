@@ -8,10 +8,9 @@ own swing and a foot already coming down is not lifted again. Measured with
 
 import numpy as np
 import pytest
-
 from scripts import load_script
 
-from drake_estop.planner import StopParameters, descent_time, landing_swing, plan_stop
+from drake_estop.planner import StopParameters, descent_time, landing_swing
 
 
 @pytest.fixture(scope="module")

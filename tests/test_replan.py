@@ -32,7 +32,7 @@ def test_plan_from_the_reference_state_equals_the_nominal_plan(pattern, params):
 
 
 def test_plan_from_a_measured_state_starts_there_and_stops(pattern, params):
-    t = 3.1
+    t = 3.15
     pos, vel, zmp = _state_at(plan_stop(pattern, t, params), t)
     faster = vel + np.array([0.02, 0.0])
     plan = plan_stop(pattern, t, params, measured=(pos, faster))
@@ -179,7 +179,7 @@ def test_planner_plans_from_the_reference_when_the_robot_follows_it(pattern, par
 
 
 def test_planner_plans_from_the_measured_state_after_a_push_and_blends_the_command(pattern, params):
-    t = 3.1
+    t = 3.15
     pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
     pushed = vel + np.array([0.02, 0.0])  # 5.8 mm of DCM: past a 5 mm threshold
     diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*pushed, 0.0],
@@ -226,7 +226,7 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
     pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
     # the measured state stays frozen at the signal's: it leaves every new plan again
     diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*vel, 0.0],
-                                        filter_time_constant=1e-6, replan_threshold=0.005)
+                                        filter_time_constant=1e-6, replan_threshold=0.005, replan_interval=DT)
     simulator = Simulator(diagram)
     simulator.get_mutable_context().SetTime(t)
     simulator.Initialize()
@@ -238,7 +238,8 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
     assert len(planner.plans(context).plans) == replans + 1
 
 
-@pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time"])
+@pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
+                                  "replan_interval"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
 def test_planner_rejects_bad_settings(pattern, params, name, value):
     with pytest.raises(ValueError, match=name):

@@ -1,0 +1,169 @@
+"""The online controller in physics: the default `simulate --physics` diagram, perturbations, the CLI."""
+
+import json
+
+import numpy as np
+import pytest
+
+from drake_estop import physics
+from drake_estop.cli import main
+from drake_estop.gait import NominalPattern
+from drake_estop.online import build_online_diagram, controller_stop_parameters, joint_velocity_violations, run_online
+from drake_estop.perturbations import Perturbations, Push
+
+
+@pytest.fixture(scope="module")
+def paper_stop():
+    """The paper's 3.4 s stop with the online controller, with everything computed after the
+    signal forbidden: the offline joint reference (IK over the rollout), the preview filter and
+    the nominal-walk error cache must never be called."""
+    mp = pytest.MonkeyPatch()
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the online controller computed a reference ahead of time")
+
+    for name in ("reference_for", "joint_reference", "_zmp_error", "_nominal_errors", "nominal_rollout"):
+        mp.setattr(physics, name, forbidden)
+    mp.setattr(physics.ZmpPreviewFilter, "track", forbidden)
+    try:
+        yield run_online(estop_time=3.4, pattern=NominalPattern())
+    finally:
+        mp.undo()
+
+
+def test_paper_stop_meets_every_criterion_online(paper_stop):
+    assert paper_stop.criteria == {name: True for name in physics.CRITERIA}
+    numbers = paper_stop.numbers()
+    assert numbers["final_cog_offset_m"] < 0.01
+    assert numbers["torso_tilt_max_rad"] < 0.05
+
+
+def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
+    online = paper_stop.online
+    assert online["controller"] == "online"
+    tick = online["tick_compute"]
+    dt = paper_stop.plan.params.servo_period
+    span = paper_stop.times[-1] - paper_stop.plan.signal_time
+    # one entry per servo tick from the signal on: the estimator, planner and IK run every tick
+    assert tick["ticks"] == pytest.approx(span / dt, abs=2)
+    assert 0 < tick["median"] <= tick["p99"] <= tick["max"]
+    assert online["replans"] >= 0 and online["replan_failures"] >= 0
+    assert online["joint_velocity_violations"] == 0
+
+
+def test_joint_velocity_violations_counts_ticks_over_the_model_limit(paper_stop):
+    from pydrake.multibody.plant import MultibodyPlant
+
+    from drake_estop.model import load_humanoid
+
+    plant = MultibodyPlant(0.001)
+    load_humanoid(plant)
+    plant.Finalize()
+    states = np.zeros((3, plant.num_multibody_states()))
+    limit = plant.GetVelocityUpperLimits()
+    joint = int(np.flatnonzero(np.isfinite(limit))[0])
+    states[1, plant.num_positions() + joint] = 1.01 * limit[joint]
+    states[2, plant.num_positions() + joint] = -0.99 * limit[joint]
+    np.testing.assert_array_equal(joint_velocity_violations(plant, states), [0, 1, 0])
+
+
+def test_the_estimator_follows_the_true_cog(paper_stop):
+    estimate = paper_stop.online["com_est"]
+    n = min(len(estimate), len(paper_stop.times))
+    true = np.column_stack([paper_stop.com_meas_x, paper_stop.com_meas_y])[:n]
+    error = np.linalg.norm(estimate[:n, :2] - true, axis=1)
+    assert np.max(error[10:]) < 0.01  # after the first ticks (the filter starts)
+
+
+def test_pushes_go_through_the_plants_applied_spatial_force_input():
+    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), 3.4,
+                                   perturbations=Perturbations(pushes=(Push(3.4, 50.0, 0.0, 0.1),)))
+    connections = handles.diagram.connection_map()
+    port = handles.plant.get_applied_spatial_force_input_port()
+    source = connections[(handles.plant, port.get_index())]
+    assert source[0] is handles.push
+    context = handles.push.CreateDefaultContext()
+    context.SetTime(3.45)
+    forces = handles.push.applied_spatial_force_port.Eval(context)
+    assert len(forces) == 1
+    np.testing.assert_allclose(forces[0].F_Bq_W.translational(), [50.0, 0.0, 0.0])
+
+
+def test_a_push_changes_the_measured_motion_and_is_absorbed():
+    """17 N s backward at 3.1 s (mid single support): the stop re-plans from the measured state."""
+    pattern = NominalPattern()
+    pushed = run_online(estop_time=3.1, pattern=pattern, after_halt=2.5,
+                        perturbations=Perturbations(pushes=(Push(3.1, -170.0, 0.0, 0.1),)))
+    assert pushed.online["replans"] >= 1
+    assert pushed.criteria["no_fall"]
+    assert pushed.criteria["rests_at_midpoint"]
+
+
+# -- command line ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--mass-scale", "0"], "--mass-scale"),
+    (["--mass-scale", "nan"], "--mass-scale"),
+    (["--torso-mass-scale", "-1"], "--torso-mass-scale"),
+    (["--torso-com-offset", "0.5"], "--torso-com-offset"),
+    (["--friction", "0"], "--friction"),
+    (["--latency", "-1"], "--latency"),
+    (["--push", "3.4", "10", "0", "0"], "--push"),
+    (["--push", "3.4", "nan", "0", "0.1"], "--push"),
+    (["--seed", "-3"], "--seed"),
+])
+def test_bad_perturbations_exit_2_naming_the_option(args, option, capsys):
+    assert main(["simulate", "--physics", *args]) == 2
+    assert option in capsys.readouterr().err
+
+
+def test_perturbations_need_physics(capsys):
+    assert main(["simulate", "--kinematic", "--mass-scale", "1.1"]) == 2
+    assert "--physics" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, field, value", [
+    (["--push", "3.4", "170", "0", "0.1"], "pushes", (Push(3.4, 170.0, 0.0, 0.1),)),
+    (["--push", "3.4", "170", "0", "0.1", "--push", "3.6", "0", "-50", "0.2"], "pushes",
+     (Push(3.4, 170.0, 0.0, 0.1), Push(3.6, 0.0, -50.0, 0.2))),
+    (["--mass-scale", "1.1"], "mass_scale", 1.1),
+    (["--torso-mass-scale", "0.9"], "torso_mass_scale", 0.9),
+    (["--torso-com-offset", "-0.02"], "torso_com_offset", -0.02),
+    (["--friction", "0.5"], "friction", 0.5),
+    (["--latency", "1"], "latency_ticks", 1),
+    (["--sensor-noise"], "sensor_noise", True),
+    (["--seed", "7"], "seed", 7),
+])
+def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_path, args, field, value):
+    """Every option lands in the Perturbations the online run is given (the modules' own tests show
+    each one acting on the plant, the sensors and the push input)."""
+    import drake_estop.online as online
+
+    seen = {}
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.update(kwargs)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    assert main(["simulate", "--physics", *args]) == 2
+    assert getattr(seen["perturbations"], field) == value
+    assert seen["true_state"] is False
+
+
+def test_physics_summary_reports_the_online_controller(tmp_path):
+    summary, log = tmp_path / "s.json", tmp_path / "log.csv"
+    code = main(["simulate", "--physics", "--estop-time", "3.4", "--mass-scale", "1.1",
+                 "--summary", str(summary), "--log", str(log)])
+    data = json.load(open(summary))
+    assert code == (0 if data["success"] else 1)
+    assert data["controller"] == "online"
+    assert set(data["criteria"]) == set(physics.CRITERIA)
+    assert set(data["tick_compute"]) >= {"median", "p99", "max"}
+    assert data["tick_compute"]["median"] > 0
+    assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
+    assert data["perturbations"]["mass_scale"] == 1.1
+    header = open(log).readline().strip().split(",")
+    for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x"):
+        assert column in header
