@@ -108,8 +108,7 @@ def _add_simulate(sub):
                         "preview filter at the signal (for comparison; not a real-time controller)")
     d.add_argument("--true-state", action="store_true",
                    help="with --physics: feed the controller the true COG instead of the state estimate")
-    add_perturbation_arguments(p.add_argument_group(
-        "perturbations of the simulated robot (--physics; the controller keeps the nominal model)"))
+    add_perturbation_arguments(p)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "

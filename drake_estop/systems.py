@@ -473,7 +473,9 @@ class StopPlannerSystem(_ReferenceSystem):
                 plan.signal_time = min(plan.signal_time, signal_time)
         except (InfeasibleStop, ValueError) as error:
             return EventStatus.Failed(self, f"stop planning failed: {error}")
-        handle = _PlanHandle(plan, time.perf_counter() - start, blend=self._blend_into(context, plan))
+        # a plan from the reference continues the command; one from the measured state is blended into
+        handle = _PlanHandle(plan, time.perf_counter() - start,
+                             blend=None if measured is None else self._blend_into(context, plan))
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
         return EventStatus.Succeeded()
 

@@ -226,8 +226,10 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
 
     weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
                                          for key, kp in PhysicsParameters().gains))
-    original = physics.run_physics
-    monkeypatch.setattr(physics, "run_physics", lambda *args, **kwargs: original(*args, physics=weak, **kwargs))
+    from drake_estop import online
+
+    original = online.run_online  # the default controller of simulate --physics
+    monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, physics=weak, **kwargs))
     summary = tmp_path / "s.json"
     assert main(["simulate", "--physics", "--estop-time", "0", "--summary", str(summary)]) == 1
     result = json.load(open(summary))["physics"]

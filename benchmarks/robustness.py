@@ -1,0 +1,165 @@
+"""Robustness of the online stop controller in physics: the stride sweep, the perturbation matrix and
+the push-recovery table, each run an independent `run_online` simulation (ROBUSTNESS.md).
+
+    python benchmarks/robustness.py [--workers 2] [--out benchmarks/ROBUSTNESS.md] [--quick]
+
+* **Stride sweep**: a stop signal every 20 ms over the third step (single then double support).
+* **Matrix**: every perturbation cell of issue 13 (pushes of 17 N s over 0.1 s at the signal in four
+  directions, mass x0.9 / x1.1, torso COM +-2 cm, friction 0.5, latency 1 tick, sensor noise) at
+  signal times spread over the stride (early, mid and late single support, double support).
+* **Push recovery**: per direction and signal phase, the largest impulse (0.1 s push at the signal)
+  that still meets every criterion, searched on a 5 N s grid.
+
+Runs are spread over ``--workers`` processes; the numbers are those of this machine (2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+MATRIX_CELLS = {
+    "push forward 17 N s": {"push": (170.0, 0.0)},
+    "push backward 17 N s": {"push": (-170.0, 0.0)},
+    "push left 17 N s": {"push": (0.0, 170.0)},
+    "push right 17 N s": {"push": (0.0, -170.0)},
+    "mass x0.9": {"mass_scale": 0.9},
+    "mass x1.1": {"mass_scale": 1.1},
+    "torso COM +2 cm": {"torso_com_offset": 0.02},
+    "torso COM -2 cm": {"torso_com_offset": -0.02},
+    "friction 0.5": {"friction": 0.5},
+    "latency 1 tick": {"latency_ticks": 1},
+    "sensor noise": {"sensor_noise": True, "seed": 1},
+}
+#: signal phases: early / mid / late single support and double support of the third step [s after its liftoff]
+PHASES = {"early single support": 0.10, "mid single support": 0.30, "late single support": 0.52,
+          "double support": 0.70}
+PUSH_PHASES = ("early single support", "late single support", "double support")
+DIRECTIONS = {"forward": (1.0, 0.0), "backward": (-1.0, 0.0), "left": (0.0, 1.0), "right": (0.0, -1.0)}
+PUSH_DURATION = 0.1  # [s]
+
+
+def _run(job):
+    """One online physics stop: ``job`` = (signal time, perturbation keywords). Returns a row."""
+    from drake_estop.gait import NominalPattern
+    from drake_estop.online import run_online
+    from drake_estop.perturbations import Perturbations, Push
+
+    t, options = job
+    options = dict(options)
+    push = options.pop("push", None)
+    pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
+    start = time.perf_counter()
+    try:
+        result = run_online(estop_time=t, pattern=NominalPattern(), perturbations=Perturbations(pushes=pushes,
+                                                                                                **options))
+    except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
+        return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
+    numbers = result.numbers()
+    return {"t": t, "options": job[1], "success": bool(result.success),
+            "failed": [k for k, v in result.criteria.items() if not v], "case": result.plan.plans[0].case,
+            "replans": result.online["replans"], "joint_velocity_violations": result.online["joint_velocity_violations"],
+            "tick_compute": result.online["tick_compute"], "torso_tilt_max": numbers["torso_tilt_max_rad"],
+            "final_offset": numbers["final_cog_offset_m"], "realtime_factor": numbers["realtime_factor"],
+            "wall": time.perf_counter() - start}
+
+
+def _stride():
+    from drake_estop.gait import NominalPattern
+    return NominalPattern().stride()
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=str(Path(__file__).with_name("ROBUSTNESS.md")))
+    parser.add_argument("--quick", action="store_true", help="10 sweep signals and a coarse push search")
+    args = parser.parse_args(argv)
+    start, end = _stride()
+    every = 0.08 if args.quick else 0.02
+    sweep_times = [round(start + every * k, 3) for k in range(int(round((end - start) / every)))]
+    phase_times = {name: round(start + offset, 3) for name, offset in PHASES.items()}
+    jobs = [(t, {}) for t in sweep_times]
+    jobs += [(t, options) for options in MATRIX_CELLS.values() for t in phase_times.values()]
+    impulses = [10.0, 20.0, 30.0] if args.quick else [10.0, 15.0, 20.0, 25.0, 30.0, 35.0]
+    jobs += [(phase_times[p], {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
+             for p in PUSH_PHASES for d in DIRECTIONS.values() for i in impulses]
+    wall = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = list(pool.map(_run, jobs))
+    wall = time.perf_counter() - wall
+    data = {"sweep": rows[:len(sweep_times)], "rows": rows, "wall_s": wall, "workers": args.workers}
+    Path(args.out).with_suffix(".json").write_text(json.dumps(data, indent=1, default=str))
+    Path(args.out).write_text(report(rows, sweep_times, phase_times, impulses, wall, args.workers))
+    print(Path(args.out).read_text())
+
+
+def _find(rows, t, options):
+    return next(r for r in rows if r["t"] == t and r["options"] == options)
+
+
+def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
+    sweep = [_find(rows, t, {}) for t in sweep_times]
+    ok = sum(r["success"] for r in sweep)
+    lines = ["# Online stop controller: robustness (physics)", "",
+             f"Measured by `python benchmarks/robustness.py` on this 2-core machine, {len(rows)} runs on "
+             f"{workers} workers in {wall / 60:.1f} min. Every run: the default online controller "
+             "(`simulate --physics`), success = every criterion of `physics.analyse`.", "",
+             f"## Stride sweep: {ok}/{len(sweep)} stops meet every criterion", "",
+             "| signal [s] | case | re-plans | result |", "| --- | --- | --- | --- |"]
+    for r in sweep:
+        lines.append(f"| {r['t']:.3f} | {r.get('case', '-')} | {r.get('replans', '-')} | "
+                     f"{'ok' if r['success'] else 'FAIL ' + ', '.join(r.get('failed', [])) + r.get('error', '')} |")
+    ticks = [r["tick_compute"] for r in rows if r.get("tick_compute", {}).get("median")]
+    if ticks:
+        lines += ["", "Controller work per servo tick over all runs (median of the runs' medians / worst p99 / "
+                  f"worst max): {_median([t['median'] for t in ticks]) * 1e3:.2f} / "
+                  f"{max(t['p99'] for t in ticks) * 1e3:.2f} / {max(t['max'] for t in ticks) * 1e3:.2f} ms "
+                  f"(two runs share the two cores). Joint-velocity violations: "
+                  f"{sum(r.get('joint_velocity_violations', 0) > 0 for r in rows)} of {len(rows)} runs."]
+    lines += ["", "## Perturbation matrix", "",
+              "| cell | " + " | ".join(f"{name} ({t:.2f} s)" for name, t in phase_times.items()) + " |",
+              "| --- |" + " --- |" * len(phase_times)]
+    passed = total = 0
+    for cell, options in MATRIX_CELLS.items():
+        results = [_find(rows, t, options) for t in phase_times.values()]
+        passed += sum(r["success"] for r in results)
+        total += len(results)
+        lines.append(f"| {cell} | " + " | ".join(_cell(r) for r in results) + " |")
+    lines += ["", f"{passed}/{total} cells pass.", "", "## Push recovery (0.1 s push at the signal)", "",
+              "Largest impulse that still meets every criterion, and every smaller one on the grid "
+              f"({', '.join(f'{i:g}' for i in impulses)} N s; 17 N s is 0.3 m/s on the 58 kg robot):", "",
+              "| phase | " + " | ".join(DIRECTIONS) + " |", "| --- |" + " --- |" * len(DIRECTIONS)]
+    for phase in PUSH_PHASES:
+        t = phase_times[phase]
+        cells = []
+        for d in DIRECTIONS.values():
+            best = 0.0
+            for i in impulses:
+                r = _find(rows, t, {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
+                if not r["success"]:
+                    break
+                best = i
+            cells.append(f"{best:g} N s ({best / 58.0:.2f} m/s)" if best else f"< {impulses[0]:g} N s")
+        lines.append(f"| {phase} ({t:.2f} s) | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _cell(row):
+    if row["success"]:
+        return "ok"
+    return "FAIL: " + (", ".join(row.get("failed", [])) or row.get("error", "")[:60])
+
+
+def _median(values):
+    values = sorted(values)
+    n = len(values)
+    return values[n // 2] if n % 2 else 0.5 * (values[n // 2 - 1] + values[n // 2])
+
+
+if __name__ == "__main__":
+    main()
