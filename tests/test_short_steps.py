@@ -13,7 +13,7 @@ from drake_estop.rollout import stride_ticks
 PARAMS = StopParameters()
 
 
-@pytest.fixture(scope="module", params=[0.0, 0.01, 0.02, 0.05])
+@pytest.fixture(scope="module", params=[0.0, 1e-6, 0.01, 0.02, 0.05])  # 1e-6: next to the 0/0 case
 def short_stride(request):
     pattern = NominalPattern(GaitParameters(step_length=request.param))
     return pattern, [plan_stop(pattern, t, PARAMS) for t in stride_ticks(pattern, PARAMS)]
