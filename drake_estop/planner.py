@@ -1381,8 +1381,8 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
-    raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s; "
-                         f"at the signal: {reasons[0]}; last try at t={t:.3f} s: {reasons[-1]}")
+    detail = f"; at the signal: {reasons[0]}; last try: {reasons[-1]}" if reasons else ""
+    raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s{detail}")
 
 
 def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, measured) -> PatternState:

@@ -180,3 +180,145 @@ def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, caps
 def test_sweep_rejects_bad_spacing(capsys):
     assert main(["sweep", "--every", "0"]) == 2
     assert "every" in capsys.readouterr().err
+
+
+def test_every_gait_and_stop_option_reaches_the_plan(tmp_path):
+    """Options no other test passes, with valid values: the summary equals a plan made from the
+    same parameters directly, and each option shows where it acts."""
+    import numpy as np
+
+    from drake_estop.gait import GaitParameters, NominalPattern
+    from drake_estop.planner import StopParameters, plan_stop
+
+    log, summary = tmp_path / "log.csv", tmp_path / "s.json"
+    args = ["simulate", "--kinematic", "--estop-time", "3.2", "--step-width", "0.22",
+            "--double-support-ratio", "0.25", "--num-steps", "6", "--crouch-depth", "0.03", "--a-ss", "6",
+            "--b-ss", "800", "--a-ds", "40", "--b-ds", "900", "--max-step-length", "0.38",
+            "--max-swing-speed", "1.1", "--quantisation", "round", "--after-halt", "1.5",
+            "--log", str(log), "--summary", str(summary)]
+    assert main(args) == 0
+    data = json.load(open(summary))
+    gait = GaitParameters(step_width=0.22, double_support_ratio=0.25, num_steps=6)
+    stop = StopParameters(crouch_depth=0.03, a_ss=6.0, b_ss=800.0, a_ds=40.0, b_ds=900.0, max_step_length=0.38,
+                          max_swing_speed=1.1, quantisation="round")
+    pattern = NominalPattern(gait)
+    plan = plan_stop(pattern, 3.2, stop)
+    assert data["support"] == "single" and plan.case == "one-step"
+    assert data["phase_times"] == pytest.approx(plan.summary()["phase_times"], abs=1e-12)
+    assert data["step_length"] == pytest.approx(plan.step_length, abs=1e-12)
+    assert plan_stop(NominalPattern(), 3.2).summary()["phase_times"] != data["phase_times"]
+    # --step-width: final feet 0.22 m apart; --num-steps: a 6-step walk (its last step at 5.89 s)
+    feet = data["final_feet"]
+    assert feet["left"][1] - feet["right"][1] == pytest.approx(0.22, abs=1e-9)
+    assert pattern.steps[-1]["touchdown"] == pytest.approx(1.25 + 5 * 0.8 + 0.8 * 0.75, abs=1e-9)
+    # --max-step-length, --max-swing-speed: honoured
+    duration = data["phase_times"]["landing_end"] - data["plan_start_time"]
+    swing = np.linalg.norm(np.array(data["landing_position"]) - plan.swing_start["pos"][:2])
+    assert data["step_length"] <= 0.38 + 1e-12 and swing / duration <= 1.1 + 1e-9
+    # --crouch-depth: the COG goes down by exactly 3 cm; --after-halt: 1.5 s logged past the halt
+    rows = list(csv.DictReader(open(log)))
+    heights = [float(row["com_z"]) for row in rows]
+    assert min(heights) == pytest.approx(0.814 - 0.03, abs=1e-9)
+    assert float(rows[-1]["t"]) >= data["phase_times"]["halt_end"] + 1.5 - 1e-9
+    assert float(rows[-1]["t"]) < data["phase_times"]["halt_end"] + 1.5 + 0.01
+    # --quantisation round: times snapped, ZMP kept -> the COG is not exactly at rest (paper Fig. 12)
+    assert abs(data["metrics"]["sagittal_velocity_at_slowdown_end_mps"]) > 1e-6
+
+
+def test_summary_fields_have_their_values(tmp_path):
+    """metrics (eq. 5 crouch ZMP error), zmp_max, landing_foot, min_zmp_margin_m and
+    upper_body_peak_rad, checked against the log and the plan, single and double support."""
+    import numpy as np
+
+    from drake_estop.gait import NominalPattern
+    from drake_estop.planner import plan_stop
+
+    for estop, support in ((3.4, "single"), (3.5, "double")):
+        log, summary = tmp_path / f"log{estop}.csv", tmp_path / f"s{estop}.json"
+        assert main(["simulate", "--kinematic", "--estop-time", str(estop), "--log", str(log),
+                     "--summary", str(summary)]) == 0
+        data = json.load(open(summary))
+        rows = list(csv.DictReader(open(log)))
+        plan = plan_stop(NominalPattern(), estop)
+        assert data["support"] == support
+        if support == "single":
+            assert data["landing_foot"] == "right" and data["zmp_max"] is None  # the 3rd step swings the right foot
+            assert data["landing_position"][0] == pytest.approx(plan.landing_position[0], abs=1e-12)
+        else:
+            assert data["landing_foot"] is None and data["step_length"] is None
+            fore = max(data["final_feet"].values(), key=lambda xy: xy[0])
+            times = data["phase_times"]
+            slowdown = [float(r["zmp_x"]) for r in rows
+                        if times["transition_end"] - 1e-9 <= float(r["t"]) < times["slowdown_end"] - 1e-9]
+            # ZMP_max: the (constant) slowdown ZMP relative to the ZMP at the signal, on the fore sole
+            start = plan.start_state.zmp[0]
+            assert slowdown and max(slowdown) - min(slowdown) < 1e-7
+            assert data["zmp_max"] == pytest.approx(slowdown[0] - start, abs=1e-7)
+            assert fore[0] - 0.105 + 0.01 - 1e-9 <= start + data["zmp_max"] <= fore[0] + 0.135 - 0.01 + 1e-9
+        assert 0.01 - 1e-9 <= data["min_zmp_margin_m"] < 0.2
+        assert data["min_zmp_margin_m"] == pytest.approx(plan.min_zmp_margin, abs=1e-12)
+        # eq. 33: the arm angles at the slowdown end
+        q, qd = plan.upper_body(plan.slowdown_end)
+        np.testing.assert_allclose(data["upper_body_peak_rad"], q, atol=1e-12)
+        np.testing.assert_allclose(qd, 0.0, atol=1e-12)
+        # metrics, recomputed from the log
+        metrics = data["metrics"]
+        t = np.array([float(r["t"]) for r in rows])
+        com = np.array([[float(r["com_x"]), float(r["com_y"])] for r in rows])
+        assert metrics["time_to_rest_s"] == pytest.approx(data["phase_times"]["halt_end"] - plan.signal_time)
+        after = t >= plan.signal_time - 1e-9
+        travel = np.sum(np.linalg.norm(np.diff(com[after], axis=0), axis=1))
+        assert metrics["cog_travel_after_signal_m"] == pytest.approx(travel, rel=1e-6)  # log rounding
+        mid = 0.5 * (np.array(data["final_feet"]["left"]) + np.array(data["final_feet"]["right"]))
+        assert metrics["final_cog_offset_from_midpoint_m"] == pytest.approx(np.linalg.norm(com[-1] - mid), abs=1e-8)
+        assert metrics["final_cog_speed_mps"] < 1e-6
+        # eq. 5: x ZMP error of the crouch, (ax (z0 zdd - dz g)) / (g (zdd + g)), zdd by differences
+        z = np.array([float(r["com_z"]) for r in rows])
+        vz = np.array([float(r["com_vz"]) for r in rows])
+        ax = np.array([float(r["com_ax"]) for r in rows])
+        zdd = np.gradient(vz, t)
+        g, z0 = 9.80665, 0.814
+        error = np.abs(ax * (z0 * zdd - (z - z0) * g) / (g * (zdd + g)))
+        assert 1e-4 < metrics["crouch_zmp_error_max_m"] < 0.03
+        assert metrics["crouch_zmp_error_max_m"] == pytest.approx(error.max(), rel=0.05)
+
+
+def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
+    """``--meshcat --meshcat-port P --button-only --after-halt S``: the port goes to Meshcat, no
+    scheduled stop goes to the diagram (only the button stops), the log span goes along.
+    The diagram is replaced by a stand-in (a live run walks in real time)."""
+    from drake_estop import diagram, visualization
+
+    seen = {}
+
+    class FakeMeshcat:
+        def web_url(self):
+            return "http://localhost:7123"
+
+    class WalkedOn:  # nobody pressed the button: the walk ended without a stop
+        plan, realtime_factor, plan_wall_time = None, 1.0, 0.0
+
+        def error_summary(self):
+            return {}
+
+        def columns(self):
+            return {}
+
+    def fake_meshcat(port=None):
+        seen["port"] = port
+        return FakeMeshcat()
+
+    def fake_simulate(gait, stop, estop_time, **kwargs):
+        seen.update(estop_time=estop_time, **kwargs)
+        return WalkedOn()
+
+    monkeypatch.setattr(visualization, "make_meshcat", fake_meshcat)
+    monkeypatch.setattr(diagram, "simulate_diagram", fake_simulate)
+    assert main(["simulate", "--meshcat", "--meshcat-port", "7123", "--button-only", "--after-halt", "2"]) == 0
+    assert seen["port"] == 7123 and seen["estop_time"] is None and seen["after_halt"] == 2.0
+    assert isinstance(seen["meshcat"], FakeMeshcat)
+    out = capsys.readouterr().out
+    assert "http://localhost:7123" in out and "walk ended without a stop signal" in out
+    # without --button-only the scheduled signal goes along (whichever comes first stops)
+    assert main(["simulate", "--meshcat", "--estop-time", "3.2"]) == 0
+    assert seen["port"] is None and seen["estop_time"] == 3.2
