@@ -1191,6 +1191,9 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
     return _DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
 
 
+_MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into the zmp_margin band
+
+
 def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
                zmp_region: str = "fore"):
     w = pattern.w
@@ -1220,44 +1223,56 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     sagittal_target = state.zmp[0] + solution.target
     polygon = soles_polygon(sole, tuple((s, float(final_feet[s][0]), float(final_feet[s][1]))
                                         for s in ("left", "right")))
-    lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, params.zmp_margin,
-                                     polygon if zmp_region == "polygon" else None, sagittal_target)
-    targets = (sagittal_target, lateral_target)
-    segs = _zmp_segments(state, solution, targets, kind)
-    # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
-    ends = [lipm.chain_end_state(d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
-            for a, (d, c) in enumerate(segs)]
-    halt_durations, halt_coeffs, margin = _choose_halt(ends, midpoint, polygon, params, w)
-    if margin < params.zmp_margin - 1e-9:
-        raise InfeasibleStop(f"halt ZMP keeps at most {margin * 1e3:.1f} mm from the support polygon's edge "
-                             f"for every halt duration (zmp_margin {params.zmp_margin * 1e3:.1f} mm, "
-                             f"halt_durations up to {max(params.halt_durations)} s)")
-    halt = sum(halt_durations)
-    x_traj, y_traj = (
-        lipm.LipmTrajectory.from_zmp(t0, list(d) + halt_durations + [1.0],
-                                     list(c) + list(hc) + [lipm.pad([midpoint[a]])],
-                                     state.com[a], state.com_vel[a], w, rest_tail=True)
-        for a, ((d, c), hc) in enumerate(zip(segs, halt_coeffs)))
-    plan = StopPlan(
-        signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
-        start_support=kind, landing_time=landing_time, transition_end=transition_end,
-        slowdown_end=slowdown_end, halt_end=slowdown_end + halt,
-        step_length=step_length if kind == "single" else None,
-        zmp_max=solution.target if kind == "double" else None,
-        landing_foot=landing_foot, landing_position=landing_xy, final_feet=final_feet,
-        x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
-        newton_iterations=solution.iterations, solve_time=solve_time, cost=solution.cost,
-        continuous_solution=solution.continuous,
-    )
-    if landing_foot is not None:
-        plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
-                            "acc": state.feet_acc[landing_foot]}
-    span = slowdown_end - t0
-    plan.upper_body_peak = state.upper_body + state.upper_body_rate * span / 3.0  # eq. 33
-    plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
-    if plan.min_zmp_margin < -1e-9:
-        raise InfeasibleStop(f"planned ZMP leaves the support polygon by {-plan.min_zmp_margin:.4f} m")
-    return plan
+    # A transition that starts with the walk's ZMP rate and acceleration (double support) can overshoot its
+    # lateral target: aim further inside until the whole plan keeps zmp_margin (or the start's own margin,
+    # if the walk's ZMP at the signal is already closer to an edge).
+    required = None
+    lateral_margin = params.zmp_margin
+    for _ in range(_MARGIN_ROUNDS):
+        lateral_target = _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, lateral_margin,
+                                         polygon if zmp_region == "polygon" else None, sagittal_target)
+        targets = (sagittal_target, lateral_target)
+        segs = _zmp_segments(state, solution, targets, kind)
+        # COG state at the slowdown end, per axis (the last ZMP segment is constant at the target)
+        ends = [lipm.chain_end_state(d, c, float(state.com[a]), float(state.com_vel[a]), w) + (float(targets[a]),)
+                for a, (d, c) in enumerate(segs)]
+        halt_durations, halt_coeffs, margin = _choose_halt(ends, midpoint, polygon, params, w)
+        if margin < params.zmp_margin - 1e-9:
+            raise InfeasibleStop(f"halt ZMP keeps at most {margin * 1e3:.1f} mm from the support polygon's edge "
+                                 f"for every halt duration (zmp_margin {params.zmp_margin * 1e3:.1f} mm, "
+                                 f"halt_durations up to {max(params.halt_durations)} s)")
+        halt = sum(halt_durations)
+        x_traj, y_traj = (
+            lipm.LipmTrajectory.from_zmp(t0, list(d) + halt_durations + [1.0],
+                                         list(c) + list(hc) + [lipm.pad([midpoint[a]])],
+                                         state.com[a], state.com_vel[a], w, rest_tail=True)
+            for a, ((d, c), hc) in enumerate(zip(segs, halt_coeffs)))
+        plan = StopPlan(
+            signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
+            start_support=kind, landing_time=landing_time, transition_end=transition_end,
+            slowdown_end=slowdown_end, halt_end=slowdown_end + halt,
+            step_length=step_length if kind == "single" else None,
+            zmp_max=solution.target if kind == "double" else None,
+            landing_foot=landing_foot, landing_position=landing_xy, final_feet=final_feet,
+            x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
+            newton_iterations=solution.iterations, solve_time=solve_time, cost=solution.cost,
+            continuous_solution=solution.continuous,
+        )
+        if landing_foot is not None:
+            plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
+                                "acc": state.feet_acc[landing_foot]}
+        span = slowdown_end - t0
+        plan.upper_body_peak = state.upper_body + state.upper_body_rate * span / 3.0  # eq. 33
+        plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
+        if required is None:
+            start_zmp = np.array([[plan.x.evaluate_at(t0)[3], plan.y.evaluate_at(t0)[3]]])
+            required = min(params.zmp_margin, float(_support_polygon(plan).margin(start_zmp)[0]))
+        deficit = required - plan.min_zmp_margin
+        if deficit <= 1e-9:
+            return plan
+        lateral_margin += deficit + 5e-4
+    raise InfeasibleStop(f"zmp_margin: the planned ZMP comes {plan.min_zmp_margin * 1e3:.1f} mm from the support "
+                         f"polygon's edge (zmp_margin {params.zmp_margin * 1e3:.1f} mm)")
 
 
 def _verify_zmp(plan: StopPlan, final_polygon: SupportPolygon | None = None) -> float:
