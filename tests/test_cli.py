@@ -191,7 +191,7 @@ def test_every_gait_and_stop_option_reaches_the_plan(tmp_path):
     from drake_estop.planner import StopParameters, plan_stop
 
     log, summary = tmp_path / "log.csv", tmp_path / "s.json"
-    args = ["simulate", "--kinematic", "--estop-time", "3.2", "--step-width", "0.22",
+    args = ["simulate", "--kinematic", "--estop-time", "3.1", "--step-width", "0.22",
             "--double-support-ratio", "0.25", "--num-steps", "6", "--crouch-depth", "0.03", "--a-ss", "6",
             "--b-ss", "800", "--a-ds", "40", "--b-ds", "900", "--max-step-length", "0.38",
             "--max-swing-speed", "1.1", "--quantisation", "round", "--after-halt", "1.5",
@@ -202,11 +202,11 @@ def test_every_gait_and_stop_option_reaches_the_plan(tmp_path):
     stop = StopParameters(crouch_depth=0.03, a_ss=6.0, b_ss=800.0, a_ds=40.0, b_ds=900.0, max_step_length=0.38,
                           max_swing_speed=1.1, quantisation="round")
     pattern = NominalPattern(gait)
-    plan = plan_stop(pattern, 3.2, stop)
+    plan = plan_stop(pattern, 3.1, stop)
     assert data["support"] == "single" and plan.case == "one-step"
     assert data["phase_times"] == pytest.approx(plan.summary()["phase_times"], abs=1e-12)
     assert data["step_length"] == pytest.approx(plan.step_length, abs=1e-12)
-    assert plan_stop(NominalPattern(), 3.2).summary()["phase_times"] != data["phase_times"]
+    assert plan_stop(NominalPattern(), 3.1).summary()["phase_times"] != data["phase_times"]
     # --step-width: final feet 0.22 m apart; --num-steps: a 6-step walk (its last step at 5.89 s)
     feet = data["final_feet"]
     assert feet["left"][1] - feet["right"][1] == pytest.approx(0.22, abs=1e-9)
