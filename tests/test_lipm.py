@@ -113,3 +113,22 @@ def test_chain_bvp_weighted_least_norm():
     found = [out[1][0], out[2][0], out[0][0] - 0.02]
     np.testing.assert_allclose(found, u, rtol=1e-9, atol=1e-12)
     assert abs(found[2]) < 0.01 * max(abs(found[0]), abs(found[1]))  # the light-weight unknown barely moves
+
+
+def test_per_tick_evaluation_equals_vectorised_one_everywhere():
+    """``evaluate_at`` (the servo-tick path) against ``evaluate`` and ``zmp_derivatives``: all six
+    outputs, inside every segment, on the breaks (the later segment wins) and outside the chain."""
+    w = lipm.omega(0.814)
+    coeffs = [lipm.pad([0.0]), lipm.transition_coeffs(0.0, 0.1, 0.4, 0.2, -1.0), lipm.pad([0.1])]
+    traj = lipm.LipmTrajectory.from_zmp(1.0, [0.3, 0.4, 0.5], coeffs, 0.02, 0.3, w)
+    times = [0.5, 1.0, 1.1, 1.3, 1.45, 1.7, 1.9, 2.2, 2.5]
+    pos, vel, acc, zmp = traj.evaluate(times)
+    rate, accel = traj.zmp_derivatives(times)
+    for i, t in enumerate(times):
+        np.testing.assert_allclose(traj.evaluate_at(t), [pos[i], vel[i], acc[i], zmp[i], rate[i], accel[i]],
+                                   rtol=1e-12, atol=1e-12, err_msg=str(t))
+    # eq. 4: the COG acceleration is w^2 (x - ZMP)
+    np.testing.assert_allclose(acc, w * w * (pos - zmp), rtol=1e-9, atol=1e-12)
+    step = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.3], [lipm.pad([0.0]), lipm.pad([0.1])], 0.0, 0.0, w)
+    assert step.evaluate([0.3])[3][0] == pytest.approx(0.1) and step.evaluate_at(0.3)[3] == pytest.approx(0.1)
+    assert step.evaluate([-0.1])[3][0] == pytest.approx(0.0) and step.evaluate([0.7])[3][0] == pytest.approx(0.1)
