@@ -132,3 +132,11 @@ def test_per_tick_evaluation_equals_vectorised_one_everywhere():
     step = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.3], [lipm.pad([0.0]), lipm.pad([0.1])], 0.0, 0.0, w)
     assert step.evaluate([0.3])[3][0] == pytest.approx(0.1) and step.evaluate_at(0.3)[3] == pytest.approx(0.1)
     assert step.evaluate([-0.1])[3][0] == pytest.approx(0.0) and step.evaluate([0.7])[3][0] == pytest.approx(0.1)
+
+
+def test_poly_eval_past_the_degree_and_chain_bvp_defaults_to_rest():
+    assert lipm.poly_eval([1.0, 2.0], np.array([0.1, 0.2]), 2).tolist() == [0.0, 0.0]
+    w = lipm.omega(0.814)
+    zero, one = lipm.pad([0.0]), lipm.pad([1.0])
+    out = lipm.solve_chain_bvp([0.4, 0.4], [zero, zero], [[one, zero], [zero, one]], 0.0, 0.2, w, 0.05)
+    assert lipm.chain_end_state([0.4, 0.4], out, 0.0, 0.2, w) == pytest.approx((0.05, 0.0), abs=1e-12)
