@@ -29,10 +29,16 @@ cd "$work"
   echo "    tests"
   echo "    models"
   echo "    pyproject.toml"
-  printf "pytest_add_cli_args =\n    -p\n    no:cacheprovider\n"
+  # the fast tests; left out: the numba-vs-Python comparison (test_fastcore: its compile cache would
+  # be rebuilt in the scratch copy) and three slow ones that only repeat what others check
+  echo "pytest_add_cli_args ="
+  for arg in -p no:cacheprovider -k "not 1e-06" \
+             --deselect tests/test_planner.py::test_one_step_wherever_feasible \
+             --deselect tests/test_planner.py::test_logged_cog_obeys_lipm_by_independent_integration; do
+    echo "    $arg"
+  done
   echo "pytest_add_cli_args_test_selection ="
-  for t in test_lipm test_stop_condition test_newton test_planner test_short_steps test_properties test_gait \
-           test_fastcore; do
+  for t in test_lipm test_stop_condition test_newton test_planner test_short_steps test_properties test_gait; do
     echo "    tests/$t.py"
   done
 } > setup.cfg

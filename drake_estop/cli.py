@@ -57,9 +57,11 @@ def _add_gait_and_stop(p, *, estop=True):
                    help="nominal step cycle, single + double support [s] (default %(default)s)")
     g.add_argument("--step-width", type=positive_float, default=_GAIT.step_width,
                    help="lateral distance between the ankles [m] (default %(default)s)")
-    g.add_argument("--double-support-ratio", type=number(low=0.0, high=1.0, low_open=True, high_open=True), default=_GAIT.double_support_ratio,
+    g.add_argument("--double-support-ratio", type=number(low=0.0, high=1.0, low_open=True, high_open=True),
+                   default=_GAIT.double_support_ratio,
                    help="share of the step cycle in double support (default %(default)s)")
-    g.add_argument("--com-height", type=number(low=COG_HEIGHT_LOWEST, high=COG_HEIGHT_STRAIGHT_LEGS, low_open=True, unit=" m"), default=_GAIT.com_height,
+    g.add_argument("--com-height", default=_GAIT.com_height,
+                   type=number(low=COG_HEIGHT_LOWEST, high=COG_HEIGHT_STRAIGHT_LEGS, low_open=True, unit=" m"),
                    help="COG height of the LIPM [m] (default %(default)s, HRP-2's walking pattern)")
     g.add_argument("--num-steps", type=number(low=2, integer=True), default=_GAIT.num_steps,
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
@@ -67,7 +69,8 @@ def _add_gait_and_stop(p, *, estop=True):
     if estop:
         s.add_argument("--estop-time", type=non_negative_float, default=3.4,
                        help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
-    s.add_argument("--servo-period", type=number(low=0.0, high=_STOP.min_transition_time, low_open=True, unit=" s"), default=_STOP.servo_period,
+    s.add_argument("--servo-period", default=_STOP.servo_period,
+                   type=number(low=0.0, high=_STOP.min_transition_time, low_open=True, unit=" s"),
                    help="servo / control period [s]; phase boundaries fall on its ticks (default %(default)s)")
     s.add_argument("--no-crouch", action="store_true", help="keep the COG height constant (no IV.A crouch)")
     s.add_argument("--crouch-depth", type=non_negative_float, default=_STOP.crouch_depth,

@@ -1,5 +1,7 @@
 """Analytic LIPM (eq. 6-14): particular solution, chaining, boundary-value solves."""
 
+import math
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -74,3 +76,67 @@ def test_chain_bvp_ends_exactly_at_rest():
     x, v = lipm.chain_end_state([0.1, 0.6], coeffs, 0.2, -0.1, W)
     assert x == pytest.approx(0.15, abs=1e-9)
     assert v == pytest.approx(0.0, abs=1e-9)
+
+
+def test_omega_is_sqrt_g_over_height():
+    """eq. 6: w = sqrt(g / z); a self-consistent wrong w (e.g. sqrt(g z)) passes every
+    chained test, so the value is pinned (HRP-2's 0.814 m: 3.47 rad/s)."""
+    assert lipm.omega(0.814) == pytest.approx(math.sqrt(9.80665 / 0.814), rel=1e-12)
+    assert lipm.omega(0.814) == pytest.approx(3.4710, abs=1e-3)
+
+
+@pytest.mark.parametrize("coeffs, x0, v0", [
+    ([0.0], 0.01, 0.0),  # 1 cm off the final ZMP: diverges
+    ([0.0], 0.0, 1.5e-4),  # 0.15 mm/s: velocity residue above 1e-4
+    ([0.0, 0.01], 0.0, 0.01),  # follows a moving ZMP exactly: no residue, but the ZMP is not at rest
+])
+def test_rest_tail_refuses_a_cog_not_at_rest(coeffs, x0, v0):
+    w = lipm.omega(0.814)
+    with pytest.raises(ValueError, match="does not arrive at rest"):
+        lipm.LipmTrajectory.from_zmp(0.0, [1.0], [lipm.pad(coeffs)], x0, v0, w, rest_tail=True)
+    lipm.LipmTrajectory.from_zmp(0.0, [1.0], [lipm.pad([0.0])], 1e-6, 0.0, w, rest_tail=True)  # rounding: fine
+
+
+def test_chain_bvp_weighted_least_norm():
+    """The weights of solve_chain_bvp: min sum (u_k / weight_k)^2 subject to the end state."""
+    w = lipm.omega(0.814)
+    durations = [0.3, 0.4, 0.5]
+    zero, one = lipm.pad([0.0]), lipm.pad([1.0])
+    base = [lipm.pad([0.02]), zero, zero]
+    unknowns = [[zero, one, zero], [zero, zero, one], [one, zero, zero]]
+    weights = np.array([1.0, 0.5, 0.01])
+    out = lipm.solve_chain_bvp(durations, base, unknowns, 0.01, 0.1, w, 0.05, 0.0, weights=weights)
+    assert lipm.chain_end_state(durations, out, 0.01, 0.1, w) == pytest.approx((0.05, 0.0), abs=1e-12)
+    matrix = np.array([lipm.chain_end_state(durations, u, 0.0, 0.0, w) for u in unknowns]).T
+    rhs = np.array([0.05, 0.0]) - np.array(lipm.chain_end_state(durations, base, 0.01, 0.1, w))
+    u = (weights**2) * (matrix.T @ np.linalg.solve(matrix * weights**2 @ matrix.T, rhs))
+    found = [out[1][0], out[2][0], out[0][0] - 0.02]
+    np.testing.assert_allclose(found, u, rtol=1e-9, atol=1e-12)
+    assert abs(found[2]) < 0.01 * max(abs(found[0]), abs(found[1]))  # the light-weight unknown barely moves
+
+
+def test_per_tick_evaluation_equals_vectorised_one_everywhere():
+    """``evaluate_at`` (the servo-tick path) against ``evaluate`` and ``zmp_derivatives``: all six
+    outputs, inside every segment, on the breaks (the later segment wins) and outside the chain."""
+    w = lipm.omega(0.814)
+    coeffs = [lipm.pad([0.0]), lipm.transition_coeffs(0.0, 0.1, 0.4, 0.2, -1.0), lipm.pad([0.1])]
+    traj = lipm.LipmTrajectory.from_zmp(1.0, [0.3, 0.4, 0.5], coeffs, 0.02, 0.3, w)
+    times = [0.5, 1.0, 1.1, 1.3, 1.45, 1.7, 1.9, 2.2, 2.5]
+    pos, vel, acc, zmp = traj.evaluate(times)
+    rate, accel = traj.zmp_derivatives(times)
+    for i, t in enumerate(times):
+        np.testing.assert_allclose(traj.evaluate_at(t), [pos[i], vel[i], acc[i], zmp[i], rate[i], accel[i]],
+                                   rtol=1e-12, atol=1e-12, err_msg=str(t))
+    # eq. 4: the COG acceleration is w^2 (x - ZMP)
+    np.testing.assert_allclose(acc, w * w * (pos - zmp), rtol=1e-9, atol=1e-12)
+    step = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.3], [lipm.pad([0.0]), lipm.pad([0.1])], 0.0, 0.0, w)
+    assert step.evaluate([0.3])[3][0] == pytest.approx(0.1) and step.evaluate_at(0.3)[3] == pytest.approx(0.1)
+    assert step.evaluate([-0.1])[3][0] == pytest.approx(0.0) and step.evaluate([0.7])[3][0] == pytest.approx(0.1)
+
+
+def test_poly_eval_past_the_degree_and_chain_bvp_defaults_to_rest():
+    assert lipm.poly_eval([1.0, 2.0], np.array([0.1, 0.2]), 2).tolist() == [0.0, 0.0]
+    w = lipm.omega(0.814)
+    zero, one = lipm.pad([0.0]), lipm.pad([1.0])
+    out = lipm.solve_chain_bvp([0.4, 0.4], [zero, zero], [[one, zero], [zero, one]], 0.0, 0.2, w, 0.05)
+    assert lipm.chain_end_state([0.4, 0.4], out, 0.0, 0.2, w) == pytest.approx((0.05, 0.0), abs=1e-12)

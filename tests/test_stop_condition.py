@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from drake_estop import lipm
-from drake_estop.stop_condition import (StopStart, rest_position, slowdown_time, slowdown_time_grid, target_zmp,
-                                        target_zmp_grid)
+from drake_estop.stop_condition import (StopStart, rest_position, rest_position_grid, slowdown_time,
+                                        slowdown_time_grid, target_zmp, target_zmp_grid)
 
 W = lipm.omega(0.814)
 STARTS = [StopStart.from_state(0.05, 0.4, 0.0, W), StopStart.from_state(0.08, 0.5, 0.02, W, 1.5, -20.0)]
@@ -97,3 +97,19 @@ def test_rest_position_is_where_the_simulated_cog_stops():
     coeffs = [lipm.pad([p0]), lipm.transition_coeffs(p0, y[2], 0.2), lipm.pad([y[2]])]
     traj = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.2, 0.25], coeffs, x0, v0, W)
     assert rest_position(STARTS[0], W, *y)[0] == pytest.approx(traj.evaluate(traj.end_time)[0][0], abs=1e-9)
+    # the vectorised version, over a grid around that point (slowdown given, not eliminated)
+    t1, t2 = np.meshgrid([0.25, 0.3], [0.15, 0.2], indexing="ij")
+    z = target_zmp_grid(STARTS[0], W, t1, t2, 0.25)
+    grid = rest_position_grid(STARTS[0], W, t1, t2, z, 0.25)
+    for idx in np.ndindex(grid.shape):
+        assert grid[idx] == pytest.approx(rest_position(STARTS[0], W, t1[idx], t2[idx], z[idx])[0], rel=1e-9)
+
+
+def test_infeasible_points_give_nan_and_zero_derivatives_of_the_right_shape():
+    """Where no slowdown stops the COG, the slowdown and the rest position are NaN with zero
+    gradients (3,) and Hessians (3, 3) (mutation testing found these shapes unchecked)."""
+    for function in (slowdown_time, rest_position):
+        value, grad, hess = function(STARTS[0], W, 0.3, 0.2, 5.0)
+        assert isinstance(value, float) and np.isnan(value), function
+        assert grad.shape == (3,) and hess.shape == (3, 3), function
+        assert not grad.any() and not hess.any(), function
