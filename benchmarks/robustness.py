@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -62,7 +61,8 @@ def _run(job):
     numbers = result.numbers()
     return {"t": t, "options": job[1], "success": bool(result.success),
             "failed": [k for k, v in result.criteria.items() if not v], "case": result.plan.plans[0].case,
-            "replans": result.online["replans"], "joint_velocity_violations": result.online["joint_velocity_violations"],
+            "replans": result.online["replans"],
+            "joint_velocity_violations": result.online["joint_velocity_violations"],
             "tick_compute": result.online["tick_compute"], "torso_tilt_max": numbers["torso_tilt_max_rad"],
             "final_offset": numbers["final_cog_offset_m"], "realtime_factor": numbers["realtime_factor"],
             "wall": time.perf_counter() - start}

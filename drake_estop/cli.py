@@ -28,7 +28,8 @@ def number(*, low=None, high=None, low_open=False, high_open=False, integer=Fals
         try:
             value = int(text) if integer else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{'a whole number' if integer else 'a number'} is needed, got {text!r}")
+            raise argparse.ArgumentTypeError(
+                f"{'a whole number' if integer else 'a number'} is needed, got {text!r}") from None
         if not math.isfinite(value):
             raise argparse.ArgumentTypeError(f"must be finite, got {text}")
         too_low = low is not None and (value < low or (low_open and value == low))

@@ -221,7 +221,6 @@ def test_sweep_row_and_stop_map(physics_runs, tmp_path):
 def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
     """A physics criterion shown failing: leg servos 100x too weak (300 N m/rad) let the
     standing robot collapse; ``no_fall`` turns False and ``simulate --physics`` exits 1."""
-    from drake_estop import physics
     from drake_estop.cli import main
 
     weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
