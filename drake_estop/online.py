@@ -24,8 +24,13 @@ How the controller balances (and what it does not do):
   DCM, ``x + v / omega``); otherwise the plan starts from the reference the
   robot is tracking. While the measured DCM leaves the plan by more than the
   threshold, the stop is re-planned from the measured state, at most once a
-  tick: a new landing time and step length while the landing can still move
-  (III.A), a new ZMP target over the whole support polygon after it (III.B).
+  tick (50 ms apart): a new landing time and step length while the landing
+  can still move (III.A); after it, past 8 cm (``landed_replan_threshold``),
+  a new ZMP target over the whole support polygon (III.B). The larger
+  threshold once both feet are down keeps the nominal double-support stops
+  from re-planning on the multibody deviation (measured: those re-plans moved
+  the COG beyond the rear leg's reach, straightened its knee at twice its
+  velocity limit and cost two stops of the stride sweep).
   This is where pushes are absorbed: by stepping and by moving the ZMP.
   The command is blended (0.2 s quintic) from the old plan into the new one,
   so the stiff servos see no step.

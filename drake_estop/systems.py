@@ -340,6 +340,8 @@ class StopPlannerSystem(_ReferenceSystem):
         name: StopPlannerSystem
         input_ports:
         - stop
+        - measured_com
+        - measured_com_vel
         output_ports:
         - com
         - com_vel
@@ -351,6 +353,19 @@ class StopPlannerSystem(_ReferenceSystem):
         - phase
         - plan
 
+    ``measured_com`` / ``measured_com_vel`` (3 each, optional: a state
+    estimate). When connected, the planner low-passes them
+    (``filter_time_constant``), learns the servo's steady tracking bias while
+    walking (``bias_time_constant``) and, from the signal on, plans from the
+    measured state where its DCM ``x + v / omega`` has left the reference by
+    more than ``replan_threshold`` (else from the reference). After the
+    signal it re-plans (:func:`drake_estop.planner.replan_stop`, at most once
+    a tick, ``replan_interval`` apart) while the measured DCM leaves the plan
+    by more than ``replan_threshold`` before the landing or
+    ``landed_replan_threshold`` after it; the COG command is blended into a
+    plan made from the measured state over ``blend_time``. :meth:`plans`
+    returns the plan and its re-plans, :meth:`replans` their count.
+
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
     update fails and the Simulator raises with the planner's message.
@@ -358,11 +373,12 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
-                 replan_interval: float = 0.05, timer=None):
+                 replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
-                            ("replan_interval", replan_interval)):
+                            ("replan_interval", replan_interval),
+                            ("landed_replan_threshold", landed_replan_threshold)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         self._pattern = pattern
@@ -370,6 +386,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._replan_threshold = float(replan_threshold)
         self._blend_time = float(blend_time)
         self._replan_interval = float(replan_interval)
+        self._landed_threshold = float(landed_replan_threshold)
         warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
@@ -493,7 +510,9 @@ class StopPlannerSystem(_ReferenceSystem):
         plan = handle.plan
         if t - handle.last_try < self._replan_interval - 1e-9:
             return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
-        if self._deviation(plan, t, measured) <= self._replan_threshold:
+        landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
+        threshold = self._landed_threshold if landed else self._replan_threshold
+        if self._deviation(plan, t, measured) <= threshold:
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:

@@ -239,7 +239,7 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
 
 
 @pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
-                                  "replan_interval"])
+                                  "replan_interval", "landed_replan_threshold"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
 def test_planner_rejects_bad_settings(pattern, params, name, value):
     with pytest.raises(ValueError, match=name):
