@@ -48,14 +48,14 @@ def _run(job):
     from drake_estop.online import run_online
     from drake_estop.perturbations import Perturbations, Push
 
-    t, options = job
+    t, options, planner_options = job
     options = dict(options)
     push = options.pop("push", None)
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
     start = time.perf_counter()
     try:
-        result = run_online(estop_time=t, pattern=NominalPattern(), perturbations=Perturbations(pushes=pushes,
-                                                                                                **options))
+        result = run_online(estop_time=t, pattern=NominalPattern(), planner_options=planner_options,
+                            perturbations=Perturbations(pushes=pushes, **options))
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
     numbers = result.numbers()
@@ -78,6 +78,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(Path(__file__).with_name("ROBUSTNESS.md")))
     parser.add_argument("--quick", action="store_true", help="10 sweep signals and a coarse push search")
+    parser.add_argument("--planner-option", action="append", default=[], metavar="NAME=VALUE",
+                        help="a StopPlannerSystem setting, e.g. landed_replan_threshold=0.065 (repeatable)")
     args = parser.parse_args(argv)
     start, end = _stride()
     every = 0.08 if args.quick else 0.02
@@ -88,13 +90,18 @@ def main(argv=None):
     impulses = [10.0, 20.0, 30.0] if args.quick else [10.0, 15.0, 20.0, 25.0, 30.0, 35.0]
     jobs += [(phase_times[p], {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
              for p in PUSH_PHASES for d in DIRECTIONS.values() for i in impulses]
+    planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
+    jobs = [(t, options, planner_options) for t, options in jobs]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(_run, jobs))
     wall = time.perf_counter() - wall
     data = {"sweep": rows[:len(sweep_times)], "rows": rows, "wall_s": wall, "workers": args.workers}
     Path(args.out).with_suffix(".json").write_text(json.dumps(data, indent=1, default=str))
-    Path(args.out).write_text(report(rows, sweep_times, phase_times, impulses, wall, args.workers))
+    text = report(rows, sweep_times, phase_times, impulses, wall, args.workers)
+    if planner_options:
+        text = text.replace("\n\n", f"\n\nPlanner settings changed from the defaults: {planner_options}.\n\n", 1)
+    Path(args.out).write_text(text)
     print(Path(args.out).read_text())
 
 
