@@ -71,13 +71,13 @@ from drake_estop.physics import (
     JointReference,
     PhysicsParameters,
     _ik,
-    actuated_indices,
+    add_online_loggers,
     add_physics_plant,
+    add_servo_targets,
     analyse,
     snap_time,
 )
 from drake_estop.planner import StopParameters
-from drake_estop.stabilizer import DesiredStateInterpolator
 from drake_estop.systems import add_stop_controller, connect_reference
 from drake_estop.timing import TickTimer
 
@@ -149,21 +149,10 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=WholeBodyIkSolver(kin_plant), timer=timer))
     connect_reference(builder, planner, ik)
-    q_idx, _ = actuated_indices(plant)
-    desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
-        q_indices=q_idx, initial_q=q0, servo_period=dt))
-    builder.Connect(ik.q_port, desired.q_port)
-    builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
-
+    add_servo_targets(builder, plant, instance, ik, q0, dt)
     period = physics.log_period
     loggers = {
-        "state": LogVectorOutput(plant.get_state_output_port(), builder, period),
-        "cop": LogVectorOutput(cop.cop_port, builder, period),
-        "normal_force": LogVectorOutput(cop.normal_force_port, builder, period),
-        "foot_forces": LogVectorOutput(cop.body_normal_forces_port, builder, period),
-        "ik_q": LogVectorOutput(ik.q_port, builder, period),
-        "ik_com_error": LogVectorOutput(ik.com_error_port, builder, period),
-        "ik_foot_error": LogVectorOutput(ik.foot_error_port, builder, period),
+        **add_online_loggers(builder, plant, cop, ik, period),
         "com_est": LogVectorOutput(estimator.com_port, builder, period),
         "com_vel_est": LogVectorOutput(estimator.com_vel_port, builder, period),
     }

@@ -1028,7 +1028,7 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
 
     from drake_estop.diagram import initial_configuration as pattern_initial_configuration
     from drake_estop.ik import WholeBodyIK
-    from drake_estop.stabilizer import CogMeasurement, DcmStabilizer, DesiredStateInterpolator
+    from drake_estop.stabilizer import CogMeasurement, DcmStabilizer
     from drake_estop.systems import add_stop_controller, connect_reference
 
     physics = physics or PhysicsParameters()
@@ -1087,21 +1087,10 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
     # the IK's com input was connected to the planner by connect_reference: rebuild that edge
     builder.Disconnect(planner.com_port, ik.com_port)
     builder.Connect(stab.com_port, ik.com_port)
-    q_idx, _ = actuated_indices(plant)
-    desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
-        q_indices=q_idx, initial_q=q0, servo_period=dt, mode=stabilizer.joint_target_mode))
-    builder.Connect(ik.q_port, desired.q_port)
-    builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
-
+    desired = add_servo_targets(builder, plant, instance, ik, q0, dt, mode=stabilizer.joint_target_mode)
     period = physics.log_period
     loggers = {
-        "state": LogVectorOutput(plant.get_state_output_port(), builder, period),
-        "cop": LogVectorOutput(cop.cop_port, builder, period),
-        "normal_force": LogVectorOutput(cop.normal_force_port, builder, period),
-        "foot_forces": LogVectorOutput(cop.body_normal_forces_port, builder, period),
-        "ik_q": LogVectorOutput(ik.q_port, builder, period),
-        "ik_com_error": LogVectorOutput(ik.com_error_port, builder, period),
-        "ik_foot_error": LogVectorOutput(ik.foot_error_port, builder, period),
+        **add_online_loggers(builder, plant, cop, ik, period),
         "commanded_zmp": LogVectorOutput(stab.commanded_zmp_port, builder, period),
         "com_offset": LogVectorOutput(stab.com_offset_port, builder, period),
         "dcm_error": LogVectorOutput(stab.dcm_error_port, builder, period),
@@ -1113,6 +1102,32 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
                                 measurement=measurement, desired_state=desired, feedforward=feedforward)
     handles.initial_q = q0
     return handles
+
+
+def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mode="interpolate"):
+    """The IK's positions, one solve per servo tick, as the plant's PD ``desired_state`` (a
+    :class:`drake_estop.stabilizer.DesiredStateInterpolator`). Returns that system."""
+    from drake_estop.stabilizer import DesiredStateInterpolator
+
+    q_idx, _ = actuated_indices(plant)
+    desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
+        q_indices=q_idx, initial_q=initial_q, servo_period=servo_period, mode=mode))
+    builder.Connect(ik.q_port, desired.q_port)
+    builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
+    return desired
+
+
+def add_online_loggers(builder, plant, cop, ik, period) -> dict:
+    """Loggers every online physics diagram keeps: plant state, CoP and forces, IK positions and errors."""
+    return {
+        "state": LogVectorOutput(plant.get_state_output_port(), builder, period),
+        "cop": LogVectorOutput(cop.cop_port, builder, period),
+        "normal_force": LogVectorOutput(cop.normal_force_port, builder, period),
+        "foot_forces": LogVectorOutput(cop.body_normal_forces_port, builder, period),
+        "ik_q": LogVectorOutput(ik.q_port, builder, period),
+        "ik_com_error": LogVectorOutput(ik.com_error_port, builder, period),
+        "ik_foot_error": LogVectorOutput(ik.foot_error_port, builder, period),
+    }
 
 
 def _constant(value):

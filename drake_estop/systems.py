@@ -281,25 +281,25 @@ class PlanSequence:
     def _at(self, t):
         return self.plans[self._index(t)]
 
-    def com(self, times):
+    def _stitched(self, method, times):
+        """``plan.method(times)`` of the plan in force at each time, stitched back in time order."""
         times = np.atleast_1d(np.asarray(times, float))
         index = np.searchsorted(self._starts, times + 1e-12, side="right")
-        out = [np.zeros((len(times), 2)) for _ in range(4)]
+        out = None
         for k in np.unique(index):
             mask = index == k
-            for o, v in zip(out, self.plans[k].com(times[mask])):
+            values = getattr(self.plans[k], method)(times[mask])
+            if out is None:
+                out = [np.zeros((len(times),) + np.shape(v)[1:]) for v in values]
+            for o, v in zip(out, values):
                 o[mask] = v
         return tuple(out)
 
+    def com(self, times):
+        return self._stitched("com", times)
+
     def com_height(self, times):
-        times = np.atleast_1d(np.asarray(times, float))
-        index = np.searchsorted(self._starts, times + 1e-12, side="right")
-        out = [np.zeros(len(times)) for _ in range(3)]
-        for k in np.unique(index):
-            mask = index == k
-            for o, v in zip(out, self.plans[k].com_height(times[mask])):
-                o[mask] = v
-        return tuple(out)
+        return self._stitched("com_height", times)
 
     def feet(self, t):
         return self._at(t).feet(t)
