@@ -51,8 +51,6 @@ How the controller balances (and what it does not do):
 
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -75,7 +73,7 @@ from drake_estop.physics import (
     add_physics_plant,
     add_servo_targets,
     analyse,
-    snap_time,
+    run_through_stop,
 )
 from drake_estop.planner import StopParameters
 from drake_estop.systems import add_stop_controller, connect_reference
@@ -210,19 +208,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     handles.plant.SetPositions(plant_context, handles.initial_q)
     apply_model_errors(handles.plant, plant_context, perturbations)
     simulator.Initialize()
-    dt = stop_params.servo_period
+    plan, wall = run_through_stop(simulator, handles.planner, estop_time, stop_params.servo_period, after_halt,
+                                  handles.planner.plans)  # the plan and its re-plans, each from its start
     planner_context = handles.planner.GetMyContextFromRoot(context)
-    start = time.perf_counter()
-    simulator.AdvanceTo(snap_time(estop_time, dt) + 2 * dt)
-    plan = handles.planner.plan(planner_context)
-    if plan is None:
-        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
-    end = 0.0
-    while end < (max(plan.halt_end, plan.signal_time) + after_halt) - 1e-9:  # a re-plan may end later
-        end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
-        simulator.AdvanceTo(end)
-        plan = handles.planner.plans(planner_context)  # the plan and its re-plans, each from its start
-    wall = time.perf_counter() - start
     q_log = handles.loggers["ik_q"].FindLog(context)
     com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
     foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]

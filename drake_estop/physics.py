@@ -1187,21 +1187,34 @@ def run_closed_loop(gait_params: GaitParameters | None = None, stop_params: Stop
     context = simulator.get_mutable_context()
     handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
     simulator.Initialize()
-    dt = stop_params.servo_period
-    planner_context = handles.planner.GetMyContextFromRoot(context)
-    start = time.perf_counter()
-    simulator.AdvanceTo(snap_time(estop_time, dt) + 2 * dt)
-    plan = handles.planner.plan(planner_context)
-    if plan is None:
-        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
-    end = max(plan.halt_end, plan.signal_time) + after_halt
-    end = dt * math.floor(end / dt + 1e-9)
-    simulator.AdvanceTo(end)
-    wall = time.perf_counter() - start
+    plan, wall = run_through_stop(simulator, handles.planner, estop_time, stop_params.servo_period, after_halt,
+                                  handles.planner.plan)
     reference = _closed_loop_reference(handles, context, offline_time)
     result = analyse(handles, context, plan, reference, physics, wall)
     result.closed_loop = _closed_loop_logs(handles, context)
     return result
+
+
+def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, current_plan):
+    """Advance ``simulator`` past the signal's servo tick, then to ``after_halt`` past the halt end of
+    ``current_plan(planner_context)`` (again while a re-plan moves that end later).
+
+    Returns ``(plan, wall seconds)``; raises RuntimeError if no plan was made by the signal.
+    """
+    context = simulator.get_mutable_context()
+    planner_context = planner.GetMyContextFromRoot(context)
+    dt = servo_period
+    start = time.perf_counter()
+    simulator.AdvanceTo(snap_time(estop_time, dt) + 2 * dt)
+    plan = current_plan(planner_context)
+    if plan is None:
+        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
+    end = 0.0
+    while end < max(plan.halt_end, plan.signal_time) + after_halt - 1e-9:
+        end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
+        simulator.AdvanceTo(end)
+        plan = current_plan(planner_context)
+    return plan, time.perf_counter() - start
 
 
 def snap_time(t: float, period: float) -> float:
