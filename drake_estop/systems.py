@@ -319,6 +319,9 @@ class PlanSequence:
     def summary(self) -> dict:
         """The last plan's summary, with the signal of the first and the number of re-plans."""
         summary = self.plans[-1].summary()
+        # a re-plan after the landing starts in double support: the landing is the last plan that made one
+        landed = [p for p in self.plans if p.landing_foot is not None] or self.plans[:1]
+        summary["phase_times"]["landing_end"] = landed[-1].landing_time
         summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
                        first_plan={"case": self.plans[0].case, "step_length": self.plans[0].step_length,
                                    "zmp_max": self.plans[0].zmp_max,

@@ -256,3 +256,16 @@ def test_controller_stop_parameters_keep_the_user_settings():
     assert StopParameters is type(params)
     assert isinstance(params, StopParameters)
     assert params != StopParameters()
+
+
+def test_plan_sequence_summary_keeps_the_landing_and_counts_the_replans(pattern, params):
+    first = plan_stop(pattern, 3.4, params)
+    t = first.landing_time + 0.05
+    pos, vel, _ = _state_at(first, t)
+    second = replan_stop(first, t, pos, 0.8 * vel)  # after the landing: a double-support re-plan
+    summary = PlanSequence([first, second]).summary()
+    assert summary["replans"] == 1
+    assert summary["estop_time"] == first.signal_time
+    assert summary["phase_times"]["landing_end"] == first.landing_time  # not the re-plan's start
+    assert summary["phase_times"]["halt_end"] == second.halt_end
+    assert summary["first_plan"]["step_length"] == first.step_length
