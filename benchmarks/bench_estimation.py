@@ -142,14 +142,28 @@ def walk(variants, duration=3.3):
     q0 = initial_configuration(kin_plant, pattern)
     logs = {}
 
-    class Hook(DiagramBuilder):  # attach the estimators before the lead's diagram is built
+    def attach(builder):  # the estimators, before the closed-loop diagram is built
+        plant = next(s for s in builder.GetSystems() if s.get_name() == "plant")
+        cop = next(s for s in builder.GetSystems() if isinstance(s, physics.CopEstimator))
+        for name, (perturbations, options) in variants.items():
+            est = estimation.add_state_estimation(builder, plant, cop, servo_period=DT, perturbations=perturbations,
+                                                  initial_q=q0, name_prefix=name + "_", **options)
+            logs[name] = (LogVectorOutput(est.com_port, builder, DT), LogVectorOutput(est.com_vel_port, builder, DT))
+
+    handles, context = _walk(pattern, attach, duration)
+    true_com, true_vel = _truth(handles.plant, Perturbations(),
+                                handles.loggers["state"].FindLog(context).data().T)
+    for name, (com_log, vel_log) in logs.items():
+        com, vel = com_log.FindLog(context).data().T, vel_log.FindLog(context).data().T
+        print(f"  walk {name:22s} {_errors(com, vel, true_com, true_vel)}")
+
+
+def _walk(pattern, before_build, duration):
+    """Simulate ``physics.build_closed_loop_diagram`` (no stop) for ``duration`` s, with
+    ``before_build(builder)`` run on its builder just before it is built. Returns (handles, context)."""
+    class Hook(DiagramBuilder):
         def Build(self):
-            plant = next(s for s in self.GetSystems() if s.get_name() == "plant")
-            cop = next(s for s in self.GetSystems() if isinstance(s, physics.CopEstimator))
-            for name, (perturbations, options) in variants.items():
-                est = estimation.add_state_estimation(self, plant, cop, servo_period=DT, perturbations=perturbations,
-                                                      initial_q=q0, name_prefix=name + "_", **options)
-                logs[name] = (LogVectorOutput(est.com_port, self, DT), LogVectorOutput(est.com_vel_port, self, DT))
+            before_build(self)
             return super().Build()
 
     original = physics.DiagramBuilder
@@ -162,11 +176,7 @@ def walk(variants, duration=3.3):
     context = simulator.get_mutable_context()
     handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
     simulator.AdvanceTo(duration)
-    true_com, true_vel = _truth(handles.plant, Perturbations(),
-                                handles.loggers["state"].FindLog(context).data().T)
-    for name, (com_log, vel_log) in logs.items():
-        com, vel = com_log.FindLog(context).data().T, vel_log.FindLog(context).data().T
-        print(f"  walk {name:22s} {_errors(com, vel, true_com, true_vel)}")
+    return handles, context
 
 
 def closed_loop(perturbations_list, duration=3.3):
@@ -179,31 +189,21 @@ def closed_loop(perturbations_list, duration=3.3):
     q0 = initial_configuration(kin_plant, pattern)
 
     def run(perturbations):
-        class Hook(DiagramBuilder):
-            def Build(self):
-                if perturbations is not None:
-                    systems = {system.get_name(): system for system in self.GetSystems()}
-                    plant, cop = systems["plant"], systems["cop_estimator"]
-                    stab, measurement = systems["dcm_stabilizer"], systems["cog_measurement"]
-                    est = estimation.add_state_estimation(self, plant, cop, servo_period=DT,
-                                                          perturbations=perturbations, initial_q=q0)
-                    for old, new, port in ((measurement.com_port, est.com_port, stab.measured_com_port),
-                                           (measurement.com_vel_port, est.com_vel_port, stab.measured_com_vel_port),
-                                           (cop.cop_port, est.sensors.cop_port, stab.measured_cop_port)):
-                        self.Disconnect(old, port)
-                        self.Connect(new, port)
-                return super().Build()
+        def rewire(builder):  # the estimate in place of the true COG and CoP
+            if perturbations is None:
+                return
+            systems = {system.get_name(): system for system in builder.GetSystems()}
+            plant, cop = systems["plant"], systems["cop_estimator"]
+            stab, measurement = systems["dcm_stabilizer"], systems["cog_measurement"]
+            est = estimation.add_state_estimation(builder, plant, cop, servo_period=DT,
+                                                  perturbations=perturbations, initial_q=q0)
+            for old, new, port in ((measurement.com_port, est.com_port, stab.measured_com_port),
+                                   (measurement.com_vel_port, est.com_vel_port, stab.measured_com_vel_port),
+                                   (cop.cop_port, est.sensors.cop_port, stab.measured_cop_port)):
+                builder.Disconnect(old, port)
+                builder.Connect(new, port)
 
-        original = physics.DiagramBuilder
-        physics.DiagramBuilder = Hook
-        try:
-            handles = physics.build_closed_loop_diagram(estop_time=None, pattern=pattern)
-        finally:
-            physics.DiagramBuilder = original
-        simulator = Simulator(handles.diagram)
-        context = simulator.get_mutable_context()
-        handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
-        simulator.AdvanceTo(duration)
+        handles, context = _walk(pattern, rewire, duration)
         states = handles.loggers["state"].FindLog(context).data().T
         return _truth(handles.plant, Perturbations(), states)[0], states[:, 6]
 
