@@ -16,7 +16,9 @@ the robot is not found, 2 when Chromium fails.
 """
 
 import argparse
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -35,20 +37,50 @@ def find_chromium(explicit=None):
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
-def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeout=120):
-    """Run headless Chromium on ``html`` and write ``png``."""
-    with tempfile.TemporaryDirectory(prefix="estop_chromium_") as profile:
-        command = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                   "--no-first-run", "--disable-background-networking",
-                   "--disable-component-update", "--disable-sync", "--use-gl=swiftshader",
-                   "--enable-unsafe-swiftshader", f"--user-data-dir={profile}",
-                   f"--screenshot={Path(png).resolve()}", f"--window-size={size[0]},{size[1]}",
-                   f"--virtual-time-budget={budget_ms}", Path(html).resolve().as_uri()]
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
-    if not Path(png).is_file():
-        raise RuntimeError(f"chromium wrote no screenshot (exit {done.returncode}): "
-                           f"{done.stderr[-2000:]}")
-    return png
+def _run_once(command, png, timeout):
+    """One Chromium run in its own process group; the whole group dies on timeout.
+
+    Headless Chromium sometimes writes the screenshot and then never exits, or
+    hangs before writing it (seen on a fresh CI machine). Killing the group
+    (renderer and GPU children included) keeps the pipes from holding us.
+    """
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True)
+    try:
+        _, stderr = process.communicate(timeout=timeout)
+        return process.returncode, stderr
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        _, stderr = process.communicate()
+        return None, stderr
+
+
+def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeout=60,
+               attempts=3):
+    """Run headless Chromium on ``html`` and write ``png``.
+
+    Up to ``attempts`` runs of at most ``timeout`` seconds each; a screenshot
+    written by a run that then hung is kept. Raises ``RuntimeError`` with
+    Chromium's last stderr when no attempt writes the file.
+    """
+    png = Path(png).resolve()
+    failures = []
+    for _ in range(attempts):
+        png.unlink(missing_ok=True)
+        with tempfile.TemporaryDirectory(prefix="estop_chromium_") as profile:
+            command = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                       "--no-first-run", "--disable-background-networking",
+                       "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
+                       "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
+                       f"--user-data-dir={profile}", f"--screenshot={png}",
+                       f"--window-size={size[0]},{size[1]}",
+                       f"--virtual-time-budget={budget_ms}", Path(html).resolve().as_uri()]
+            returncode, stderr = _run_once(command, png, timeout)
+        if png.is_file() and png.stat().st_size > 0:
+            return png
+        status = "timed out" if returncode is None else f"exit {returncode}"
+        failures.append(f"{status}: {stderr[-1500:]}")
+    raise RuntimeError(f"chromium wrote no screenshot in {attempts} attempts; last: {failures[-1]}")
 
 
 def foreground_stats(png):
@@ -88,7 +120,7 @@ def main(argv=None):
         return 2
     try:
         screenshot(args.html, args.png, chromium=chromium)
-    except (RuntimeError, subprocess.TimeoutExpired) as error:
+    except RuntimeError as error:
         print(f"render_replay: {error}", file=sys.stderr)
         return 2
     share, _ = foreground_stats(args.png)
