@@ -16,7 +16,7 @@ lift-off to the next lift-off) and prints the success share and each failure.
 By default the run combines the online feedback with the OFFLINE
 ZmpPreviewFilter COG feedforward (``run_closed_loop(use_preview_filter=True)``),
 because the feedback alone does not keep the robot up (see
-``drake_estop.stabilizer``); ``--no-preview`` measures the feedback alone.
+``drake_estop.physics.stabilizer``); ``--no-preview`` measures the feedback alone.
 """
 
 import argparse
@@ -25,9 +25,9 @@ import time
 
 import numpy as np
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.physics import StabilizerParameters, run_closed_loop
-from drake_estop.planner import StopParameters
+from drake_estop.physics.plant import StabilizerParameters, run_closed_loop
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
 
 
 def _failed(result):

@@ -48,9 +48,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-from drake_estop import estimation, physics
 from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
-from drake_estop.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors
+from drake_estop.physics import estimation
+from drake_estop.physics import plant as physics
+from drake_estop.physics.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors
 
 DT = 0.005
 
@@ -134,8 +135,8 @@ def standing(perturbations, duration=2.0, pushes=(), **options):
 
 
 def walk(variants, duration=3.3):
-    from drake_estop.diagram import initial_configuration
-    from drake_estop.gait import NominalPattern
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.systems.diagram import initial_configuration
 
     pattern = NominalPattern()
     kin_plant, _, _ = physics._ik()
@@ -181,8 +182,8 @@ def _walk(pattern, before_build, duration):
 
 def closed_loop(perturbations_list, duration=3.3):
     """The walk with the estimate fed back to the DCM stabiliser instead of the true COG and CoP."""
-    from drake_estop.diagram import initial_configuration
-    from drake_estop.gait import NominalPattern
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.systems.diagram import initial_configuration
 
     pattern = NominalPattern()
     kin_plant, _, _ = physics._ik()

@@ -21,8 +21,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 
-from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver, pose_vector
 from drake_estop.model import UPPER_BODY_JOINTS, load_humanoid, nominal_standing_configuration
+from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, pose_vector
 
 PERIOD = 0.005
 

@@ -15,9 +15,9 @@ real-time factor including it, and the success criteria of the run.
 
 import argparse
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.physics import PhysicsParameters, run_physics
-from drake_estop.planner import StopParameters
+from drake_estop.physics.plant import PhysicsParameters, run_physics
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
 
 
 def main():

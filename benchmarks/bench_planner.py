@@ -18,11 +18,11 @@ import platform
 import time
 
 import numpy as np
+from reference import reference_solve
 
-from drake_estop.gait import NominalPattern
-from drake_estop.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
-from drake_estop.reference import reference_solve
-from drake_estop.rollout import stride_ticks
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
+from drake_estop.planning.rollout import stride_ticks
 
 
 def sweep(pattern, params, repeats):
@@ -70,8 +70,8 @@ def main():
     pattern = NominalPattern()
     params = StopParameters()
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
-    from drake_estop import planner
-    print("solver backend: " + ("compiled (numba " + __import__("numba").__version__ + ", drake_estop.fastcore)"
+    from drake_estop.planning import planner
+    print("solver backend: " + ("compiled (numba " + __import__("numba").__version__ + ", planning.fastcore)"
                                 if planner.COMPILED else "pure Python (numba missing or DRAKE_ESTOP_PURE_PYTHON set)"))
     times, plans, compute, solve = sweep(pattern, params, args.repeats)
     iterations = np.array([p.newton_iterations for p in plans])

@@ -27,13 +27,13 @@ import sys
 import time
 from pathlib import Path
 
+import alternatives
 import numpy as np
+from reference import reference_solve
 
-from drake_estop import alternatives
-from drake_estop.gait import NominalPattern
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
-from drake_estop.reference import reference_solve
-from drake_estop.rollout import rollout, stride_ticks
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
+from drake_estop.planning.rollout import rollout, stride_ticks
 
 
 def _progress(iterable, **kwargs):
@@ -108,9 +108,9 @@ def diagram_rtfs(estop_time=3.4):
     """Real-time factors of the kinematic diagram and of the physics diagram on one paper scenario."""
     import warnings
 
-    from drake_estop.diagram import simulate_diagram
-    from drake_estop.gait import GaitParameters
-    from drake_estop.physics import run_physics
+    from drake_estop.physics.plant import run_physics
+    from drake_estop.planning.gait import GaitParameters
+    from drake_estop.systems.diagram import simulate_diagram
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

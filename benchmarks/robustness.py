@@ -44,9 +44,9 @@ PUSH_DURATION = 0.1  # [s]
 
 def _run(job):
     """One online physics stop: ``job`` = (signal time, perturbation keywords). Returns a row."""
-    from drake_estop.gait import NominalPattern
-    from drake_estop.online import run_online
-    from drake_estop.perturbations import Perturbations, Push
+    from drake_estop.physics.online import run_online
+    from drake_estop.physics.perturbations import Perturbations, Push
+    from drake_estop.planning.gait import NominalPattern
 
     t, options, planner_options = job
     options = dict(options)
@@ -69,7 +69,7 @@ def _run(job):
 
 
 def _stride():
-    from drake_estop.gait import NominalPattern
+    from drake_estop.planning.gait import NominalPattern
     return NominalPattern().stride()
 
 

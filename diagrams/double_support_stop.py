@@ -20,10 +20,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-from drake_estop.diagram import simulate_diagram
-from drake_estop.gait import GaitParameters
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import describe, plot_cog_zmp
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import simulate_diagram
+from drake_estop.systems.visualization import describe, plot_cog_zmp
 
 GAIT = GaitParameters(step_length=0.3, step_time=0.8)
 SIGNAL = 3.5

@@ -19,10 +19,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-from drake_estop.diagram import simulate_diagram
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import describe, plot_cog_zmp
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import simulate_diagram
+from drake_estop.systems.visualization import describe, plot_cog_zmp
 
 GAIT = GaitParameters(step_length=0.15, step_time=0.8)
 STOP = StopParameters(a_ss=5.0, b_ss=1000.0, a_ds=50.0, b_ds=1000.0)

@@ -15,10 +15,10 @@ from pathlib import Path
 from pydrake.systems.analysis import Simulator
 from render_replay import find_chromium  # diagrams/render_replay.py (the script folder is on sys.path)
 
-from drake_estop.diagram import build_diagram
-from drake_estop.gait import GaitParameters
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import add_floor, make_meshcat, set_side_camera
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import build_diagram
+from drake_estop.systems.visualization import add_floor, make_meshcat, set_side_camera
 
 
 def main():

@@ -6,10 +6,10 @@ import argparse
 import math
 import sys
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
-from drake_estop.rollout import rollout, stop_metrics, write_log, write_summary
+from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 
 _GAIT = GaitParameters()
 _STOP = StopParameters()
@@ -231,7 +231,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
     """Physics run; returns the plan, per-tick measured columns and the summary entry."""
     columns, online = {}, {}
     if args.controller == "online":
-        from drake_estop.online import controller_stop_parameters, run_online
+        from drake_estop.physics.online import controller_stop_parameters, run_online
 
         result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state)
@@ -241,7 +241,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2]})
     else:
-        from drake_estop.physics import run_physics
+        from drake_estop.physics.plant import run_physics
 
         result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
     columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
@@ -258,8 +258,8 @@ def _run_diagram(args, gait, stop, estop_time):
     """Run the Drake diagram; returns the plan, per-tick IK columns and summary entries."""
     import warnings
 
-    from drake_estop.diagram import simulate_diagram
-    from drake_estop.visualization import make_meshcat
+    from drake_estop.systems.diagram import simulate_diagram
+    from drake_estop.systems.visualization import make_meshcat
 
     meshcat = None
     if args.meshcat:
@@ -298,7 +298,7 @@ def _add_sweep(sub):
 
 
 def _sweep(args) -> int:
-    from drake_estop.physics import CRITERIA, sweep, write_sweep
+    from drake_estop.physics.plant import CRITERIA, sweep, write_sweep
 
     gait, stop = _parameters(args)
     if not (math.isfinite(args.every) and args.every > 0):
@@ -308,7 +308,7 @@ def _sweep(args) -> int:
         raise ValueError(f"every {args.every} s is longer than the stride ({end - start:.3f} s)")
     run = None
     if args.controller == "online":
-        from drake_estop.online import controller_stop_parameters, run_online
+        from drake_estop.physics.online import controller_stop_parameters, run_online
 
         stop, run = controller_stop_parameters(stop), run_online
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,

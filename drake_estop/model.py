@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from pydrake.multibody.parsing import Parser
 
-from drake_estop.gait import Sole
-from drake_estop.lipm import GRAVITY
+from drake_estop.planning.gait import Sole
+from drake_estop.planning.lipm import GRAVITY
 
 MODEL_FILE = "humanoid.urdf"
 
@@ -70,7 +70,7 @@ PELVIS_HEIGHT_AT_ZERO = 0.705
 
 @dataclass(frozen=True)
 class SoleGeometry(Sole):
-    """The model's sole: :class:`drake_estop.gait.Sole` (toe, heel, inner, outer
+    """The model's sole: :class:`drake_estop.planning.gait.Sole` (toe, heel, inner, outer
     around the ankle; the planner's numbers) plus the ankle height and the sole
     thickness. ``inner`` is towards the robot's centre line, ``outer`` away
     from it. All values in metres.
@@ -140,7 +140,7 @@ def load_humanoid(plant, model_path=MODEL_PATH):
 
     Parses with :func:`offline_parser` (no network, whatever
     ``DRAKE_ALLOW_NETWORK`` says) and sets the plant's gravity to
-    :data:`drake_estop.lipm.GRAVITY`, the one value the planner and the
+    :data:`drake_estop.planning.lipm.GRAVITY`, the one value the planner and the
     controllers use (Drake's default is 9.81).  Raises FileNotFoundError or
     ValueError naming the file when the file is missing or cannot be parsed,
     instead of a raw parser traceback.

@@ -1,12 +1,10 @@
 """Shared fixtures: the default gait and the stop plans for every servo tick of one stride."""
 
-import numpy as np
 import pytest
 
-from drake_estop.gait import NominalPattern
-from drake_estop.planner import StopParameters, plan_stop
-from drake_estop.rollout import stride_ticks
-
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import StopParameters, plan_stop
+from drake_estop.planning.rollout import stride_ticks
 
 
 @pytest.fixture(scope="session")

@@ -4,7 +4,7 @@ so size and those words prove nothing)."""
 
 import re
 
-from drake_estop.visualization import html_mentions
+from drake_estop.systems.visualization import html_mentions
 
 ROBOT_LINKS = ("pelvis", "torso", "l_thigh", "r_thigh", "l_shank", "r_shank", "l_foot", "r_foot")
 TRACES = ("estop/nominal/cog", "estop/plan/zmp", "estop/markers/cog", "estop/support")

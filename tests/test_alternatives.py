@@ -1,12 +1,12 @@
 """The comparison methods (issue: benchmarks against the alternatives), smoke-tested on a few instants."""
 
 
+import alternatives
 import numpy as np
 import pytest
 from scripts import load_script
 
-from drake_estop import alternatives
-from drake_estop.planner import StopParameters, plan_stop
+from drake_estop.planning.planner import StopParameters, plan_stop
 
 
 def _compare_module():

@@ -7,7 +7,7 @@ import pytest
 from html_checks import external_fetches, missing_from_replay
 
 from drake_estop.cli import main
-from drake_estop.planner import PHASES
+from drake_estop.planning.planner import PHASES
 
 REQUIRED = ["t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "zmp_x", "zmp_y", "phase"]
 
@@ -161,8 +161,7 @@ def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
 
 
 def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, capsys):
-    from drake_estop import physics
-
+    from drake_estop.physics import plant as physics
     def fake_sweep(gait, stop, **kwargs):
         return [{"signal_time": 3.05, "case": "one-step", "success": True},
                 {"signal_time": 3.25, "case": "one-step", "success": False, "no_fall": False},
@@ -187,8 +186,8 @@ def test_every_gait_and_stop_option_reaches_the_plan(tmp_path):
     same parameters directly, and each option shows where it acts."""
     import numpy as np
 
-    from drake_estop.gait import GaitParameters, NominalPattern
-    from drake_estop.planner import StopParameters, plan_stop
+    from drake_estop.planning.gait import GaitParameters, NominalPattern
+    from drake_estop.planning.planner import StopParameters, plan_stop
 
     log, summary = tmp_path / "log.csv", tmp_path / "s.json"
     args = ["simulate", "--kinematic", "--estop-time", "3.1", "--step-width", "0.22",
@@ -230,8 +229,8 @@ def test_summary_fields_have_their_values(tmp_path):
     upper_body_peak_rad, checked against the log and the plan, single and double support."""
     import numpy as np
 
-    from drake_estop.gait import NominalPattern
-    from drake_estop.planner import plan_stop
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.planning.planner import plan_stop
 
     for estop, support in ((3.4, "single"), (3.5, "double")):
         log, summary = tmp_path / f"log{estop}.csv", tmp_path / f"s{estop}.json"
@@ -287,8 +286,7 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     """``--meshcat --meshcat-port P --button-only --after-halt S``: the port goes to Meshcat, no
     scheduled stop goes to the diagram (only the button stops), the log span goes along.
     The diagram is replaced by a stand-in (a live run walks in real time)."""
-    from drake_estop import diagram, visualization
-
+    from drake_estop.systems import diagram, visualization
     seen = {}
 
     class FakeMeshcat:

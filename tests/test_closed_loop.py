@@ -3,16 +3,16 @@
 What runs here is the DCM feedback COMBINED WITH the OFFLINE ZmpPreviewFilter
 COG feedforward (``run_closed_loop(use_preview_filter=True)``). The feedback
 alone (``use_preview_filter=False``) does not pass these scenarios: the robot
-falls in both (see drake_estop.stabilizer, gain choice), so there is no test
+falls in both (see drake_estop.physics.stabilizer, gain choice), so there is no test
 for it.
 """
 
 import numpy as np
 import pytest
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.physics import CRITERIA, PhysicsParameters, run_closed_loop
-from drake_estop.planner import StopParameters
+from drake_estop.physics.plant import CRITERIA, PhysicsParameters, run_closed_loop
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
 
 SCENARIOS = (3.4, 3.5)
 

@@ -10,14 +10,13 @@ import warnings
 
 import numpy as np
 import pytest
-
-from drake_estop.diagram import (IK_COM_BOUND, IK_FOOT_BOUND, IK_FOOT_ROT_BOUND,
-                                 simulate_diagram)
-from drake_estop.gait import GaitParameters
-from drake_estop.model import ALL_JOINTS
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import html_mentions, make_meshcat
 from html_checks import ROBOT_LINKS, external_fetches, missing_from_replay
+
+from drake_estop.model import ALL_JOINTS
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND, IK_FOOT_ROT_BOUND, simulate_diagram
+from drake_estop.systems.visualization import html_mentions, make_meshcat
 
 
 def _simulate(tmp_path_factory, signal, stop_params):

@@ -9,7 +9,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-from drake_estop.estimation import (
+from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
+from drake_estop.physics.estimation import (
     ACCELEROMETER_NOISE,
     ENCODER_NOISE,
     GYRO_NOISE,
@@ -20,9 +21,8 @@ from drake_estop.estimation import (
     add_state_estimation,
     noise_sample,
 )
-from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
-from drake_estop.perturbations import Perturbations, Push, add_pelvis_push
-from drake_estop.physics import CopEstimator, PhysicsParameters, actuated_indices, add_physics_plant
+from drake_estop.physics.perturbations import Perturbations, Push, add_pelvis_push
+from drake_estop.physics.plant import CopEstimator, PhysicsParameters, actuated_indices, add_physics_plant
 
 DT = 0.005
 G = 9.81

@@ -1,4 +1,4 @@
-"""The compiled solver core (drake_estop.fastcore) against the pure-Python reference path."""
+"""The compiled solver core (drake_estop.planning.fastcore) against the pure-Python reference path."""
 
 import math
 
@@ -7,10 +7,10 @@ import pytest
 
 pytest.importorskip("numba")
 
-from drake_estop import fastcore, planner  # noqa: E402
-from drake_estop.gait import GaitParameters, NominalPattern  # noqa: E402
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem  # noqa: E402
-from drake_estop.rollout import stride_ticks  # noqa: E402
+from drake_estop.planning import fastcore, planner
+from drake_estop.planning.gait import GaitParameters, NominalPattern  # noqa: E402
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem  # noqa: E402
+from drake_estop.planning.rollout import stride_ticks  # noqa: E402
 
 REL = 1e-9
 

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from checks import lipm_tracking_error
 
-from drake_estop.checks import lipm_tracking_error
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.geometry import SupportPolygon
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.geometry import SupportPolygon
 
 
 def test_pattern_satisfies_lipm_by_independent_integration(pattern):

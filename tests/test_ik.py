@@ -1,4 +1,4 @@
-"""Tests of drake_estop.ik (pure solver and LeafSystem)."""
+"""Tests of drake_estop.systems.ik (pure solver and LeafSystem)."""
 
 import math
 
@@ -7,15 +7,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydrake.common.eigen_geometry import Quaternion
-from pydrake.math import RigidTransform, RotationMatrix, RollPitchYaw
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 
-from drake_estop.ik import (WholeBodyIK, WholeBodyIkSolver, pose_vector,
-                            rotation_exp, rotation_log)
-from drake_estop.model import (ALL_JOINTS, UPPER_BODY_JOINTS,
-                               joint_position_indices, load_humanoid,
-                               nominal_standing_configuration)
+from drake_estop.model import (
+    ALL_JOINTS,
+    UPPER_BODY_JOINTS,
+    joint_position_indices,
+    load_humanoid,
+    nominal_standing_configuration,
+)
+from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, pose_vector, rotation_exp, rotation_log
 
 PERIOD = 0.005
 

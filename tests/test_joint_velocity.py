@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scripts import load_script
 
-from drake_estop.planner import StopParameters, descent_time, landing_swing
+from drake_estop.planning.planner import StopParameters, descent_time, landing_swing
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from drake_estop import lipm
+from drake_estop.planning import lipm
 
 W = lipm.omega(0.814)
 

@@ -8,10 +8,10 @@ Meshcat tests do) as the msgpack message a browser sends for a button press.
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from drake_estop.diagram import build_diagram
-from drake_estop.gait import GaitParameters
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import make_meshcat
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import build_diagram
+from drake_estop.systems.visualization import make_meshcat
 
 
 def _msgpack_str(text: str) -> bytes:

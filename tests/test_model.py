@@ -9,11 +9,19 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
 from pydrake.multibody.tree import BodyIndex, RevoluteJoint
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_estop.model import (ALL_JOINTS, LEFT_LEG_JOINTS, LEG_JOINTS,
-                               MODEL_PATH, RIGHT_LEG_JOINTS, SOLE,
-                               UPPER_BODY_JOINTS, WALKING_COM_HEIGHT,
-                               joint_position_indices, load_humanoid,
-                               nominal_standing_configuration)
+from drake_estop.model import (
+    ALL_JOINTS,
+    LEFT_LEG_JOINTS,
+    LEG_JOINTS,
+    MODEL_PATH,
+    RIGHT_LEG_JOINTS,
+    SOLE,
+    UPPER_BODY_JOINTS,
+    WALKING_COM_HEIGHT,
+    joint_position_indices,
+    load_humanoid,
+    nominal_standing_configuration,
+)
 
 EXPECTED_LEG = ["hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch",
                 "ankle_roll"]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from drake_estop.newton import barrier_newton
+from drake_estop.planning.newton import barrier_newton
 
 
 def _quadratic_with_bound(x):

@@ -5,11 +5,16 @@ import json
 import numpy as np
 import pytest
 
-from drake_estop import physics
 from drake_estop.cli import main
-from drake_estop.gait import NominalPattern
-from drake_estop.online import build_online_diagram, controller_stop_parameters, joint_velocity_violations, run_online
-from drake_estop.perturbations import Perturbations, Push
+from drake_estop.physics import plant as physics
+from drake_estop.physics.online import (
+    build_online_diagram,
+    controller_stop_parameters,
+    joint_velocity_violations,
+    run_online,
+)
+from drake_estop.physics.perturbations import Perturbations, Push
+from drake_estop.planning.gait import NominalPattern
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +143,7 @@ def test_perturbations_need_physics(capsys):
 def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_path, args, field, value):
     """Every option lands in the Perturbations the online run is given (the modules' own tests show
     each one acting on the plant, the sensors and the push input)."""
-    import drake_estop.online as online
+    import drake_estop.physics.online as online
 
     seen = {}
 

@@ -18,8 +18,8 @@ import pytest
 from pydrake.multibody.plant import MultibodyPlant
 
 import drake_estop
-from drake_estop.lipm import GRAVITY
 from drake_estop.model import MODEL_PATH, load_humanoid, offline_parser
+from drake_estop.planning.lipm import GRAVITY
 
 ROOT = Path(drake_estop.__file__).resolve().parents[1]
 OFFLINE = "meshcat"

@@ -9,7 +9,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_estop.model import FLOATING_BASE, TORSO
-from drake_estop.perturbations import (
+from drake_estop.physics.perturbations import (
     SOLE_MU_DYNAMIC,
     SOLE_MU_STATIC,
     PelvisPush,
@@ -21,7 +21,7 @@ from drake_estop.perturbations import (
     ground_friction,
     perturbations_from_args,
 )
-from drake_estop.physics import PhysicsParameters, actuated_indices, add_physics_plant
+from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant
 
 
 def _parse(*argv):

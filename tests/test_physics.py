@@ -6,20 +6,34 @@ import math
 
 import numpy as np
 import pytest
-from pydrake.geometry import (AddCompliantHydroelasticProperties, AddContactMaterial,
-                              AddRigidHydroelasticProperties, Box, HalfSpace, ProximityProperties, Sphere)
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Box,
+    HalfSpace,
+    ProximityProperties,
+    Sphere,
+)
 from pydrake.math import RigidTransform
-from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, ContactModel, CoulombFriction,
-                                     MultibodyPlant)
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, ContactModel, CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia, UnitInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_estop.gait import GaitParameters, NominalPattern
 from drake_estop.model import load_humanoid
-from drake_estop.physics import (CRITERIA, CopEstimator, PhysicsParameters, ZmpPreviewFilter,
-                                 multibody_zmp, run_physics, sweep_row, write_sweep)
-from drake_estop.planner import StopParameters
+from drake_estop.physics.plant import (
+    CRITERIA,
+    CopEstimator,
+    PhysicsParameters,
+    ZmpPreviewFilter,
+    multibody_zmp,
+    run_physics,
+    sweep_row,
+    write_sweep,
+)
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
 
 GRAVITY = 9.81
 BOX_MASS = 4.0
@@ -225,8 +239,7 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
 
     weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
                                          for key, kp in PhysicsParameters().gains))
-    from drake_estop import online
-
+    from drake_estop.physics import online
     original = online.run_online  # the default controller of simulate --physics
     monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, physics=weak, **kwargs))
     summary = tmp_path / "s.json"

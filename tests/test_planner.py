@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
+from checks import lipm_tracking_error
+from reference import reference_solve
 
-from drake_estop.checks import lipm_tracking_error
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
-from drake_estop.reference import reference_solve
-from drake_estop.rollout import rollout
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
+from drake_estop.planning.rollout import rollout
 
 
 def _ticks(plan, start, end):
@@ -102,7 +102,7 @@ def test_one_step_wherever_feasible(stride_plans, pattern, params):
 
 
 def test_newton_matches_generic_solver(pattern, params):
-    from drake_estop.planner import solve_continuous
+    from drake_estop.planning.planner import solve_continuous
 
     start, end = pattern.stride()
     compared = 0
@@ -244,7 +244,7 @@ def test_problem_evaluate_derivatives_match_finite_differences(pattern, fraction
     """Cost and every constraint of the Newton problem (bounds, slowdown limits, swing speed, fore
     and rear reach): analytic gradients against central differences of the values, analytic
     Hessians against central differences of the gradients."""
-    from drake_estop.planner import solve_continuous
+    from drake_estop.planning.planner import solve_continuous
 
     params = StopParameters(landing_zmp_offset=offset)
     start, end = pattern.stride()

@@ -13,8 +13,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.planner import StopParameters, plan_stop
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters, plan_stop
 
 gaits = st.builds(
     GaitParameters,

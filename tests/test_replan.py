@@ -6,8 +6,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
-from drake_estop.systems import PlanSequence, StopPlannerSystem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
 
 DT = 0.005
 
@@ -202,7 +202,7 @@ def test_planner_plans_from_the_measured_state_after_a_push_and_blends_the_comma
 
 
 def test_blend_starts_at_the_old_command_and_ends_on_the_plan_at_rest():
-    from drake_estop.systems import _SLICES, REFERENCE_SIZE
+    from drake_estop.systems.stop_controller import _SLICES, REFERENCE_SIZE
     reference = np.zeros(REFERENCE_SIZE)
     dp, dv, duration = np.array([0.02, -0.01]), np.array([0.1, 0.05]), 0.2
     blend = (1.0, dp, dv, duration)
@@ -247,7 +247,7 @@ def test_planner_rejects_bad_settings(pattern, params, name, value):
 
 
 def test_controller_stop_parameters_keep_the_user_settings():
-    from drake_estop.online import controller_stop_parameters
+    from drake_estop.physics.online import controller_stop_parameters
     params = controller_stop_parameters(StopParameters(a_ss=7.0, zmp_margin=0.05))
     assert params.a_ss == 7.0
     assert params.zmp_margin == 0.05  # a larger margin than the controller's is kept

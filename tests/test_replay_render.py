@@ -9,10 +9,10 @@ import warnings
 import pytest
 from scripts import load_script
 
-from drake_estop.diagram import simulate_diagram
-from drake_estop.gait import GaitParameters
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import add_floor, make_meshcat, write_replay
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.diagram import simulate_diagram
+from drake_estop.systems.visualization import add_floor, make_meshcat, write_replay
 
 
 def _renderer():

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from drake_estop.cli import main
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
-from drake_estop.rollout import stride_ticks
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
+from drake_estop.planning.rollout import stride_ticks
 
 PARAMS = StopParameters()
 
@@ -42,8 +42,7 @@ def test_zmp_margin_and_rest_between_the_feet(short_stride):
 def test_plans_as_fast_as_walking_ones(short_stride, stride_plans):
     """Compiled solver (the default): the lateral re-solves keep the median plan within 3x a
     walking one (measured 1.0-1.1 ms vs 0.65-0.8 ms; pure Python 5-9 ms vs 2.2 ms)."""
-    from drake_estop import planner
-
+    from drake_estop.planning import planner
     if not planner.COMPILED:
         pytest.skip("timing compared on the compiled solver only")
     _, plans = short_stride
@@ -67,7 +66,7 @@ def test_infeasible_stop_names_the_limit():
     pattern = NominalPattern()
     state = pattern.state(3.25)
     problem, kind, _ = stop_problem(pattern, state, StopParameters(max_swing_speed=0.3))
-    from drake_estop.planner import _solve
+    from drake_estop.planning.planner import _solve
 
     with pytest.raises(InfeasibleStop, match="max_swing_speed"):
         _solve(problem, kind)

@@ -7,11 +7,16 @@ import pytest
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 
-from drake_estop.gait import Sole
-from drake_estop.lipm import GRAVITY
 from drake_estop.model import load_humanoid, nominal_standing_configuration
-from drake_estop.stabilizer import (CogMeasurement, DcmStabilizer, DesiredStateInterpolator,
-                                    saturation_scale, support_corners)
+from drake_estop.physics.stabilizer import (
+    CogMeasurement,
+    DcmStabilizer,
+    DesiredStateInterpolator,
+    saturation_scale,
+    support_corners,
+)
+from drake_estop.planning.gait import Sole
+from drake_estop.planning.lipm import GRAVITY
 
 G = GRAVITY
 Z = 0.8

@@ -3,9 +3,16 @@
 import numpy as np
 import pytest
 
-from drake_estop import lipm
-from drake_estop.stop_condition import (StopStart, rest_position, rest_position_grid, slowdown_time,
-                                        slowdown_time_grid, target_zmp, target_zmp_grid)
+from drake_estop.planning import lipm
+from drake_estop.planning.stop_condition import (
+    StopStart,
+    rest_position,
+    rest_position_grid,
+    slowdown_time,
+    slowdown_time_grid,
+    target_zmp,
+    target_zmp_grid,
+)
 
 W = lipm.omega(0.814)
 STARTS = [StopStart.from_state(0.05, 0.4, 0.0, W), StopStart.from_state(0.08, 0.5, 0.02, W, 1.5, -20.0)]

@@ -1,15 +1,19 @@
-"""Each LeafSystem of drake_estop.systems in isolation, Drake style."""
+"""Each LeafSystem of drake_estop.systems.stop_controller in isolation, Drake style."""
 
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planner import PHASES, StopParameters, plan_stop
-from drake_estop.systems import (EStopTrigger, StopPlannerSystem, WalkingPatternSource,
-                                 add_stop_controller)
+from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
+from drake_estop.planning.planner import PHASES, StopParameters, plan_stop
+from drake_estop.systems.stop_controller import (
+    EStopTrigger,
+    StopPlannerSystem,
+    WalkingPatternSource,
+    add_stop_controller,
+)
 
 DT = 0.005
 
@@ -131,7 +135,7 @@ def test_trigger_ignores_clicks_before_initialization():
 
 
 def test_trigger_with_real_meshcat_adds_button():
-    from drake_estop.visualization import make_meshcat
+    from drake_estop.systems.visualization import make_meshcat
     meshcat = make_meshcat()
     EStopTrigger(servo_period=DT, meshcat=meshcat)
     assert "Emergency stop" in meshcat.GetButtonNames()
@@ -246,9 +250,9 @@ def test_planner_system_loads_the_solver_before_the_stop():
 
     code = (
         "import time\n"
-        "from drake_estop.gait import NominalPattern\n"
-        "from drake_estop.planner import StopParameters, plan_stop\n"
-        "from drake_estop.systems import StopPlannerSystem\n"
+        "from drake_estop.planning.gait import NominalPattern\n"
+        "from drake_estop.planning.planner import StopParameters, plan_stop\n"
+        "from drake_estop.systems.stop_controller import StopPlannerSystem\n"
         "pattern = NominalPattern()\n"
         "StopPlannerSystem(pattern=pattern, params=StopParameters())\n"
         "start = time.perf_counter()\n"

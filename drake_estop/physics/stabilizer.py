@@ -37,7 +37,7 @@ With perfect servo tracking (measured = commanded COG) the offset obeys
 poles at ``-omega`` and ``-k_dcm``, stable for every ``k_dcm > 0``.
 
 Gain choice (defaults, measured on the closed-loop physics diagram of
-:func:`drake_estop.physics.run_closed_loop`, see the report there):
+:func:`drake_estop.physics.plant.run_closed_loop`, see the report there):
 ``k_dcm = 0.5 1/s`` with the DCM error low-passed at
 ``dcm_filter_time_constant = 0.1 s``, ``k_model = 0``. With perfect servo
 tracking any ``k_dcm > 0`` is stable, but on the simulated robot:
@@ -70,9 +70,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.gait import Sole
+from drake_estop.planning.gait import Sole
+from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 
-from drake_estop.lipm import GRAVITY  # the one gravity value
 SIDES = ("left", "right")
 _LIFT_ON_GROUND = 1e-9
 
@@ -172,7 +172,7 @@ def support_corners(left_foot, right_foot, sole: Sole):
 
 def _half_planes(corners):
     """Outward unit normals (m, 2) and offsets (m,) of the convex hull of ``corners``."""
-    from drake_estop.geometry import convex_hull
+    from drake_estop.planning.geometry import convex_hull
     v = convex_hull(corners)
     edges = np.roll(v, -1, axis=0) - v
     normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
@@ -228,12 +228,12 @@ class DcmStabilizer(LeafSystem):
 
     Ports (world frame, SI):
       - ``planned_com`` (3), ``planned_com_vel`` (3), ``planned_zmp`` (2):
-        the reference (e.g. :class:`drake_estop.systems.StopPlannerSystem`).
+        the reference (e.g. :class:`drake_estop.systems.stop_controller.StopPlannerSystem`).
       - ``measured_com`` (3), ``measured_com_vel`` (3): e.g.
         :class:`CogMeasurement` of the plant state.
       - ``measured_cop`` (2): centre of pressure (NaN while airborne: the
         model-error estimate then holds), e.g.
-        :class:`drake_estop.physics.CopEstimator`.
+        :class:`drake_estop.physics.plant.CopEstimator`.
       - ``left_foot`` / ``right_foot`` (7): planned sole poses
         ``[x, y, lift, qw, qx, qy, qz]``; the feet with zero lift span the
         support polygon used for the saturation.
@@ -396,7 +396,7 @@ class DesiredStateInterpolator(LeafSystem):
         - desired_state
 
     ``q`` (nq) is read with direct feedthrough (connect a discrete source
-    such as :class:`drake_estop.ik.WholeBodyIK`, whose value changes only at
+    such as :class:`drake_estop.systems.ik.WholeBodyIK`, whose value changes only at
     the servo ticks). The state holds the previous tick's actuated positions
     and the tick time ``t_k``; with ``v_k = (q_k - q_{k-1}) / period``:
 
@@ -406,7 +406,7 @@ class DesiredStateInterpolator(LeafSystem):
       it overshoots when the reference decelerates (measured: a swing foot
       struck the floor 6 mm early and the robot bounced off the ground).
     ``q_indices`` / ``v_indices`` select the actuated joints (desired_state
-    layout, e.g. :func:`drake_estop.physics.actuated_indices`).
+    layout, e.g. :func:`drake_estop.physics.plant.actuated_indices`).
     """
 
     def __init__(self, *, q_indices, initial_q, servo_period=0.005, mode="interpolate"):

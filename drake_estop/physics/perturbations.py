@@ -2,7 +2,7 @@
 
 The controller keeps the nominal model; everything here changes the physics
 plant (its Context parameters, the ground friction, an external force) or
-the sensors (:mod:`drake_estop.estimation`: noise and latency).
+the sensors (:mod:`drake_estop.physics.estimation`: noise and latency).
 
 * :class:`Push` / :class:`Perturbations`: the settings, validated on
   construction; every ``ValueError`` names the command-line option
@@ -240,7 +240,7 @@ def ground_friction(perturbations: Perturbations, physics_params):
     ``mu = 2 mu_ground mu_sole / (mu_ground + mu_sole)``
     (``CalcContactFrictionFromSurfaceProperties``), and the soles carry
     their own 1.0 static / 0.8 dynamic in the model file. The discrete SAP
-    solver (``kLagged``, :func:`drake_estop.physics.add_physics_plant`)
+    solver (``kLagged``, :func:`drake_estop.physics.plant.add_physics_plant`)
     uses only the *dynamic* coefficient (it has no stiction). So the
     ground's dynamic coefficient is solved for an effective dynamic
     coefficient of exactly MU against the sole's 0.8 (possible for

@@ -5,7 +5,7 @@ starts from the nominal pattern's state at the servo tick of the signal and
 brings the COG to rest, exactly, at the midpoint between the feet:
 
 * single support (III.A): landing time, transition end and slowdown end from
-  J_ss (eq. 24) by a barrier Newton method (eq. 25-26, :mod:`drake_estop.newton`);
+  J_ss (eq. 24) by a barrier Newton method (eq. 25-26, :mod:`drake_estop.planning.newton`);
   the step length from the stop condition (eq. 22);
 * double support (III.B): transition end and slowdown end from J_ds (eq. 30-31);
   ZMP_max from the stop condition (eq. 29);
@@ -34,21 +34,29 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drake_estop import lipm
-from drake_estop.gait import ARM_NEUTRAL, NominalPattern, PatternState, swing_foot
-from drake_estop.geometry import SupportPolygon
-from drake_estop.newton import barrier_newton
-from drake_estop.stop_condition import (StopStart, _rest_from_grid_terms, _slowdown_from_grid_terms,
-                                        _target_from_grid_terms, _terms_grid, slowdown_time, slowdown_time_grid,
-                                        stop_point, target_zmp)
+from drake_estop.planning import lipm
+from drake_estop.planning.gait import ARM_NEUTRAL, NominalPattern, PatternState
+from drake_estop.planning.geometry import SupportPolygon
+from drake_estop.planning.newton import barrier_newton
+from drake_estop.planning.stop_condition import (
+    StopStart,
+    _rest_from_grid_terms,
+    _slowdown_from_grid_terms,
+    _target_from_grid_terms,
+    _terms_grid,
+    slowdown_time,
+    slowdown_time_grid,
+    stop_point,
+    target_zmp,
+)
 
 try:  # compiled solver core (numba); the pure-Python path below stays the reference
-    from drake_estop import fastcore as _fastcore
+    from drake_estop.planning import fastcore as _fastcore
 except ImportError:  # numba missing or broken: pure Python
     _fastcore = None
 
 COMPILED = _fastcore is not None and not os.environ.get("DRAKE_ESTOP_PURE_PYTHON")
-"""Use :mod:`drake_estop.fastcore` for grid start, Newton and quantisation (same
+"""Use :mod:`drake_estop.planning.fastcore` for grid start, Newton and quantisation (same
 algorithm, results equal to rounding). Off without numba or with the environment
 variable ``DRAKE_ESTOP_PURE_PYTHON`` set; tests flip it to compare the paths."""
 
@@ -773,7 +781,7 @@ def solve_continuous(problem, kind):
 
 
 def _compiled_args(problem, kind):
-    """Problem vector and grid axes for :mod:`drake_estop.fastcore`."""
+    """Problem vector and grid axes for :mod:`drake_estop.planning.fastcore`."""
     bounds = problem.bounds()
     t1, t2 = _grid_axes(kind, tuple(tuple(row) for row in bounds[:2].tolist()))
     return _fastcore.pack(problem, kind), t1.ravel(), t2.ravel(), _TARGET_SAMPLES

@@ -25,10 +25,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from drake_estop.gait import NominalPattern
-from drake_estop.geometry import SupportPolygon
-from drake_estop.lipm import GRAVITY
-from drake_estop.planner import StopParameters, plan_stop, snap_to_tick
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.geometry import SupportPolygon
+from drake_estop.planning.lipm import GRAVITY
+from drake_estop.planning.planner import StopParameters, plan_stop, snap_to_tick
 
 
 def finish_the_step(pattern: NominalPattern, signal_time: float, params: StopParameters):

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drake_estop import lipm
+from drake_estop.planning import lipm
 
 _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(20)
 _S = 0.5 * (_NODES + 1.0)

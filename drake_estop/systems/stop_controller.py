@@ -1,13 +1,13 @@
 """Drake LeafSystems of the emergency stop: pattern source, trigger, planner.
 
 * :class:`WalkingPatternSource` plays the nominal walking pattern
-  (:class:`drake_estop.gait.NominalPattern`) at the context time.
+  (:class:`drake_estop.planning.gait.NominalPattern`) at the context time.
 * :class:`EStopTrigger` latches the stop signal once, from a scheduled time,
   an input port or a Meshcat button (the "emergency stop" a person presses).
 * :class:`StopPlannerSystem` plays the nominal pattern until it sees the latch,
-  then calls :func:`drake_estop.planner.plan_stop` once (Fig. 7 of the paper:
+  then calls :func:`drake_estop.planning.planner.plan_stop` once (Fig. 7 of the paper:
   the four-phase stop is planned in real time at the servo tick of the
-  signal) and keeps the :class:`~drake_estop.planner.StopPlan` in an abstract
+  signal) and keeps the :class:`~drake_estop.planning.planner.StopPlan` in an abstract
   state of its Context; from then on it plays the plan.
 
 Reference layout shared by the two reference sources (all world frame, SI):
@@ -15,7 +15,7 @@ Reference layout shared by the two reference sources (all world frame, SI):
 ``left_foot`` / ``right_foot`` (7) sole-frame pose ``[x, y, z, qw, qx, qy,
 qz]`` -- the sole frame lies directly below the ankle, so its xy is the ankle
 xy and its z is the ankle *lift* (the sole is on the floor at z = 0), which is
-what :class:`drake_estop.ik.WholeBodyIK` expects; ``upper_body`` (18) joint
+what :class:`drake_estop.systems.ik.WholeBodyIK` expects; ``upper_body`` (18) joint
 targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
 ``ARM_JOINTS`` written in, every other upper-body joint at 0); ``arm_joints``
 (4) the same arm angles in ``ARM_JOINTS`` order.
@@ -30,9 +30,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.gait import ARM_JOINTS, NominalPattern
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
+from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
+from drake_estop.planning.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
 from drake_estop.timing import timed
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
@@ -259,8 +259,8 @@ class _PlanHandle:
 class PlanSequence:
     """A stop plan and its re-plans, evaluated as one plan: each in force from its start time.
 
-    Offers what :func:`drake_estop.physics.analyse` reads of a
-    :class:`drake_estop.planner.StopPlan` (``com``, ``com_height``,
+    Offers what :func:`drake_estop.physics.plant.analyse` reads of a
+    :class:`drake_estop.planning.planner.StopPlan` (``com``, ``com_height``,
     ``feet``, ``support_sides``, ``phase``; the last plan's end state).
     """
 
@@ -362,7 +362,7 @@ class StopPlannerSystem(_ReferenceSystem):
     walking (``bias_time_constant``) and, from the signal on, plans from the
     measured state where its DCM ``x + v / omega`` has left the reference by
     more than ``replan_threshold`` (else from the reference). After the
-    signal it re-plans (:func:`drake_estop.planner.replan_stop`, at most once
+    signal it re-plans (:func:`drake_estop.planning.planner.replan_stop`, at most once
     a tick, ``replan_interval`` apart) while the measured DCM leaves the plan
     by more than ``replan_threshold`` before the landing or
     ``landed_replan_threshold`` after it; the COG command is blended into a

@@ -1,8 +1,8 @@
 """Closed-loop physics of the emergency stop: the humanoid with contact on Drake.
 
-The kinematic reference of a stop (:func:`drake_estop.rollout.rollout`, one row
+The kinematic reference of a stop (:func:`drake_estop.planning.rollout.rollout`, one row
 per 5 ms servo tick) is turned into joint angles by the whole-body IK
-(:class:`drake_estop.ik.WholeBodyIkSolver`: COG xyz, both sole poses, the arm
+(:class:`drake_estop.systems.ik.WholeBodyIkSolver`: COG xyz, both sole poses, the arm
 joints), once per run, before the simulation. The joint reference
 ``[q_ref, v_ref]`` of the 30 actuated joints is a first-order-hold
 ``PiecewisePolynomial`` through the ticks (``v_ref`` by central differences of
@@ -53,26 +53,45 @@ from pathlib import Path
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (AddContactMaterial, AddRigidHydroelasticProperties, CollisionFilterDeclaration,
-                              GeometrySet, HalfSpace, ProximityProperties, Role)
+from pydrake.geometry import (
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    CollisionFilterDeclaration,
+    GeometrySet,
+    HalfSpace,
+    ProximityProperties,
+    Role,
+)
 from pydrake.math import RigidTransform
-from pydrake.multibody.plant import (AddMultibodyPlantSceneGraph, ContactModel, ContactResults,
-                                     CoulombFriction, DiscreteContactApproximation)
+from pydrake.multibody.plant import (
+    AddMultibodyPlantSceneGraph,
+    ContactModel,
+    ContactResults,
+    CoulombFriction,
+    DiscreteContactApproximation,
+)
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem, ValueProducer
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_estop.gait import ARM_JOINTS, GaitParameters, NominalPattern
-from drake_estop.geometry import SupportPolygon
-from drake_estop.ik import WholeBodyIkSolver
-from drake_estop.model import (FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, TORSO, UPPER_BODY_JOINTS,
-                               load_humanoid, nominal_standing_configuration)
-from drake_estop.planner import StopParameters, StopPlan, plan_stop
-from drake_estop.rollout import Rollout, rollout
+from drake_estop.model import (
+    FLOATING_BASE,
+    LEFT_SOLE,
+    RIGHT_SOLE,
+    TORSO,
+    UPPER_BODY_JOINTS,
+    load_humanoid,
+    nominal_standing_configuration,
+)
+from drake_estop.planning.gait import ARM_JOINTS, GaitParameters, NominalPattern
+from drake_estop.planning.geometry import SupportPolygon
+from drake_estop.planning.lipm import GRAVITY  # the one gravity value
+from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
+from drake_estop.planning.rollout import Rollout, rollout
+from drake_estop.systems.ik import WholeBodyIkSolver
 
-from drake_estop.lipm import GRAVITY  # the one gravity value
 SIDES = ("left", "right")
 _SOLE_FRAMES = {"left": LEFT_SOLE, "right": RIGHT_SOLE}
 _LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
@@ -806,7 +825,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
     planned_support = [_planned_support(plan, float(t)) for t in times]
     margin_plan = np.full(n, np.nan)
     margin_meas = np.full(n, np.nan)
-    for i, t in enumerate(times):
+    for i in range(n):
         if not np.all(np.isfinite(cop[i])):
             continue
         touching = [s for s in SIDES if in_contact[s][i]]
@@ -890,7 +909,7 @@ def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters
     ``run`` (default :func:`run_physics`, the offline-filter reference) is
     called as ``run(gait_params, stop_params, t, after_halt=..., physics=...,
     pattern=...)`` and returns a :class:`PhysicsResult`
-    (e.g. :func:`drake_estop.online.run_online`).
+    (e.g. :func:`drake_estop.physics.online.run_online`).
     """
     run = run or run_physics
     from tqdm import tqdm
@@ -988,9 +1007,9 @@ class ClosedLoopHandles(PhysicsHandles):
 
 @dataclass(frozen=True)
 class StabilizerParameters:
-    """Gains of :class:`drake_estop.stabilizer.DcmStabilizer` (see its module docstring)."""
+    """Gains of :class:`drake_estop.physics.stabilizer.DcmStabilizer` (see its module docstring)."""
 
-    k_dcm: float = 0.5  # [1/s] DCM error decay rate (see drake_estop.stabilizer: gain choice)
+    k_dcm: float = 0.5  # [1/s] DCM error decay rate (see drake_estop.physics.stabilizer: gain choice)
     zmp_margin: float = 0.01  # [m] commanded ZMP kept this far inside the planned support polygon
     k_model: float = 0.0  # share of the estimated ZMP model error cancelled by the COG
     model_error_time_constant: float = 0.02  # [s]
@@ -1026,10 +1045,10 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
     """
     from pydrake.systems.primitives import Adder, Demultiplexer, Multiplexer
 
-    from drake_estop.diagram import initial_configuration as pattern_initial_configuration
-    from drake_estop.ik import WholeBodyIK
-    from drake_estop.stabilizer import CogMeasurement, DcmStabilizer
-    from drake_estop.systems import add_stop_controller, connect_reference
+    from drake_estop.physics.stabilizer import CogMeasurement, DcmStabilizer
+    from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
+    from drake_estop.systems.ik import WholeBodyIK
+    from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
     physics = physics or PhysicsParameters()
     stop_params = stop_params or StopParameters()
@@ -1106,8 +1125,8 @@ def build_closed_loop_diagram(gait_params: GaitParameters | None = None,
 
 def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mode="interpolate"):
     """The IK's positions, one solve per servo tick, as the plant's PD ``desired_state`` (a
-    :class:`drake_estop.stabilizer.DesiredStateInterpolator`). Returns that system."""
-    from drake_estop.stabilizer import DesiredStateInterpolator
+    :class:`drake_estop.physics.stabilizer.DesiredStateInterpolator`). Returns that system."""
+    from drake_estop.physics.stabilizer import DesiredStateInterpolator
 
     q_idx, _ = actuated_indices(plant)
     desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
@@ -1149,7 +1168,7 @@ def _closed_loop_reference(handles: ClosedLoopHandles, context, wall_time: float
     q_log = handles.loggers["ik_q"].FindLog(context)
     com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
     foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
-    from drake_estop.diagram import IK_COM_BOUND, IK_FOOT_BOUND
+    from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
     failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
     return JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, wall_time)
 

@@ -16,7 +16,7 @@ Blocks (all sampled at the servo period through periodic discrete events)::
   z axis at rest, upright).
 * :class:`RobotSensors` turns the true signals into what the controller
   gets: joint encoders (the actuated joints' positions), IMU, foot normal
-  forces, CoP and the ground wrench (:class:`drake_estop.physics.CopEstimator`,
+  forces, CoP and the ground wrench (:class:`drake_estop.physics.plant.CopEstimator`,
   reused), with optional white Gaussian noise and a latency of N servo
   ticks. The noise is a pure function of (seed, stream, servo tick) through
   a counter-based generator (numpy ``Philox(key=(seed, stream),
@@ -29,7 +29,7 @@ Blocks (all sampled at the servo period through periodic discrete events)::
 * :func:`add_state_estimation` adds and connects all of the above.
 
 Wiring (in the physics diagram; ``q0`` is the posture the simulation starts
-from, ``perturbations`` a :class:`drake_estop.perturbations.Perturbations`)::
+from, ``perturbations`` a :class:`drake_estop.physics.perturbations.Perturbations`)::
 
     soles = [plant.GetBodyByName(LEFT_SOLE), plant.GetBodyByName(RIGHT_SOLE)]  # this order
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(
@@ -650,10 +650,10 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     """Add the pelvis IMU, :class:`RobotSensors` and :class:`StateEstimator` and connect them.
 
     ``plant`` is the simulated (finalized) plant, ``cop_estimator`` a
-    :class:`drake_estop.physics.CopEstimator` already connected to the
+    :class:`drake_estop.physics.plant.CopEstimator` already connected to the
     plant's contact results and built with ``bodies=`` the left and right
     sole bodies (in that order). ``perturbations``
-    (:class:`drake_estop.perturbations.Perturbations`, optional) sets the
+    (:class:`drake_estop.physics.perturbations.Perturbations`, optional) sets the
     noise, the seed and the latency. ``initial_q``: the robot's start pose
     (the q the simulation starts from). Extra keyword arguments go to
     :class:`StateEstimator`. Returns the estimator; its ``q_port``,

@@ -18,7 +18,7 @@ a backtracking line search on the log-barrier merit keeps every ``g_k > 0``,
 and the Hessian is shifted when it is not positive definite. Iterates are
 strictly feasible; at convergence ``mean(lam g)`` (the duality gap per
 constraint) is below ``mu_final``. Gradients and Hessians of J and the g_k are
-analytic (:mod:`drake_estop.stop_condition`).
+analytic (:mod:`drake_estop.planning.stop_condition`).
 
 The problems are tiny (n <= 3 unknowns, m <= 11 constraints), so the loop works
 on plain Python floats and lists: numpy's per-call overhead (microseconds) is
@@ -29,9 +29,9 @@ constraint Hessian may be ``None`` for a linear constraint.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import gt, mul
-from typing import Callable
 
 import numpy as np
 

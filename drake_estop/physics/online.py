@@ -12,7 +12,7 @@ Every controller block (sensors, estimator, planner, IK, servo targets) is a
 LeafSystem updated by a periodic discrete event at the servo period. After
 the signal nothing is computed ahead of the tick that uses it: the planner
 plans on the signal's tick and re-plans on later ticks from the estimated
-state (:class:`drake_estop.systems.StopPlannerSystem`); the IK solves each
+state (:class:`drake_estop.systems.stop_controller.StopPlannerSystem`); the IK solves each
 tick's targets on that tick. The nominal walk is the pattern, built before
 the run.
 
@@ -58,11 +58,9 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from drake_estop.estimation import add_state_estimation
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver
-from drake_estop.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
-from drake_estop.physics import (
+from drake_estop.physics.estimation import add_state_estimation
+from drake_estop.physics.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
+from drake_estop.physics.plant import (
     _SOLE_FRAMES,
     SIDES,
     CopEstimator,
@@ -75,8 +73,10 @@ from drake_estop.physics import (
     analyse,
     run_through_stop,
 )
-from drake_estop.planner import StopParameters
-from drake_estop.systems import add_stop_controller, connect_reference
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver
+from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 from drake_estop.timing import TickTimer
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s.
@@ -120,10 +120,10 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     latency in the sensors; the masses in :func:`run_online`'s context).
     ``true_state`` feeds the estimator's outputs from the true plant state
     (debugging). ``planner_options`` go to
-    :class:`drake_estop.systems.StopPlannerSystem` (``replan_threshold``,
+    :class:`drake_estop.systems.stop_controller.StopPlannerSystem` (``replan_threshold``,
     ``replan_interval``, ...).
     """
-    from drake_estop.diagram import initial_configuration as pattern_initial_configuration
+    from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
 
     perturbations = perturbations or Perturbations()
     physics = ground_friction(perturbations, physics or PhysicsParameters())
@@ -188,13 +188,13 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
 
     ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
     for the controller's margins, as the CLI does). Returns the
-    :class:`drake_estop.physics.PhysicsResult` of :func:`drake_estop.physics.analyse`
+    :class:`drake_estop.physics.plant.PhysicsResult` of :func:`drake_estop.physics.plant.analyse`
     with ``online`` added: ``tick_compute`` (median / p99 / max seconds of the
     controller's own work per servo tick after the signal), ``replans``,
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
     over its velocity limit, measured) and the estimator's COG log.
     """
-    from drake_estop.diagram import IK_COM_BOUND, IK_FOOT_BOUND
+    from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
     perturbations = perturbations or Perturbations()
     stop_params = stop_params or controller_stop_parameters()

@@ -1,10 +1,10 @@
 """Compiled (numba) phase-parameter solver: grid start, interior-point Newton, quantisation.
 
 A line-by-line port of the pure-Python reference path (the readable one, with
-the paper's equation numbers): :mod:`drake_estop.stop_condition` (closed form
+the paper's equation numbers): :mod:`drake_estop.planning.stop_condition` (closed form
 of the stop condition and its derivatives), the ``_SingleSupportProblem`` /
 ``_DoubleSupportProblem`` evaluators and ``_grid_start`` / ``_quantise`` of
-:mod:`drake_estop.planner`, and :func:`drake_estop.newton.barrier_newton`
+:mod:`drake_estop.planning.planner`, and :func:`drake_estop.planning.newton.barrier_newton`
 (same algorithm, tolerances and line search). The operations are kept in the
 reference's order, so results agree to rounding (the quadrature sums and
 ``exp`` may differ in the last bit from numpy's BLAS / SIMD kernels).
@@ -13,7 +13,7 @@ Everything works on plain float64 arrays; the problem is packed by
 :func:`pack` into one vector (indices below). ``error_model="numpy"``: division
 by zero gives inf / nan as in numpy, no exception.
 
-Import fails without numba; :mod:`drake_estop.planner` then keeps the Python path.
+Import fails without numba; :mod:`drake_estop.planning.planner` then keeps the Python path.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import math
 import numba
 import numpy as np
 
-from drake_estop.stop_condition import _BASIS, _STACK, _U
+from drake_estop.planning.stop_condition import _BASIS, _STACK, _U
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 

@@ -27,8 +27,6 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_estop.gait import GaitParameters, NominalPattern
-from drake_estop.ik import WholeBodyIK, WholeBodyIkSolver
 from drake_estop.model import (
     ALL_JOINTS,
     LEFT_SOLE,
@@ -38,8 +36,15 @@ from drake_estop.model import (
     load_humanoid,
     nominal_standing_configuration,
 )
-from drake_estop.planner import PHASES, StopParameters
-from drake_estop.systems import REFERENCE_LAYOUT, add_stop_controller, connect_reference, reference_vector
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import PHASES, StopParameters
+from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver
+from drake_estop.systems.stop_controller import (
+    REFERENCE_LAYOUT,
+    add_stop_controller,
+    connect_reference,
+    reference_vector,
+)
 
 #: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
 IK_COM_BOUND = 1e-3
@@ -131,7 +136,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     robot (MeshcatVisualizer), traces and phase (StopVisualizer) are drawn
     and an "Emergency stop" button is added.
     """
-    from drake_estop.visualization import StopVisualizer
+    from drake_estop.systems.visualization import StopVisualizer
 
     gait_params = gait_params or GaitParameters()
     stop_params = stop_params or StopParameters()
@@ -366,7 +371,13 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     Meshcat without a replay file (so a person can press the button), else
     as fast as possible.
     """
-    from drake_estop.visualization import add_floor, make_meshcat, set_side_camera, start_recording, write_replay
+    from drake_estop.systems.visualization import (
+        add_floor,
+        make_meshcat,
+        set_side_camera,
+        start_recording,
+        write_replay,
+    )
 
     if html is not None and meshcat is None:
         meshcat = make_meshcat()

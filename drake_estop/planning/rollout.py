@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drake_estop.gait import ARM_JOINTS
-from drake_estop.lipm import GRAVITY
-from drake_estop.planner import StopPlan
+from drake_estop.planning.gait import ARM_JOINTS
+from drake_estop.planning.lipm import GRAVITY
+from drake_estop.planning.planner import StopPlan
 
 LOG_COLUMNS = ("t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "com_vz", "com_ax", "com_ay",
                "zmp_x", "zmp_y", "phase", "left_x", "left_y", "left_z", "right_x", "right_y", "right_z")

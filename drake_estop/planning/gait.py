@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drake_estop import lipm
+from drake_estop.planning import lipm
 
 
 @dataclass(frozen=True)

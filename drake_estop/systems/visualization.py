@@ -36,7 +36,7 @@ from pydrake.geometry import Box, Cylinder, Mesh, Meshcat, MeshcatParams, Rgba, 
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from drake_estop.planner import PHASES
+from drake_estop.planning.planner import PHASES
 
 PREFIX = "/estop"
 _COG_RGBA = Rgba(0.1, 0.3, 0.9, 1.0)
@@ -160,7 +160,7 @@ def _phase_plate(directory, phase):
 
 def pattern_polygon(pattern, t):
     """Support polygon vertices of the nominal pattern at ``t`` (ground feet)."""
-    from drake_estop.geometry import SupportPolygon
+    from drake_estop.planning.geometry import SupportPolygon
 
     sole = pattern.params.sole
     feet = pattern.feet_at(t)[0]

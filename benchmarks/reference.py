@@ -7,8 +7,8 @@ Written from the paper on its own, sharing no function with the planner's solver
   ``ZMP_max`` in double support) follows from the stop condition (eq. 17: COG velocity
   zero at the end of the slowdown);
 * the stop condition is not the planner's closed form (eq. 22 / 29 in
-  :mod:`drake_estop.stop_condition`) but the LIPM's piecewise solution (eq. 6-11 in
-  :func:`drake_estop.lipm.chain_end_state`) of phases (i)-(iii); the end velocity is affine
+  :mod:`drake_estop.planning.stop_condition`) but the LIPM's piecewise solution (eq. 6-11 in
+  :func:`drake_estop.planning.lipm.chain_end_state`) of phases (i)-(iii); the end velocity is affine
   in the ZMP value, so two end states give it;
 * the costs are eq. 24 / 30, the limits are read from :class:`StopParameters` and the
   problem's raw data (start state, feet) and written out here: durations, step length or
@@ -27,7 +27,7 @@ import math
 import numpy as np
 from scipy.optimize import minimize
 
-from drake_estop import lipm
+from drake_estop.planning import lipm
 
 
 def _phases(start, w, kind, t1, t2, t3, z):
