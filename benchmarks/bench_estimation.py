@@ -3,16 +3,15 @@
 Imports the installed package (``pip install -e .``, or PYTHONPATH=. from the repository).
 
     python benchmarks/bench_estimation.py            # standing + push (about 30 s)
-    python benchmarks/bench_estimation.py --walk     # + a 3.3 s closed-loop walk (about 1 min)
-    python benchmarks/bench_estimation.py --closed-loop  # + the walk with the estimate fed back (about 30 s)
+    python benchmarks/bench_estimation.py --walk     # + a 3.3 s walk of the online controller (about 1 min)
 
 Standing: the humanoid on the contact plant (``physics.add_physics_plant``),
 PD servos holding ``nominal_standing_configuration``, the estimator open loop
 (``estimation.add_state_estimation``), 2 s. Push: 170 N forward on the pelvis
 for 0.1 s at 0.3 s (17 N s), errors during the push and in the 0.1 s after.
-Walk: the lead's ``physics.build_closed_loop_diagram`` (no stop) with
-estimators attached open loop through a DiagramBuilder hook (temporary: until
-the estimator is wired into that diagram). Truth: the COG of the simulated
+Walk: the online controller's diagram (``online.build_online_diagram``, no
+stop; its own estimator feeds the planner) with further estimator variants
+attached open loop through a DiagramBuilder hook. Truth: the COG of the simulated
 plant (its context's parameters) from the logged state.
 
 Errors are the norm of the COG error (3D) and of the horizontal COG-velocity
@@ -30,9 +29,6 @@ Measured 2026-11-25 (2 cores shared, load ~4):
     standing, torso COM +2 cm  COG 6.48 / 6.51 mm   (model error: the estimator keeps the nominal model)
     walk, no noise (hybrid)    COG 0.97 / 2.25 mm   vel 4.8 / 11.6 mm/s
     walk, noise (hybrid)       COG 1.89 / 4.22 mm   vel 6.7 / 18.6 mm/s
-    closed loop (the estimate replaces the true COG / CoP of the DCM stabiliser, 3.3 s walk):
-        walks in every case (min pelvis z 0.638 m, as with the true COG); true COG vs the run with
-        true feedback: no noise 2.3 / 10.9 mm, noise 5.5 / 14.4 mm, noise + latency 1 2.5 / 5.2 mm
     cost: estimator CPU median 0.19-0.26 ms, p99 0.37-0.63 ms, max <= 0.97 ms;
           with sensors + CoP upstream median 0.58-0.74 ms, p99 <= 1.42 ms, max <= 1.94 ms
 """
@@ -49,9 +45,10 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
 from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
-from drake_estop.physics import estimation
+from drake_estop.physics import estimation, online
 from drake_estop.physics import plant as physics
 from drake_estop.physics.perturbations import Perturbations, Push, add_pelvis_push, apply_model_errors
+from drake_estop.systems.ik import shared_ik
 
 DT = 0.005
 
@@ -139,11 +136,11 @@ def walk(variants, duration=3.3):
     from drake_estop.systems.diagram import initial_configuration
 
     pattern = NominalPattern()
-    kin_plant, _, _ = physics._ik()
+    kin_plant, _, _ = shared_ik()
     q0 = initial_configuration(kin_plant, pattern)
     logs = {}
 
-    def attach(builder):  # the estimators, before the closed-loop diagram is built
+    def attach(builder):  # the estimators, before the online diagram is built
         plant = next(s for s in builder.GetSystems() if s.get_name() == "plant")
         cop = next(s for s in builder.GetSystems() if isinstance(s, physics.CopEstimator))
         for name, (perturbations, options) in variants.items():
@@ -160,19 +157,20 @@ def walk(variants, duration=3.3):
 
 
 def _walk(pattern, before_build, duration):
-    """Simulate ``physics.build_closed_loop_diagram`` (no stop) for ``duration`` s, with
+    """Simulate the online controller's diagram (:func:`online.build_online_diagram`, no stop
+    signal, the estimate fed back to the planner) for ``duration`` s, with
     ``before_build(builder)`` run on its builder just before it is built. Returns (handles, context)."""
     class Hook(DiagramBuilder):
         def Build(self):
             before_build(self)
             return super().Build()
 
-    original = physics.DiagramBuilder
-    physics.DiagramBuilder = Hook
+    original = online.DiagramBuilder
+    online.DiagramBuilder = Hook
     try:
-        handles = physics.build_closed_loop_diagram(estop_time=None, pattern=pattern)
+        handles = online.build_online_diagram(pattern, online.controller_stop_parameters(), None)
     finally:
-        physics.DiagramBuilder = original
+        online.DiagramBuilder = original
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
@@ -180,48 +178,9 @@ def _walk(pattern, before_build, duration):
     return handles, context
 
 
-def closed_loop(perturbations_list, duration=3.3):
-    """The walk with the estimate fed back to the DCM stabiliser instead of the true COG and CoP."""
-    from drake_estop.planning.gait import NominalPattern
-    from drake_estop.systems.diagram import initial_configuration
-
-    pattern = NominalPattern()
-    kin_plant, _, _ = physics._ik()
-    q0 = initial_configuration(kin_plant, pattern)
-
-    def run(perturbations):
-        def rewire(builder):  # the estimate in place of the true COG and CoP
-            if perturbations is None:
-                return
-            systems = {system.get_name(): system for system in builder.GetSystems()}
-            plant, cop = systems["plant"], systems["cop_estimator"]
-            stab, measurement = systems["dcm_stabilizer"], systems["cog_measurement"]
-            est = estimation.add_state_estimation(builder, plant, cop, servo_period=DT,
-                                                  perturbations=perturbations, initial_q=q0)
-            for old, new, port in ((measurement.com_port, est.com_port, stab.measured_com_port),
-                                   (measurement.com_vel_port, est.com_vel_port, stab.measured_com_vel_port),
-                                   (cop.cop_port, est.sensors.cop_port, stab.measured_cop_port)):
-                builder.Disconnect(old, port)
-                builder.Connect(new, port)
-
-        handles, context = _walk(pattern, rewire, duration)
-        states = handles.loggers["state"].FindLog(context).data().T
-        return _truth(handles.plant, Perturbations(), states)[0], states[:, 6]
-
-    base, z = run(None)
-    print(f"  closed loop, true COG feedback: min pelvis z {z.min():.3f} m")
-    for perturbations in perturbations_list:
-        com, z = run(perturbations)
-        d = np.linalg.norm((com - base)[:, :2], axis=1)
-        print(f"  closed loop, estimator (noise {perturbations.sensor_noise}, latency {perturbations.latency_ticks}):"
-              f" min pelvis z {z.min():.3f} m, true COG vs the true-feedback run"
-              f" {np.sqrt(np.mean(d ** 2)) * 1e3:.2f} / {d.max() * 1e3:.2f} mm")
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--walk", action="store_true", help="also the 3.3 s closed-loop walk")
-    parser.add_argument("--closed-loop", action="store_true", help="also the walk with the estimate fed back")
+    parser.add_argument("--walk", action="store_true", help="also the 3.3 s walk of the online controller")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")
     timer = _Timer()
@@ -248,9 +207,6 @@ def main(argv=None):
             for model in ("force", "imu", "hybrid", "lipm"):
                 variants[f"{model}_noise{int(noise)}"] = (Perturbations(sensor_noise=noise, seed=1), dict(model=model))
         walk(variants)
-    if args.closed_loop:
-        closed_loop([Perturbations(), Perturbations(sensor_noise=True, seed=1),
-                     Perturbations(sensor_noise=True, seed=1, latency_ticks=1)])
 
 
 if __name__ == "__main__":

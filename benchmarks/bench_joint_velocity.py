@@ -34,7 +34,7 @@ if __package__ in (None, ""):
 from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from drake_estop.model import ALL_JOINTS, joint_position_indices, joint_velocity_indices, load_humanoid  # noqa: E402
-from drake_estop.physics.plant import _solve_tick, initial_configuration, nominal_rollout  # noqa: E402
+from drake_estop.physics.offline import _solve_tick, initial_configuration, nominal_rollout
 from drake_estop.planning.gait import GaitParameters, NominalPattern  # noqa: E402
 from drake_estop.planning.planner import StopParameters, plan_stop, warm_up  # noqa: E402
 from drake_estop.planning.rollout import rollout, stride_ticks  # noqa: E402

@@ -15,7 +15,8 @@ real-time factor including it, and the success criteria of the run.
 
 import argparse
 
-from drake_estop.physics.plant import PhysicsParameters, run_physics
+from drake_estop.physics.offline import run_physics
+from drake_estop.physics.plant import PhysicsParameters
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 

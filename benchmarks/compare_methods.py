@@ -108,7 +108,7 @@ def diagram_rtfs(estop_time=3.4):
     """Real-time factors of the kinematic diagram and of the physics diagram on one paper scenario."""
     import warnings
 
-    from drake_estop.physics.plant import run_physics
+    from drake_estop.physics.offline import run_physics
     from drake_estop.planning.gait import GaitParameters
     from drake_estop.systems.diagram import simulate_diagram
 

@@ -241,7 +241,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2]})
     else:
-        from drake_estop.physics.plant import run_physics
+        from drake_estop.physics.offline import run_physics
 
         result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
     columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
@@ -298,7 +298,8 @@ def _add_sweep(sub):
 
 
 def _sweep(args) -> int:
-    from drake_estop.physics.plant import CRITERIA, sweep, write_sweep
+    from drake_estop.physics.criteria import CRITERIA
+    from drake_estop.physics.sweep import sweep, write_sweep
 
     gait, stop = _parameters(args)
     if not (math.isfinite(args.every) and args.every > 0):

@@ -161,14 +161,15 @@ def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
 
 
 def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, capsys):
-    from drake_estop.physics import plant as physics
+    from drake_estop.physics import sweep as sweep_module
+
     def fake_sweep(gait, stop, **kwargs):
         return [{"signal_time": 3.05, "case": "one-step", "success": True},
                 {"signal_time": 3.25, "case": "one-step", "success": False, "no_fall": False},
                 {"signal_time": 3.45, "success": False, "error": "InfeasibleStop: test"}]
 
-    monkeypatch.setattr(physics, "sweep", fake_sweep)
-    monkeypatch.setattr(physics, "write_sweep", lambda *args: None)
+    monkeypatch.setattr(sweep_module, "sweep", fake_sweep)
+    monkeypatch.setattr(sweep_module, "write_sweep", lambda *args: None)
     assert main(["sweep", "--no-progress", "--csv", str(tmp_path / "s.csv"), "--png", str(tmp_path / "m.png")]) == 1
     out, err = capsys.readouterr()
     assert "1/3 stops met every criterion" in out

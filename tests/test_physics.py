@@ -22,16 +22,10 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_estop.model import load_humanoid
-from drake_estop.physics.plant import (
-    CRITERIA,
-    CopEstimator,
-    PhysicsParameters,
-    ZmpPreviewFilter,
-    multibody_zmp,
-    run_physics,
-    sweep_row,
-    write_sweep,
-)
+from drake_estop.physics.criteria import CRITERIA, multibody_zmp
+from drake_estop.physics.offline import ZmpPreviewFilter, run_physics
+from drake_estop.physics.plant import CopEstimator, PhysicsParameters
+from drake_estop.physics.sweep import sweep_row, write_sweep
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 

@@ -58,24 +58,22 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
+from drake_estop.physics.criteria import JointReference, analyse
 from drake_estop.physics.estimation import add_state_estimation
 from drake_estop.physics.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
 from drake_estop.physics.plant import (
-    _SOLE_FRAMES,
     SIDES,
+    SOLE_FRAMES,
     CopEstimator,
-    JointReference,
     PhysicsParameters,
-    _ik,
     add_online_loggers,
     add_physics_plant,
     add_servo_targets,
-    analyse,
     run_through_stop,
 )
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
-from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver
+from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 from drake_estop.timing import TickTimer
 
@@ -132,11 +130,11 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     builder = DiagramBuilder()
     plant, scene_graph, instance, _ = add_physics_plant(builder, physics)
     push = add_pelvis_push(builder, plant, perturbations.pushes)
-    soles = [plant.GetBodyByName(_SOLE_FRAMES[side]) for side in SIDES]
+    soles = [plant.GetBodyByName(SOLE_FRAMES[side]) for side in SIDES]
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
 
-    kin_plant, _, _ = _ik()
+    kin_plant, _, _ = shared_ik()
     q0 = pattern_initial_configuration(kin_plant, pattern)
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
                                      true_state=true_state, initial_q=q0, timer=timer)

@@ -35,6 +35,7 @@ from drake_estop.model import (
     UPPER_BODY_JOINTS,
     joint_position_indices,
     joint_velocity_indices,
+    load_humanoid,
     nominal_standing_configuration,
 )
 from drake_estop.timing import timed
@@ -497,3 +498,20 @@ def pose_vector(pose):
     """7-vector ``[x, y, z, qw, qx, qy, qz]`` of a RigidTransform."""
     return np.concatenate([pose.translation(),
                            pose.rotation().ToQuaternion().wxyz()])
+
+
+_SHARED = {}
+
+
+def shared_ik():
+    """``(plant, solver, context)``: a kinematic-only humanoid plant, its :class:`WholeBodyIkSolver` and a
+    context, built once per process and shared (the IK of every diagram and of the offline reference)."""
+    if "plant" not in _SHARED:
+        from pydrake.multibody.plant import MultibodyPlant
+        plant = MultibodyPlant(0.0)
+        load_humanoid(plant)
+        plant.Finalize()
+        _SHARED["plant"], _SHARED["solver"] = plant, WholeBodyIkSolver(plant)
+        _SHARED["context"] = plant.CreateDefaultContext()
+    return _SHARED["plant"], _SHARED["solver"], _SHARED["context"]
+

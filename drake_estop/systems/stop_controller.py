@@ -46,7 +46,7 @@ for _name, _size in REFERENCE_LAYOUT:
     _start += _size
 REFERENCE_SIZE = _start
 _ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
-_LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # the soles stay level (straight walk)
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # the soles stay level (straight walk)
 _WALKING = float(PHASES.index("walking"))
 
 
@@ -59,7 +59,7 @@ def upper_body_vector(arm_q):
 
 def sole_pose(ankle):
     """Sole pose 7-vector from an ankle ``(x, y, lift)``: the sole is at z = lift."""
-    return np.concatenate([np.asarray(ankle, float)[:3], _LEVEL])
+    return np.concatenate([np.asarray(ankle, float)[:3], LEVEL])
 
 
 def reference_vector(t, *, pattern, plan=None):

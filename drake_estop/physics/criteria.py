@@ -1,0 +1,279 @@
+"""Success criteria of a physics stop, measured from the logs of the simulated robot.
+
+:func:`analyse` turns the 5 ms logs of a run into a :class:`PhysicsResult`:
+no fall (pelvis height, torso tilt), no slip, comes to rest, rests at the
+feet's midpoint, centre of pressure inside the support (:data:`CRITERIA`).
+:func:`multibody_zmp` is the whole-body ZMP of a joint trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.trajectories import PiecewisePolynomial
+
+from drake_estop.model import (
+    FLOATING_BASE,
+    TORSO,
+)
+from drake_estop.physics.plant import (
+    SIDES,
+    SOLE_CONTACT_INSET,
+    SOLE_FRAMES,
+    PhysicsHandles,
+    PhysicsParameters,
+    actuated_indices,
+)
+from drake_estop.planning.geometry import SupportPolygon
+from drake_estop.planning.lipm import GRAVITY  # the one gravity value
+from drake_estop.planning.planner import StopPlan
+
+
+def multibody_zmp(plant, times, q, *, context=None) -> np.ndarray:
+    """ZMP (n, 2) on z = 0 of the whole-body motion q(t) (rigid multibody, finite differences).
+
+    Ground wrench about the world origin from the spatial momentum h = (L, P):
+    ``f = dP/dt - m g``, ``n = dL/dt - c x m g``; ZMP = ``(-n_y, n_x) / f_z``.
+    """
+    context = context or plant.CreateDefaultContext()
+    n = len(times)
+    momentum = np.zeros((n, 6))
+    com = np.zeros((n, 3))
+    for i in range(n):
+        a, b = max(i - 1, 0), min(i + 1, n - 1)
+        plant.SetPositions(context, q[i])
+        qdot = (q[b] - q[a]) / (times[b] - times[a])
+        plant.SetVelocities(context, plant.MapQDotToVelocity(context, qdot))
+        h = plant.CalcSpatialMomentumInWorldAboutPoint(context, np.zeros(3))
+        momentum[i, :3], momentum[i, 3:] = h.rotational(), h.translational()
+        com[i] = plant.CalcCenterOfMassPositionInWorld(context)
+    rate = np.gradient(momentum, times, axis=0)
+    weight = np.array([0.0, 0.0, -plant.CalcTotalMass(context) * GRAVITY])
+    force = rate[:, 3:] - weight
+    moment = rate[:, :3] - np.cross(com, weight)
+    return np.column_stack([-moment[:, 1], moment[:, 0]]) / force[:, 2:3]
+
+
+@dataclass
+class PhysicsResult:
+    """Per-tick (5 ms) arrays of one physics run and its success criteria."""
+
+    plan: StopPlan
+    times: np.ndarray
+    cop_x: np.ndarray
+    cop_y: np.ndarray
+    normal_force: np.ndarray
+    foot_forces: dict  # side -> (n,) ground normal force on the sole [N]
+    pelvis_z: np.ndarray
+    com_meas_x: np.ndarray
+    com_meas_y: np.ndarray
+    com_meas_z: np.ndarray
+    com_meas_speed: np.ndarray  # horizontal COG speed [m/s]
+    com_plan: np.ndarray  # (n, 3)
+    zmp_plan: np.ndarray  # (n, 2)
+    torso_tilt: np.ndarray  # [rad]
+    feet_meas: dict  # side -> (n, 3) sole-frame origin
+    feet_plan: dict  # side -> (n, 3)
+    slip: dict  # side -> max sole travel while standing [m]
+    cop_margin_plan: np.ndarray  # (n,) CoP margin in the planned support polygon [m]
+    cop_margin_meas: np.ndarray  # (n,) CoP margin in the soles in contact at their measured poses [m]
+    time_to_rest: float  # measured: from the signal until the COG speed stays below rest_speed [s]
+    rest_time: float  # absolute time of that rest (nan if never)
+    final_offset: float  # final COG from the measured feet's midpoint [m]
+    final_offset_plan: float  # final COG from the planned feet's midpoint [m]
+    cog_travel: float  # measured horizontal COG path length after the signal [m]
+    criteria: dict
+    ik_failures: int
+    ik_max_com_error: float
+    sim_time: float
+    sim_wall_time: float
+    ik_wall_time: float
+    params: PhysicsParameters = field(default_factory=PhysicsParameters)
+    reference: JointReference | None = None
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second of the physics simulation alone."""
+        return self.sim_time / self.sim_wall_time
+
+    @property
+    def realtime_factor_with_ik(self) -> float:
+        return self.sim_time / (self.sim_wall_time + self.ik_wall_time)
+
+    @property
+    def success(self) -> bool:
+        return all(self.criteria.values())
+
+    def numbers(self) -> dict:
+        """The raw numbers behind each criterion."""
+        return {
+            "pelvis_z_min_m": float(np.min(self.pelvis_z)), "pelvis_z_max_m": float(np.max(self.pelvis_z)),
+            "torso_tilt_max_rad": float(np.max(self.torso_tilt)),
+            "slip_left_m": self.slip["left"], "slip_right_m": self.slip["right"],
+            "time_to_rest_s": self.time_to_rest,
+            "rest_after_halt_s": self.rest_time - self.plan.halt_end,
+            "final_cog_offset_m": self.final_offset, "final_cog_offset_plan_m": self.final_offset_plan,
+            "final_cog_speed_mps": float(self.com_meas_speed[-1]),
+            "cop_margin_plan_min_m": float(np.nanmin(self.cop_margin_plan)),
+            "cop_margin_meas_min_m": float(np.nanmin(self.cop_margin_meas)),
+            "cog_travel_m": self.cog_travel,
+            # time the CoP spends on the edge of the contact corners (a foot rolling on an edge):
+            # the corner spheres sit SOLE_CONTACT_INSET inside the sole rectangle
+            "cop_edge_time_s": float(np.sum(self.cop_margin_meas < SOLE_CONTACT_INSET + 5e-4)
+                                     * self.params.log_period),
+            "com_tracking_max_m": float(np.max(np.linalg.norm(
+                np.column_stack([self.com_meas_x, self.com_meas_y]) - self.com_plan[:, :2], axis=1))),
+            "ik_failures": self.ik_failures, "ik_max_com_error_m": self.ik_max_com_error,
+            "reference_zmp_error_raw_max_m": _max_abs(self.reference, "zmp_error_raw"),
+            "reference_zmp_error_max_m": _max_abs(self.reference, "zmp_error"),
+            "realtime_factor": self.realtime_factor,
+        }
+
+
+def _sole_polygon_corners(sole, xy, yaw, side):
+    """Sole rectangle corners (4, 2) at ankle ``xy`` rotated by ``yaw``."""
+    local = sole.corners((0.0, 0.0), side)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return local @ np.array([[c, s], [-s, c]]) + np.asarray(xy)[:2]
+
+
+def _planned_support(plan: StopPlan, t: float):
+    """Feet the plan stands on at ``t`` (the sides of :meth:`StopPlan.polygon`)."""
+    return plan.support_sides(t)
+
+
+def _intervals(mask):
+    """(start, stop) index pairs of the True runs of ``mask``."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
+
+def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointReference,
+            physics: PhysicsParameters, wall_time: float) -> PhysicsResult:
+    """Per-tick arrays and success criteria from the loggers of a finished run."""
+    plant = handles.plant
+    logs = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
+    times = logs["state"].sample_times()
+    states = logs["state"].data().T
+    cop = logs["cop"].data().T
+    normal = logs["normal_force"].data()[0]
+    foot_forces = dict(zip(SIDES, logs["foot_forces"].data()))
+    n = len(times)
+    scratch = plant.CreateDefaultContext()
+    torso = plant.GetBodyByName(TORSO)
+    pelvis = plant.GetBodyByName(FLOATING_BASE)
+    soles = {side: plant.GetFrameByName(SOLE_FRAMES[side]) for side in SIDES}
+    com = np.empty((n, 3))
+    com_vel = np.empty((n, 3))
+    pelvis_z, tilt = np.empty(n), np.empty(n)
+    feet_meas = {side: np.empty((n, 3)) for side in SIDES}
+    feet_yaw = {side: np.empty(n) for side in SIDES}
+    for i, x in enumerate(states):
+        plant.SetPositionsAndVelocities(scratch, x)
+        com[i] = plant.CalcCenterOfMassPositionInWorld(scratch)
+        com_vel[i] = plant.CalcCenterOfMassTranslationalVelocityInWorld(scratch)
+        pelvis_z[i] = plant.EvalBodyPoseInWorld(scratch, pelvis).translation()[2]
+        rot = plant.EvalBodyPoseInWorld(scratch, torso).rotation().matrix()
+        tilt[i] = math.acos(min(1.0, max(-1.0, rot[2, 2])))
+        for side, frame in soles.items():
+            pose = frame.CalcPoseInWorld(scratch)
+            feet_meas[side][i] = pose.translation()
+            r = pose.rotation().matrix()
+            feet_yaw[side][i] = math.atan2(r[1, 0], r[0, 0])
+    pos, _, _, zmp_plan = plan.com(times)
+    z_plan = plan.com_height(times)[0]
+    com_plan = np.column_stack([pos, z_plan])
+    planned_feet = [plan.feet(float(t)) for t in times]
+    feet_plan = {side: np.array([f[side] for f in planned_feet]) for side in SIDES}
+    weight = plant.CalcTotalMass(scratch) * GRAVITY
+    in_contact = {side: foot_forces[side] > physics.contact_force_fraction * weight for side in SIDES}
+    # slip: sole travel (xy) over each planned stance interval, from its first tick in contact
+    slip = {}
+    for side in SIDES:
+        stance = (feet_plan[side][:, 2] <= 1e-9) & in_contact[side]
+        worst = 0.0
+        for a, b in _intervals(stance):
+            travel = np.linalg.norm(feet_meas[side][a:b, :2] - feet_meas[side][a, :2], axis=1)
+            worst = max(worst, float(travel.max()))
+        slip[side] = worst
+    sole = plan.pattern.params.sole
+    planned_support = [_planned_support(plan, float(t)) for t in times]
+    margin_plan = np.full(n, np.nan)
+    margin_meas = np.full(n, np.nan)
+    for i in range(n):
+        if not np.all(np.isfinite(cop[i])):
+            continue
+        touching = [s for s in SIDES if in_contact[s][i]]
+        # planned soles (planned poses) that the plan stands on, plus any foot measured in
+        # contact (a swing foot touching down a few ms early stands on its planned landing spot)
+        standing = [s for s in SIDES if s in touching or s in planned_support[i]]
+        margin_plan[i] = SupportPolygon(np.vstack([
+            sole.corners(feet_plan[s][i, :2], s) for s in standing])).margin(cop[i])[0]
+        if touching:
+            corners = np.vstack([_sole_polygon_corners(sole, feet_meas[s][i], feet_yaw[s][i], s)
+                                 for s in touching])
+            margin_meas[i] = SupportPolygon(corners).margin(cop[i])[0]
+    speed = np.linalg.norm(com_vel[:, :2], axis=1)
+    moving = np.flatnonzero(speed >= physics.rest_speed)
+    rest_index = 0 if len(moving) == 0 else moving[-1] + 1
+    rest_time = float(times[rest_index]) if rest_index < n else float("nan")
+    mid_meas = 0.5 * (feet_meas["left"][-1, :2] + feet_meas["right"][-1, :2])
+    mid_plan = 0.5 * (plan.final_feet["left"][:2] + plan.final_feet["right"][:2])
+    final_offset = float(np.linalg.norm(com[-1, :2] - mid_meas))
+    after_signal = times >= plan.signal_time - 1e-9
+    travel = float(np.sum(np.linalg.norm(np.diff(com[after_signal, :2], axis=0), axis=1)))
+    low, high = physics.pelvis_height_bounds
+    criteria = {
+        "no_fall": bool(np.all((pelvis_z > low) & (pelvis_z < high))
+                        and np.max(tilt) < physics.max_torso_tilt),
+        "no_slip": bool(max(slip.values()) < physics.max_slip),
+        "comes_to_rest": bool(math.isfinite(rest_time)
+                              and rest_time <= plan.halt_end + physics.rest_within + 1e-9),
+        "rests_at_midpoint": bool(final_offset <= physics.rest_offset),
+        # the first sample (t = 0) precedes the first contact solve: no contact results yet
+        "cop_in_support": bool(np.all(np.isfinite(margin_plan[1:]))
+                               and np.min(margin_plan[1:]) >= -physics.cop_tolerance),
+    }
+    return PhysicsResult(
+        plan=plan, times=times, cop_x=cop[:, 0], cop_y=cop[:, 1], normal_force=normal,
+        foot_forces=foot_forces, pelvis_z=pelvis_z, com_meas_x=com[:, 0], com_meas_y=com[:, 1],
+        com_meas_z=com[:, 2], com_meas_speed=speed, com_plan=com_plan, zmp_plan=zmp_plan,
+        torso_tilt=tilt, feet_meas=feet_meas, feet_plan=feet_plan, slip=slip,
+        cop_margin_plan=margin_plan, cop_margin_meas=margin_meas,
+        time_to_rest=rest_time - plan.signal_time, rest_time=rest_time, final_offset=final_offset,
+        final_offset_plan=float(np.linalg.norm(com[-1, :2] - mid_plan)), cog_travel=travel,
+        criteria=criteria, ik_failures=reference.failures,
+        ik_max_com_error=float(reference.com_error.max()), sim_time=float(times[-1] - times[0]),
+        sim_wall_time=wall_time, ik_wall_time=reference.wall_time, params=physics, reference=reference)
+
+
+CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support")
+
+
+@dataclass
+class JointReference:
+    """IK joint angles at every servo tick of a rollout."""
+
+    times: np.ndarray
+    q: np.ndarray  # (n, nq) full plant positions (floating base included)
+    com_error: np.ndarray  # (n,) IK COG error [m]
+    foot_error: np.ndarray  # (n,) IK worst sole position error [m]
+    failures: int  # ticks where the IK missed its tolerances
+    wall_time: float
+    com_offset: np.ndarray | None = None  # (n, 2) dynamics-filter COG correction [m]
+    zmp_error_raw: np.ndarray | None = None  # (n, 2) multibody - planned ZMP, unfiltered reference [m]
+    zmp_error: np.ndarray | None = None  # (n, 2) the same for the filtered reference [m]
+
+    def desired_state_trajectory(self, plant) -> PiecewisePolynomial:
+        """First-order hold of [q_ref, v_ref] of the actuated joints (desired_state layout)."""
+        q_idx, _ = actuated_indices(plant)
+        qa = self.q[:, q_idx]
+        va = np.gradient(qa, self.times, axis=0)
+        return PiecewisePolynomial.FirstOrderHold(self.times, np.hstack([qa, va]).T)
+
+
+def _max_abs(reference, name):
+    value = None if reference is None else getattr(reference, name)
+    return None if value is None else float(np.max(np.abs(value)))
