@@ -24,7 +24,7 @@ cd "$work"
   echo "[mutmut]"
   echo "source_paths = drake_estop"
   echo "only_mutate ="
-  for m in "${modules[@]}"; do echo "    drake_estop/$m.py"; done
+  for m in "${modules[@]}"; do echo "    drake_estop/planning/$m.py"; done
   echo "also_copy ="
   echo "    tests"
   echo "    models"
