@@ -132,7 +132,7 @@ def test_latency_shifts_every_signal_by_exactly_n_ticks(plant, latency):
         builder.Connect(clock.get_output_port(), port)
     samplers = {}
     for name in SIGNALS:
-        port = getattr(sensors, f"{name}_port")
+        port = sensors.GetOutputPort(name)
         samplers[name] = builder.AddSystem(_Sampler(port.size()))
         builder.Connect(port, samplers[name].u)
     logger = LogVectorOutput(sensors.gyro_port, builder, DT)

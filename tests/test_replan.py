@@ -195,8 +195,8 @@ def test_planner_plans_from_the_measured_state_after_a_push_and_blends_the_comma
     # the command starts where the old one was (no step for the stiff servos) and joins the plan
     tc = context.get_time()
     old_pos, old_vel, _, _ = pattern.com([tc])
-    np.testing.assert_allclose(planner.com_port.Eval(context)[:2], old_pos[0], atol=2e-5)
-    np.testing.assert_allclose(planner.com_vel_port.Eval(context)[:2], old_vel[0], atol=0.01)
+    np.testing.assert_allclose(planner.GetOutputPort("com").Eval(context)[:2], old_pos[0], atol=2e-5)
+    np.testing.assert_allclose(planner.GetOutputPort("com_vel").Eval(context)[:2], old_vel[0], atol=0.01)
     plan_pos, plan_vel, _, _ = plan.com([tc])
     assert np.linalg.norm(plan_vel[0] - old_vel[0]) > 0.015  # the plan itself starts at the measured 2 cm/s more
 

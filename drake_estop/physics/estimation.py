@@ -688,7 +688,7 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
         plant=plant, servo_period=servo_period, initial_q=initial_q, true_state=true_state, timer=timer,
         **estimator_options))
     for signal in SIGNALS:
-        builder.Connect(getattr(sensors, f"{signal}_port"), getattr(estimator, f"{signal}_port"))
+        builder.Connect(sensors.GetOutputPort(signal), estimator.GetInputPort(signal))
     if true_state:
         builder.Connect(plant.get_state_output_port(), estimator.true_state_port)
     estimator.sensors = sensors

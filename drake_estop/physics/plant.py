@@ -337,25 +337,47 @@ def add_online_loggers(builder, plant, cop, ik, period) -> dict:
 
 
 def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, current_plan):
-    """Advance ``simulator`` past the signal's servo tick, then to ``after_halt`` past the halt end of
-    ``current_plan(planner_context)`` (again while a re-plan moves that end later).
+    """Advance ``simulator`` through a stop: until ``after_halt`` past the halt end of
+    ``current_plan(planner_context)``, re-read after every step (a re-plan moves that end).
 
-    Returns ``(plan, wall seconds)``; raises RuntimeError if no plan was made by the signal.
+    A ``Simulator`` monitor ends the run; it fails the run if no plan exists two
+    ticks after the signal. Returns ``(plan, wall seconds)``; raises RuntimeError
+    if no plan was made by the signal.
     """
     context = simulator.get_mutable_context()
     planner_context = planner.GetMyContextFromRoot(context)
     dt = servo_period
-    start = time.perf_counter()
-    simulator.AdvanceTo(snap_time(estop_time, dt) + 2 * dt)
-    plan = current_plan(planner_context)
-    if plan is None:
-        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
-    end = 0.0
-    while end < max(plan.halt_end, plan.signal_time) + after_halt - 1e-9:
-        end = dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
-        simulator.AdvanceTo(end)
+    planned_by = snap_time(estop_time, dt) + 2 * dt
+    system = simulator.get_system()
+
+    def end_of(plan):
+        return dt * math.floor((max(plan.halt_end, plan.signal_time) + after_halt) / dt + 1e-9)
+
+    def monitor(root_context):
+        t = root_context.get_time()
+        if t < planned_by - 1e-9:
+            return EventStatus.DidNothing()
         plan = current_plan(planner_context)
+        if plan is None:
+            return EventStatus.Failed(system, f"the planner did not plan a stop by t = {t:.3f} s")
+        if t >= end_of(plan) - 1e-9:
+            return EventStatus.ReachedTermination(system, "past the halt")
+        return EventStatus.DidNothing()
+
+    simulator.set_monitor(monitor)
+    start = time.perf_counter()
+    try:
+        simulator.AdvanceTo(planned_by + _LONGEST_STOP + after_halt)  # the monitor ends it first
+    finally:
+        simulator.clear_monitor()
+    plan = current_plan(planner_context)
+    if plan is None or context.get_time() < end_of(plan) - 1e-9:
+        raise RuntimeError(f"the stop did not end by t = {context.get_time():.3f} s")
     return plan, time.perf_counter() - start
+
+
+#: [s] an upper bound on signal-to-halt-end of any stop, re-plans included
+_LONGEST_STOP = 10.0
 
 
 def snap_time(t: float, period: float) -> float:

@@ -23,7 +23,7 @@ import numpy as np
 from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
@@ -114,7 +114,7 @@ def _add_plant(builder):
 
 def _add_loggers(builder, planner, ik, period):
     """Vector loggers of the planner outputs and the IK outputs, one per tick."""
-    ports = {name: getattr(planner, f"{name}_port") for name in
+    ports = {name: planner.GetOutputPort(name) for name in
              ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "arm_joints")}
     ports.update(q=ik.q_port, ik_com_error=ik.com_error_port,
                  ik_foot_error=ik.foot_error_port,
@@ -164,8 +164,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
         stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
             meshcat=meshcat, pattern=pattern, publish_period=publish_period))
         for name in ("com", "zmp", "phase", "plan"):
-            builder.Connect(getattr(planner, f"{name}_port"),
-                            getattr(stop_visualizer, f"{name}_port"))
+            builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
     diagram = builder.Build()
     diagram.set_name("estop_diagram")
     return DiagramHandles(diagram, plant, scene_graph, pattern, trigger, planner, ik,
@@ -341,25 +340,33 @@ def _end_time(handles, context, after_halt):
     return end + after_halt + 1.5 * handles.planner.params.servo_period
 
 
-def run(handles, *, after_halt=1.0, realtime_rate=0.0, chunk=0.25):
+def run(handles, *, after_halt=1.0, realtime_rate=0.0):
     """Simulate until ``after_halt`` past the halt (or past the walk's end).
 
-    Advances in chunks and re-reads the plan from the planner's Context, so a
-    stop latched live by the Meshcat button also ends the run.  Returns
-    ``(simulator, wall_time)``.
+    A ``Simulator`` monitor re-reads the plan from the planner's Context after
+    every step and ends the run once that time is reached, so a stop latched
+    live by the Meshcat button also ends it. Returns ``(simulator, wall_time)``.
     """
     simulator = Simulator(handles.diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     context = simulator.get_mutable_context()
+
+    def monitor(root_context):
+        if root_context.get_time() >= _end_time(handles, root_context, after_halt) - 1e-9:
+            return EventStatus.ReachedTermination(handles.diagram, "past the halt")
+        return EventStatus.DidNothing()
+
+    simulator.set_monitor(monitor)
     start = time.perf_counter()
     simulator.Initialize()
-    while True:
-        end = _end_time(handles, context, after_halt)
-        t = context.get_time()
-        if t >= end - 1e-9:
-            break
-        simulator.AdvanceTo(min(end, t + chunk))
+    # the bound is never reached: the walk's end (where the latest stop ends) plus the longest stop
+    simulator.AdvanceTo(_end_time(handles, context, after_halt) + _LONGEST_STOP)
+    simulator.clear_monitor()
     return simulator, time.perf_counter() - start
+
+
+#: [s] an upper bound on signal-to-halt-end of any stop (two steps and the longest halt)
+_LONGEST_STOP = 10.0
 
 
 def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html=None,

@@ -95,11 +95,9 @@ class _ReferenceSystem(LeafSystem):
             ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(REFERENCE_SIZE)),
                           calc=self._calc_reference_value),
             prerequisites)
-        for name, size in REFERENCE_LAYOUT:
-            port = self.DeclareVectorOutputPort(
-                name, size, self._output_calc(_SLICES[name]),
-                prerequisites_of_calc={self._reference.ticket()})
-            setattr(self, f"{name}_port", port)
+        for name, size in REFERENCE_LAYOUT:  # one output port per entry, looked up by name
+            self.DeclareVectorOutputPort(name, size, self._output_calc(_SLICES[name]),
+                                         prerequisites_of_calc={self._reference.ticket()})
 
     def _calc_reference_value(self, context, value):
         value.set_value(self._calc_reference(context))
@@ -390,7 +388,6 @@ class StopPlannerSystem(_ReferenceSystem):
         self._blend_time = float(blend_time)
         self._replan_interval = float(replan_interval)
         self._landed_threshold = float(landed_replan_threshold)
-        warm_up(pattern, params)  # load the compiled solver now, not on the stop's servo tick
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
         # optional: the estimated COG; when connected the stop is planned (and re-planned) from it
@@ -584,7 +581,10 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
 
     Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
     left unconnected (export or connect it for an external stop source).
+    The compiled solver is loaded here, at build time (one throw-away plan),
+    so the stop's servo tick does not pay for it.
     """
+    warm_up(pattern, params)
     trigger = builder.AddNamedSystem("estop_trigger", EStopTrigger(
         servo_period=params.servo_period, scheduled_time=estop_time,
         meshcat=meshcat, button_name=button_name))
@@ -596,7 +596,5 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
 
 def connect_reference(builder, source, ik):
     """Connect a reference source's com / feet / upper_body to WholeBodyIK."""
-    builder.Connect(source.com_port, ik.com_port)
-    builder.Connect(source.left_foot_port, ik.left_foot_port)
-    builder.Connect(source.right_foot_port, ik.right_foot_port)
-    builder.Connect(source.upper_body_port, ik.upper_body_port)
+    for name in ("com", "left_foot", "right_foot", "upper_body"):
+        builder.Connect(source.GetOutputPort(name), ik.GetInputPort(name))
