@@ -5,14 +5,14 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
-from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
-
-_GAIT = GaitParameters()
-_STOP = StopParameters()
+from drake_estop.scenario import Scenario, dump_scenario, load_scenario
 
 # COG heights the humanoid's legs reach (models/README.md): straight legs, and knees at their limit
 COG_HEIGHT_STRAIGHT_LEGS = 0.863
@@ -49,8 +49,20 @@ finite_float = number()
 port_number = number(low=1, high=65535, integer=True)
 
 
-def _add_gait_and_stop(p, *, estop=True):
-    """Gait and stop options shared by ``simulate`` and ``sweep``."""
+def _add_scenario_options(p):
+    s = p.add_argument_group("scenario (YAML; the options below override it)")
+    s.add_argument("--scenario-file", metavar="FILE.yaml",
+                   help="start from this scenario (drake_estop.scenario.Scenario: gait, stop, estop_time, "
+                        "simulation, controller, plant, perturbations, after_halt; see --print-scenario)")
+    s.add_argument("--scenario-text", metavar="YAML", help="the same, inline, e.g. '{gait: {step_length: 0.2}}'")
+    s.add_argument("--print-scenario", action="store_true",
+                   help="print the effective scenario as YAML (every field) and exit")
+
+
+def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
+    """Gait and stop options shared by ``simulate`` and ``sweep``; their defaults come from ``scenario``."""
+    _add_scenario_options(p)
+    _GAIT, _STOP = scenario.gait, scenario.stop
     g = p.add_argument_group("gait (paper Section V defaults)")
     g.add_argument("--step-length", type=non_negative_float, default=_GAIT.step_length,
                    help="nominal step length [m] (default %(default)s)")
@@ -68,12 +80,13 @@ def _add_gait_and_stop(p, *, estop=True):
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
     s = p.add_argument_group("stop")
     if estop:
-        s.add_argument("--estop-time", type=non_negative_float, default=3.4,
+        s.add_argument("--estop-time", type=non_negative_float, default=scenario.estop_time,
                        help="time of the stop signal [s]; latched at the next servo tick (default %(default)s)")
     s.add_argument("--servo-period", default=_STOP.servo_period,
                    type=number(low=0.0, high=_STOP.min_transition_time, low_open=True, unit=" s"),
                    help="servo / control period [s]; phase boundaries fall on its ticks (default %(default)s)")
-    s.add_argument("--no-crouch", action="store_true", help="keep the COG height constant (no IV.A crouch)")
+    s.add_argument("--no-crouch", action="store_true", default=not _STOP.crouch,
+                   help="keep the COG height constant (no IV.A crouch)")
     s.add_argument("--crouch-depth", type=non_negative_float, default=_STOP.crouch_depth,
                    help="COG lowering during the stop [m] (default %(default)s)")
     s.add_argument("--a-ss", type=positive_float, default=_STOP.a_ss, help="J_ss swing-speed weight (eq. 24)")
@@ -84,12 +97,12 @@ def _add_gait_and_stop(p, *, estop=True):
                    help="longest landing step from the support ankle [m] (default %(default)s)")
     s.add_argument("--max-swing-speed", type=positive_float, default=_STOP.max_swing_speed,
                    help="mean swing-ankle speed limit to the landing point [m/s] (default %(default)s)")
-    s.add_argument("--quantisation", choices=("resolve", "round"), default="resolve",
+    s.add_argument("--quantisation", choices=("resolve", "round"), default=_STOP.quantisation,
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
                         "'round' only rounds the times, as in the paper")
 
 
-def _add_simulate(sub):
+def _add_simulate(sub, scenario: Scenario):
     p = sub.add_parser(
         "simulate",
         help="walk the nominal pattern, latch an emergency stop, write a log and a summary",
@@ -98,21 +111,21 @@ def _add_simulate(sub):
                     "diagram (planner, whole-body IK, humanoid) unless --kinematic; --physics simulates the "
                     "humanoid with contact. Writes a per-tick CSV log and a JSON summary.",
     )
-    _add_gait_and_stop(p)
+    _add_gait_and_stop(p, scenario)
     d = p.add_argument_group("Drake diagram (default) and Meshcat")
-    d.add_argument("--kinematic", action="store_true",
+    d.add_argument("--kinematic", action="store_true", default=scenario.simulation == "kinematic",
                    help="plan and roll out the reference only (numpy), without the Drake diagram / IK")
-    d.add_argument("--physics", action="store_true",
+    d.add_argument("--physics", action="store_true", default=scenario.simulation == "physics",
                    help="simulate the humanoid with contact (discrete SAP plant, PD servos tracking the "
                         "IK joint angles) under the online controller and check the success criteria; "
                         "adds cop_x, cop_y, pelvis_z, com_meas_*, com_est_* to the log")
-    d.add_argument("--controller", choices=("online", "offline-filter"), default="online",
+    d.add_argument("--controller", choices=("online", "offline-filter"), default=scenario.controller,
                    help="with --physics: 'online' (default) plans and re-plans from the estimated state "
                         "tick by tick; 'offline-filter' computes the whole joint reference with the ZMP "
                         "preview filter at the signal (for comparison; not a real-time controller)")
-    d.add_argument("--true-state", action="store_true",
+    d.add_argument("--true-state", action="store_true", default=scenario.true_state,
                    help="with --physics: feed the controller the true COG instead of the state estimate")
-    add_perturbation_arguments(p)
+    add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "
@@ -123,17 +136,19 @@ def _add_simulate(sub):
     o = p.add_argument_group("output")
     o.add_argument("--log", metavar="FILE.csv", help="per-servo-tick log (runs >= 1 s past the halt)")
     o.add_argument("--summary", metavar="FILE.json", help="JSON summary of the stop")
-    o.add_argument("--after-halt", type=number(low=1.0, unit=" s"), default=1.0,
+    o.add_argument("--after-halt", type=number(low=1.0, unit=" s"), default=scenario.after_halt,
                    help="seconds logged after the end of the halt (default %(default)s, at least 1)")
-    p.set_defaults(func=_simulate)
+    p.set_defaults(func=_simulate, scenario=scenario)
 
 
 def _parameters(args):
-    gait = GaitParameters(
+    gait = replace(
+        args.scenario.gait,
         com_height=args.com_height, step_length=args.step_length, step_width=args.step_width,
         step_time=args.step_time, double_support_ratio=args.double_support_ratio, num_steps=args.num_steps,
     )
-    stop = StopParameters(
+    stop = replace(
+        args.scenario.stop,
         a_ss=args.a_ss, b_ss=args.b_ss, a_ds=args.a_ds, b_ds=args.b_ds, servo_period=args.servo_period,
         max_step_length=args.max_step_length, max_swing_speed=args.max_swing_speed,
         crouch=not args.no_crouch, crouch_depth=args.crouch_depth, quantisation=args.quantisation,
@@ -152,8 +167,19 @@ def _parameters(args):
     return gait, stop
 
 
+def _effective_scenario(args, gait, stop) -> Scenario:
+    """The scenario this command line runs (the file's, with the options applied)."""
+    simulation = "physics" if args.physics else "kinematic" if args.kinematic else "diagram"
+    return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
+                   simulation=simulation, controller=args.controller, true_state=args.true_state,
+                   perturbations=perturbations_from_args(args), after_halt=args.after_halt)
+
+
 def _simulate(args) -> int:
     gait, stop = _parameters(args)
+    if args.print_scenario:
+        print(dump_scenario(_effective_scenario(args, gait, stop)), end="")
+        return 0
     pattern = NominalPattern(gait)
     estop_time = None if args.button_only else args.estop_time
     if args.button_only and not args.meshcat:
@@ -234,7 +260,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
         result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
-                            pattern=pattern, perturbations=perturbations, true_state=args.true_state)
+                            pattern=pattern, perturbations=perturbations, true_state=args.true_state,
+                            physics=_physics_parameters(args.scenario))
         online = {key: result.online[key] for key in
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations")}
         online["perturbations"] = perturbations.summary()
@@ -243,7 +270,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
     else:
         from drake_estop.physics.offline import run_physics
 
-        result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern)
+        result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern,
+                             physics=_physics_parameters(args.scenario))
     columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
                     "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
                     "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt})
@@ -252,6 +280,14 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                "physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
                            "success": result.success, "numbers": result.numbers()}}
     return result.plan, columns, summary
+
+
+def _physics_parameters(scenario: Scenario):
+    """The physics settings of the scenario's plant config (time step, contact model)."""
+    from drake_estop.physics.plant import PhysicsParameters
+
+    contact = "point" if scenario.plant.contact_model == "point" else "hydroelastic"
+    return PhysicsParameters(time_step=scenario.plant.time_step, contact=contact)
 
 
 def _run_diagram(args, gait, stop, estop_time):
@@ -277,7 +313,7 @@ def _run_diagram(args, gait, stop, estop_time):
     return result.plan, result.columns(), summary
 
 
-def _add_sweep(sub):
+def _add_sweep(sub, scenario: Scenario):
     p = sub.add_parser(
         "sweep",
         help="physics runs for stop signals over one stride; writes the stop map (CSV + figure)",
@@ -286,15 +322,15 @@ def _add_sweep(sub):
                     "writes a table and the stop map (case, step length, time to rest, COG travel, "
                     "success per signal time).",
     )
-    _add_gait_and_stop(p, estop=False)
+    _add_gait_and_stop(p, scenario, estop=False)
     o = p.add_argument_group("sweep")
     o.add_argument("--every", type=positive_float, default=0.02, help="signal spacing [s] (default %(default)s)")
     o.add_argument("--csv", default="out/sweep.csv", help="table (default %(default)s)")
     o.add_argument("--png", default="out/stop_map.png", help="stop map figure (default %(default)s)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
-    o.add_argument("--controller", choices=("online", "offline-filter"), default="online",
+    o.add_argument("--controller", choices=("online", "offline-filter"), default=scenario.controller,
                    help="the physics controller of every run (default %(default)s; see simulate --help)")
-    p.set_defaults(func=_sweep, after_halt=2.5)
+    p.set_defaults(func=_sweep, after_halt=2.5, scenario=scenario)
 
 
 def _sweep(args) -> int:
@@ -302,6 +338,10 @@ def _sweep(args) -> int:
     from drake_estop.physics.sweep import sweep, write_sweep
 
     gait, stop = _parameters(args)
+    if args.print_scenario:
+        print(dump_scenario(replace(args.scenario, gait=gait, stop=stop, simulation="physics",
+                                    controller=args.controller)), end="")
+        return 0
     if not (math.isfinite(args.every) and args.every > 0):
         raise ValueError(f"every must be a positive number of seconds, got {args.every}")
     start, end = NominalPattern(gait).stride()
@@ -329,19 +369,43 @@ def _sweep(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(scenario: Scenario | None = None) -> argparse.ArgumentParser:
+    """The ``drake-estop`` parser; option defaults from ``scenario`` (default: ``Scenario()``)."""
+    scenario = scenario or Scenario()
     parser = argparse.ArgumentParser(
         prog="drake-estop",
         description="Emergency stop for walking humanoids (Morisawa et al., IROS 2005) on Drake.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    _add_simulate(sub)
-    _add_sweep(sub)
+    _add_simulate(sub, scenario)
+    _add_sweep(sub, scenario)
     return parser
 
 
+def _scenario_from(argv) -> Scenario:
+    """The scenario named by --scenario-file / --scenario-text in ``argv`` (default ``Scenario()``)."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--scenario-file")
+    pre.add_argument("--scenario-text")
+    known, _ = pre.parse_known_args(argv)
+    if known.scenario_file is not None and known.scenario_text is not None:
+        raise ValueError("give --scenario-file or --scenario-text, not both")
+    if known.scenario_file is not None:
+        if not Path(known.scenario_file).is_file():
+            raise FileNotFoundError(f"--scenario-file: no such file {known.scenario_file}")
+        return load_scenario(filename=known.scenario_file)
+    if known.scenario_text is not None:
+        return load_scenario(text=known.scenario_text)
+    return Scenario()
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
+    try:
+        scenario = _scenario_from(sys.argv[1:] if argv is None else argv)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"drake-estop: error: {error}", file=sys.stderr)
+        return 2
+    parser = build_parser(scenario)
     try:
         args = parser.parse_args(argv)
     except SystemExit as stop:  # argparse printed the usage and the bad option (status 2); --help: 0

@@ -235,7 +235,7 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
                                          for key, kp in PhysicsParameters().gains))
     from drake_estop.physics import online
     original = online.run_online  # the default controller of simulate --physics
-    monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, physics=weak, **kwargs))
+    monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, **{**kwargs, "physics": weak}))
     summary = tmp_path / "s.json"
     assert main(["simulate", "--physics", "--estop-time", "0", "--summary", str(summary)]) == 1
     result = json.load(open(summary))["physics"]

@@ -158,22 +158,28 @@ class Perturbations:
 # Command line.
 
 
-def add_perturbation_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add ``--push``, ``--mass-scale``, ... (issue 13's table) to ``parser``."""
+def add_perturbation_arguments(parser: argparse.ArgumentParser,
+                               defaults: Perturbations | None = None) -> argparse.ArgumentParser:
+    """Add ``--push``, ``--mass-scale``, ... (issue 13's table) to ``parser``, defaulting to ``defaults``
+    (a scenario's perturbations; ``--push`` adds to its pushes)."""
+    d = defaults or Perturbations()
     group = parser.add_argument_group("perturbations of the simulated robot (--physics)")
-    group.add_argument("--push", nargs=4, type=float, action="append", default=[],
+    group.add_argument("--push", nargs=4, type=float, action="append",
+                       default=[[p.time, p.force_x, p.force_y, p.duration] for p in d.pushes],
                        metavar=("TIME", "FX", "FY", "DURATION"),
                        help="force on the pelvis, world frame [s N N s]; repeatable")
-    group.add_argument("--mass-scale", type=float, default=1.0, metavar="F", help="scales all link masses")
-    group.add_argument("--torso-mass-scale", type=float, default=1.0, metavar="F", help="scales the torso's mass")
-    group.add_argument("--torso-com-offset", type=float, default=0.0, metavar="DX",
+    group.add_argument("--mass-scale", type=float, default=d.mass_scale, metavar="F", help="scales all link masses")
+    group.add_argument("--torso-mass-scale", type=float, default=d.torso_mass_scale, metavar="F",
+                       help="scales the torso's mass")
+    group.add_argument("--torso-com-offset", type=float, default=d.torso_com_offset, metavar="DX",
                        help="moves the torso COM [m], forward positive")
-    group.add_argument("--friction", type=float, default=None, metavar="MU",
+    group.add_argument("--friction", type=float, default=d.friction, metavar="MU",
                        help="foot-ground friction coefficient (default: the model's 0.8 dynamic)")
-    group.add_argument("--latency", type=int, default=0, metavar="TICKS", help="sensor-to-command delay [ticks]")
-    group.add_argument("--sensor-noise", action="store_true",
+    group.add_argument("--latency", type=int, default=d.latency_ticks, metavar="TICKS",
+                       help="sensor-to-command delay [ticks]")
+    group.add_argument("--sensor-noise", action="store_true", default=d.sensor_noise,
                        help="white noise: encoders 1e-3 rad, gyro 0.01 rad/s, accelerometer 0.05 m/s^2")
-    group.add_argument("--seed", type=int, default=0, metavar="N", help="seed for the sensor noise")
+    group.add_argument("--seed", type=int, default=d.seed, metavar="N", help="seed for the sensor noise")
     return parser
 
 

@@ -39,11 +39,10 @@ from pydrake.geometry import (
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import (
-    AddMultibodyPlantSceneGraph,
-    ContactModel,
+    AddMultibodyPlant,
     ContactResults,
     CoulombFriction,
-    DiscreteContactApproximation,
+    MultibodyPlantConfig,
 )
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
@@ -297,15 +296,22 @@ class PhysicsHandles:
     ground_id: object
 
 
+def plant_config(params: PhysicsParameters) -> MultibodyPlantConfig:
+    """Drake's ``MultibodyPlantConfig`` of the humanoid's plant: ``params.time_step``, the
+    contact model (``"point"`` or ``"hydroelastic_with_fallback"``) and SAP's lagged
+    discrete contact approximation (what the plant's implicit PD servos need)."""
+    return MultibodyPlantConfig(
+        time_step=params.time_step, discrete_contact_approximation="lagged",
+        contact_model="point" if params.contact == "point" else "hydroelastic_with_fallback")
+
+
 def add_physics_plant(builder, params: PhysicsParameters):
-    """The humanoid on the ground: discrete plant (SAP-based contact), servo gains, sole contact
-    filtered to the corner spheres. Returns ``(plant, scene_graph, model_instance, ground_id)``."""
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, params.time_step)
+    """The humanoid on the ground: the plant from :func:`plant_config` (``AddMultibodyPlant``),
+    servo gains, sole contact filtered to the corner spheres.
+    Returns ``(plant, scene_graph, model_instance, ground_id)``."""
+    plant, scene_graph = AddMultibodyPlant(plant_config(params), builder)
     instance = load_humanoid(plant)
     ground_id = add_ground(plant, params)
-    plant.set_contact_model(ContactModel.kPoint if params.contact == "point"
-                            else ContactModel.kHydroelasticWithFallback)
-    plant.set_discrete_contact_approximation(DiscreteContactApproximation.kLagged)
     set_servo_gains(plant, params)
     plant.Finalize()
     filter_sole_contact(plant, scene_graph, ground_id, params)

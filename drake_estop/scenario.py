@@ -1,0 +1,207 @@
+"""Scenarios as data: one YAML document says what ``drake-estop simulate`` runs.
+
+In the style of Drake's ``examples/hardware_sim`` (a scenario dataclass read
+with ``pydrake.common.yaml.yaml_load_typed``): a :class:`Scenario` holds the
+gait, the stop parameters, the signal time, the simulation mode and, for
+physics runs, the plant configuration (Drake's ``MultibodyPlantConfig``) and
+the perturbations of the simulated robot. Every field has a default, so a
+scenario file names only what differs, e.g.::
+
+    gait: {step_length: 0.3, step_time: 0.8}
+    stop: {a_ss: 5.0, b_ss: 1000.0}
+    estop_time: 3.4
+
+``drake-estop simulate --scenario-file FILE.yaml`` (or ``--scenario-text
+'{...}'``) starts from it; options given on the command line override it.
+An unknown key is an error naming the key (``yaml_load_typed`` is strict),
+and the parameter classes validate the values as everywhere else.
+
+The project's parameter classes use postponed annotations and bare ``tuple``
+fields, which ``yaml_load_typed`` cannot read directly; :func:`yaml_schema`
+makes a schema twin of each (annotations resolved, tuples read as lists of the
+element type of the default) and :func:`load_scenario` converts back.
+"""
+
+import dataclasses
+import functools
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+from pydrake.multibody.plant import MultibodyPlantConfig
+
+from drake_estop.physics.perturbations import Perturbations, Push
+from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.planner import StopParameters
+
+SIMULATIONS = ("kinematic", "diagram", "physics")
+CONTROLLERS = ("online", "offline-filter")
+
+
+def default_plant_config() -> MultibodyPlantConfig:
+    """The humanoid's plant: 1 ms discrete steps, SAP-based lagged contact, point contact between
+    the sole-corner spheres and the ground (see :mod:`drake_estop.physics.plant`)."""
+    return MultibodyPlantConfig(time_step=1e-3, contact_model="point", discrete_contact_approximation="lagged")
+
+
+@dataclass
+class Scenario:
+    """Everything one ``drake-estop simulate`` run needs.
+
+    Attributes
+    ----------
+    gait : GaitParameters
+        The nominal walk (lengths in m, times in s).
+    stop : StopParameters
+        The stop planner's weights and limits.
+    estop_time : float or None
+        Time of the stop signal [s], latched at the next servo tick; None for no scheduled stop
+        (only with a live Meshcat button).
+    simulation : str
+        ``"kinematic"`` (plan and roll out, numpy), ``"diagram"`` (the Drake diagram with IK) or
+        ``"physics"`` (the humanoid with contact under the online controller).
+    controller : str
+        Physics only: ``"online"`` or ``"offline-filter"``.
+    true_state : bool
+        Physics only: feed the controller the true COG instead of the estimate.
+    plant : MultibodyPlantConfig
+        Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
+        ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
+    perturbations : Perturbations
+        Physics only: pushes, mass and torso errors, friction, latency, noise.
+    after_halt : float
+        Seconds simulated and logged after the halt ends (>= 1).
+    """
+
+    gait: GaitParameters = field(default_factory=GaitParameters)
+    stop: StopParameters = field(default_factory=StopParameters)
+    estop_time: float | None = 3.4
+    simulation: str = "diagram"
+    controller: str = "online"
+    true_state: bool = False
+    plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
+    perturbations: Perturbations = field(default_factory=Perturbations)
+    after_halt: float = 1.0
+
+    def __post_init__(self):
+        if self.simulation not in SIMULATIONS:
+            raise ValueError(f"simulation must be one of {SIMULATIONS}, got {self.simulation!r}")
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"controller must be one of {CONTROLLERS}, got {self.controller!r}")
+        if not self.after_halt >= 1.0:
+            raise ValueError(f"after_halt must be at least 1 s, got {self.after_halt!r}")
+        if self.estop_time is not None and not self.estop_time >= 0.0:
+            raise ValueError(f"estop_time must be >= 0 s or null, got {self.estop_time!r}")
+        contact = {"point": "point", "hydroelastic_with_fallback": "hydroelastic"}
+        if self.plant.contact_model not in contact:
+            raise ValueError(f"plant.contact_model must be 'point' or 'hydroelastic_with_fallback', "
+                             f"got {self.plant.contact_model!r}")
+
+
+# -- schema twins for yaml_load_typed --------------------------------------------------------
+
+#: tuple fields whose default is empty: their element type
+_TUPLE_ELEMENTS = {(Perturbations, "pushes"): Push}
+
+
+def _element_type(cls, f):
+    """The element type of a tuple field: listed above, else that of its default's items."""
+    if (cls, f.name) in _TUPLE_ELEMENTS:
+        return yaml_schema(_TUPLE_ELEMENTS[cls, f.name])
+    default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+    kinds = {type(item) for item in default}
+    if len(kinds) > 1:
+        raise TypeError(f"tuple default {default!r} mixes element types")
+    kind = kinds.pop() if kinds else float
+    return yaml_schema(kind) if dataclasses.is_dataclass(kind) else kind
+
+
+def _field_type(cls, f, hints):
+    hint = hints[f.name]
+    if dataclasses.is_dataclass(hint):
+        return yaml_schema(hint)
+    if hint is tuple:
+        return list[_element_type(cls, f)]
+    return hint
+
+
+@functools.cache
+def yaml_schema(cls):
+    """A dataclass ``yaml_load_typed`` can read in place of ``cls`` (see the module docstring).
+    Drake's own bound types (``MultibodyPlantConfig``) are their own schema."""
+    if not dataclasses.is_dataclass(cls):
+        return cls
+    hints = typing.get_type_hints(cls)
+    fields = [(f.name, _field_type(cls, f, hints), dataclasses.field(default=None)) for f in dataclasses.fields(cls)]
+    return dataclasses.make_dataclass(f"{cls.__name__}Schema", fields)
+
+
+def _to_schema(value, cls):
+    """``value`` (an instance of ``cls``) as an instance of its schema twin."""
+    schema = yaml_schema(cls)
+    if schema is cls:
+        return value
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        item = getattr(value, f.name)
+        if dataclasses.is_dataclass(hints[f.name]):
+            item = _to_schema(item, hints[f.name])
+        elif hints[f.name] is tuple:
+            item = [_to_schema(x, type(x)) if dataclasses.is_dataclass(x) else x for x in item]
+        kwargs[f.name] = item
+    return schema(**kwargs)
+
+
+def _from_schema(value, cls):
+    """Back from the schema twin: lists to tuples, nested twins to the real classes (which validate)."""
+    if yaml_schema(cls) is cls:
+        return value
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        item = getattr(value, f.name)
+        hint = hints[f.name]
+        if dataclasses.is_dataclass(hint):
+            item = _from_schema(item, hint)
+        elif hint is tuple:
+            element = _element_type(cls, f)
+            item = tuple(_from_schema(x, _ORIGINAL[element]) if element in _ORIGINAL else x for x in item)
+        kwargs[f.name] = item
+    return cls(**kwargs)
+
+
+_ORIGINAL = {}  # schema twin -> the class it stands for (filled below)
+
+
+def _register(*classes):
+    for cls in classes:
+        _ORIGINAL[yaml_schema(cls)] = cls
+
+
+def load_scenario(*, filename: str | Path | None = None, text: str | None = None,
+                  defaults: Scenario | None = None) -> Scenario:
+    """A :class:`Scenario` from a YAML file or string (exactly one), on top of ``defaults``.
+
+    Raises ``ValueError`` naming the key or the value that is wrong (unknown keys,
+    wrong types, values the parameter classes reject).
+    """
+    if (filename is None) == (text is None):
+        raise ValueError("load_scenario needs exactly one of filename= or text=")
+    defaults = defaults or Scenario()
+    source = f"scenario file {filename}" if filename is not None else "scenario text"
+    try:
+        schema = yaml_load_typed(schema=yaml_schema(Scenario), filename=None if filename is None else str(filename),
+                                 data=text, defaults=_to_schema(defaults, Scenario))
+        return _from_schema(schema, Scenario)
+    except (RuntimeError, TypeError, ValueError, KeyError) as error:
+        raise ValueError(f"{source}: {error}") from error
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """The scenario as YAML text (every field), readable by :func:`load_scenario`."""
+    return yaml_dump_typed(_to_schema(scenario, Scenario))
+
+
+_register(Push, Perturbations, GaitParameters, StopParameters, Scenario)

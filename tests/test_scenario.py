@@ -1,0 +1,130 @@
+"""Scenarios as data (issue 8): YAML through Drake's yaml_load_typed, the CLI on top of it,
+the plant from MultibodyPlantConfig, and the shipped scenario files."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from pydrake.multibody.plant import ContactModel, DiscreteContactApproximation
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_estop.cli import main
+from drake_estop.physics.perturbations import Perturbations, Push
+from drake_estop.physics.plant import PhysicsParameters, add_physics_plant, plant_config
+from drake_estop.planning.gait import GaitParameters, NominalPattern, Sole
+from drake_estop.planning.planner import StopParameters, plan_stop
+from drake_estop.scenario import Scenario, dump_scenario, load_scenario
+
+SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "diagrams" / "scenarios").glob("*.yaml"))
+
+
+def _unusual():
+    return Scenario(
+        gait=GaitParameters(step_length=0.22, num_steps=6, sole=Sole(toe=0.14)),
+        stop=StopParameters(zmp_margin=0.02, halt_durations=(0.9, 1.4), crouch=False),
+        estop_time=3.3, simulation="physics", controller="online", true_state=True,
+        perturbations=Perturbations(pushes=(Push(3.3, 100.0, -20.0, 0.1), Push(3.5, 0.0, 50.0, 0.05)),
+                                    mass_scale=1.1, friction=0.6, latency_ticks=2, sensor_noise=True, seed=7),
+        after_halt=2.0)
+
+
+def test_dump_and_load_round_trip():
+    scenario = _unusual()
+    loaded = load_scenario(text=dump_scenario(scenario))
+    assert loaded.gait == scenario.gait and loaded.stop == scenario.stop
+    assert loaded.perturbations == scenario.perturbations
+    assert (loaded.estop_time, loaded.simulation, loaded.true_state, loaded.after_halt) == (3.3, "physics", True, 2.0)
+    assert isinstance(loaded.stop.halt_durations, tuple) and isinstance(loaded.perturbations.pushes[0], Push)
+
+
+def test_a_partial_document_keeps_the_defaults():
+    scenario = load_scenario(text="{gait: {step_length: 0.2}, plant: {time_step: 0.002}}")
+    assert scenario.gait == GaitParameters(step_length=0.2)
+    assert scenario.stop == StopParameters() and scenario.perturbations == Perturbations()
+    assert scenario.plant.time_step == 0.002 and scenario.plant.contact_model == "point"
+
+
+@pytest.mark.parametrize("text,named", [
+    ("{gait: {stp_length: 0.3}}", "stp_length"),
+    ("{speed: 3}", "speed"),
+    ("{perturbations: {mass_scale: -1}}", "--mass-scale"),
+    ("{perturbations: {pushes: [{time: 3.4, force_x: 1, force_y: 0, duration: 0}]}}", "duration"),
+    ("{simulation: walking}", "simulation"),
+    ("{after_halt: 0.5}", "after_halt"),
+    ("{plant: {contact_model: hydroelastic}}", "plant.contact_model"),
+    ("{stop: {min_landing_time: 2.0}}", "landing_time"),
+])
+def test_bad_documents_name_what_is_wrong(text, named):
+    with pytest.raises(ValueError, match=named):
+        load_scenario(text=text)
+
+
+def test_load_needs_exactly_one_source(tmp_path):
+    with pytest.raises(ValueError, match="exactly one"):
+        load_scenario()
+    with pytest.raises(ValueError, match="exactly one"):
+        load_scenario(filename=tmp_path / "x.yaml", text="{}")
+
+
+def test_cli_takes_the_scenario_and_options_override_it(tmp_path):
+    """Fields the command line has no option for (zmp_margin, halt_durations) reach the plan;
+    an explicit option (--step-length) overrides the file."""
+    path = tmp_path / "scenario.yaml"
+    path.write_text("gait: {step_length: 0.3, step_time: 0.8}\n"
+                    "stop: {zmp_margin: 0.02, halt_durations: [0.8, 1.0]}\n"
+                    "estop_time: 3.3\nsimulation: kinematic\n")
+    summary = tmp_path / "s.json"
+    assert main(["simulate", "--scenario-file", str(path), "--step-length", "0.2", "--summary", str(summary)]) == 0
+    data = json.loads(summary.read_text())
+    gait = GaitParameters(step_length=0.2, step_time=0.8)
+    plan = plan_stop(NominalPattern(gait), 3.3, StopParameters(zmp_margin=0.02, halt_durations=(0.8, 1.0)))
+    assert data["phase_times"]["halt_end"] == pytest.approx(plan.halt_end, abs=1e-12)
+    assert data["phase_times"]["landing_end"] == pytest.approx(plan.landing_time, abs=1e-12)
+    default = plan_stop(NominalPattern(gait), 3.3, StopParameters())
+    assert plan.halt_end != pytest.approx(default.halt_end, abs=1e-6)  # the file's stop parameters mattered
+
+
+def test_print_scenario_shows_the_effective_scenario(capsys):
+    assert main(["simulate", "--scenario-text", "{gait: {step_length: 0.25}}", "--physics", "--mass-scale", "1.2",
+                 "--push", "3.4", "100", "0", "0.1", "--print-scenario"]) == 0
+    scenario = load_scenario(text=capsys.readouterr().out)
+    assert scenario.gait.step_length == 0.25 and scenario.simulation == "physics"
+    assert scenario.perturbations.mass_scale == 1.2 and scenario.perturbations.pushes == (Push(3.4, 100.0, 0.0, 0.1),)
+
+
+@pytest.mark.parametrize("args,named", [
+    (["--scenario-text", "{gait: {stp: 1}}"], "stp"),
+    (["--scenario-file", "/nonexistent/s.yaml"], "--scenario-file"),
+    (["--scenario-file", "x.yaml", "--scenario-text", "{}"], "not both"),
+])
+def test_cli_bad_scenarios_exit_2(capsys, args, named):
+    assert main(["simulate", "--kinematic", *args]) == 2
+    assert named in capsys.readouterr().err
+
+
+def test_plant_from_multibody_plant_config():
+    for contact, model in (("point", ContactModel.kPoint),
+                           ("hydroelastic", ContactModel.kHydroelasticWithFallback)):
+        params = PhysicsParameters(time_step=2e-3, contact=contact)
+        assert plant_config(params).time_step == 2e-3
+        plant, *_ = add_physics_plant(DiagramBuilder(), params)
+        assert plant.time_step() == 2e-3 and plant.get_contact_model() == model
+        assert plant.get_discrete_contact_approximation() == DiscreteContactApproximation.kLagged
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
+def test_shipped_scenarios_load_and_plan(path):
+    scenario = load_scenario(filename=path)
+    plan = plan_stop(NominalPattern(scenario.gait), scenario.estop_time, scenario.stop)
+    assert plan.case == "one-step"
+
+
+def test_paper_scenario_files_hold_the_paper_values():
+    by_name = {path.stem: load_scenario(filename=path) for path in SCENARIOS}
+    single = by_name["single_support_stop"]
+    assert (single.gait.step_length, single.gait.step_time, single.estop_time) == (0.3, 0.8, 3.4)
+    assert (single.stop.a_ss, single.stop.b_ss) == (5.0, 1000.0)
+    double = by_name["double_support_stop"]
+    assert (double.estop_time, double.stop.a_ds, double.stop.b_ds) == (3.5, 50.0, 1000.0)
+    assert replace(by_name["hrp2_experiment"].gait, step_length=0.3) == single.gait
