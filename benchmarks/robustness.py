@@ -46,16 +46,18 @@ def _run(job):
     """One online physics stop: ``job`` = (signal time, perturbation keywords). Returns a row."""
     from drake_estop.physics.online import run_online
     from drake_estop.physics.perturbations import Perturbations, Push
+    from drake_estop.physics.plant import PhysicsParameters
     from drake_estop.planning.gait import NominalPattern
 
-    t, options, planner_options = job
+    t, options, planner_options, time_step = job
     options = dict(options)
     push = options.pop("push", None)
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
     start = time.perf_counter()
+    physics = PhysicsParameters() if time_step is None else PhysicsParameters(time_step=time_step)
     try:
         result = run_online(estop_time=t, pattern=NominalPattern(), planner_options=planner_options,
-                            perturbations=Perturbations(pushes=pushes, **options))
+                            perturbations=Perturbations(pushes=pushes, **options), physics=physics)
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
     numbers = result.numbers()
@@ -65,7 +67,8 @@ def _run(job):
             "joint_velocity_violations": result.online["joint_velocity_violations"],
             "tick_compute": result.online["tick_compute"], "torso_tilt_max": numbers["torso_tilt_max_rad"],
             "final_offset": numbers["final_cog_offset_m"], "realtime_factor": numbers["realtime_factor"],
-            "wall": time.perf_counter() - start}
+            "wall": time.perf_counter() - start,
+            "cpu_realtime_factor": result.online["cpu_realtime_factor"]}
 
 
 def _stride():
@@ -80,6 +83,8 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="10 sweep signals and a coarse push search")
     parser.add_argument("--planner-option", action="append", default=[], metavar="NAME=VALUE",
                         help="a StopPlannerSystem setting, e.g. landed_replan_threshold=0.065 (repeatable)")
+    parser.add_argument("--time-step", type=float, default=None,
+                        help="the plant's discrete step [s] (default: PhysicsParameters' own)")
     args = parser.parse_args(argv)
     start, end = _stride()
     every = 0.08 if args.quick else 0.02
@@ -91,7 +96,7 @@ def main(argv=None):
     jobs += [(phase_times[p], {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
              for p in PUSH_PHASES for d in DIRECTIONS.values() for i in impulses]
     planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
-    jobs = [(t, options, planner_options) for t, options in jobs]
+    jobs = [(t, options, planner_options, args.time_step) for t, options in jobs]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(_run, jobs))
@@ -101,6 +106,8 @@ def main(argv=None):
     text = report(rows, sweep_times, phase_times, impulses, wall, args.workers)
     if planner_options:
         text = text.replace("\n\n", f"\n\nPlanner settings changed from the defaults: {planner_options}.\n\n", 1)
+    if args.time_step is not None:
+        text = text.replace("\n\n", f"\n\nPlant time step: {args.time_step * 1e3:g} ms.\n\n", 1)
     Path(args.out).write_text(text)
     print(Path(args.out).read_text())
 
@@ -128,6 +135,13 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
                   f"{max(t['p99'] for t in ticks) * 1e3:.2f} / {max(t['max'] for t in ticks) * 1e3:.2f} ms "
                   f"(two runs share the two cores). Joint-velocity violations: "
                   f"{sum(r.get('joint_velocity_violations', 0) > 0 for r in rows)} of {len(rows)} runs."]
+    factors = [r["cpu_realtime_factor"] for r in rows if "cpu_realtime_factor" in r]
+    if factors:
+        lines += ["", "Real-time factor per run, simulated seconds per CPU second of the simulation loop "
+                  "(plant, contact and controller on a core of their own; walk, stop and rest): median "
+                  f"{_median(factors):.2f}, min {min(factors):.2f}, max {max(factors):.2f}. Wall-clock factors "
+                  "with two runs on two busy cores: median "
+                  f"{_median([r['realtime_factor'] for r in rows if 'realtime_factor' in r]):.2f}."]
     lines += ["", "## Perturbation matrix", "",
               "| cell | " + " | ".join(f"{name} ({t:.2f} s)" for name, t in phase_times.items()) + " |",
               "| --- |" + " --- |" * len(phase_times)]

@@ -92,6 +92,8 @@ class PhysicsResult:
     ik_wall_time: float
     params: PhysicsParameters = field(default_factory=PhysicsParameters)
     reference: JointReference | None = None
+    #: the online controller's own figures (:func:`drake_estop.physics.online.run_online`), else None
+    online: dict | None = None
 
     @property
     def realtime_factor(self) -> float:

@@ -51,6 +51,7 @@ How the controller balances (and what it does not do):
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -206,6 +207,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     handles.plant.SetPositions(plant_context, handles.initial_q)
     apply_model_errors(handles.plant, plant_context, perturbations)
     simulator.Initialize()
+    cpu = time.process_time()
     plan, wall = run_through_stop(simulator, handles.planner, estop_time, stop_params.servo_period, after_halt,
                                   handles.planner.plans)  # the plan and its re-plans, each from its start
     planner_context = handles.planner.GetMyContextFromRoot(context)
@@ -214,6 +216,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
     failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
     reference = JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, 0.0)
+    cpu = time.process_time() - cpu
     result = analyse(handles, context, plan, reference, handles.physics, wall)
     states = handles.loggers["state"].FindLog(context).data().T
     replans, replan_failures = handles.planner.replans(planner_context)
@@ -226,6 +229,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
                                                    .FindLog(context).sample_times()),
         "com_est": handles.loggers["com_est"].FindLog(context).data().T,
+        # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
+        # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
+        "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),
         "perturbations": perturbations,
     }
     return result
