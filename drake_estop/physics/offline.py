@@ -42,7 +42,6 @@ from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 
 from drake_estop.model import (
     UPPER_BODY_JOINTS,
-    nominal_standing_configuration,
 )
 from drake_estop.physics.criteria import JointReference, PhysicsResult, analyse, multibody_zmp
 from drake_estop.physics.plant import (
@@ -58,19 +57,15 @@ from drake_estop.planning.gait import ARM_JOINTS, GaitParameters, NominalPattern
 from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.planning.rollout import Rollout, rollout
-from drake_estop.systems.ik import WholeBodyIkSolver, shared_ik
+from drake_estop.systems.ik import WholeBodyIkSolver, converged_posture, shared_ik
 
 
-def initial_configuration(plant, ro: Rollout, *, solver=None, attempts=20):
+def initial_configuration(plant, ro: Rollout, *, solver=None):
     """Converged IK posture at the first tick of ``ro`` (feet ``step_width`` apart)."""
-    solver = solver or WholeBodyIkSolver(plant, max_iterations=50)
-    q = nominal_standing_configuration(plant, float(ro.com[0, 2]))
-    for _ in range(attempts):
-        result = _solve_tick(solver, q, ro, 0)
-        q = result.q
-        if result.success and result.iterations <= 1:
-            return q
-    raise RuntimeError(f"the IK cannot reach the initial posture (COG error {result.com_error:.2e} m)")
+    upper = dict.fromkeys(UPPER_BODY_JOINTS, 0.0)
+    upper.update(zip(ARM_JOINTS, ro.upper_body[0]))
+    left, right = (np.concatenate([ro.feet[side][0], LEVEL]) for side in SIDES)
+    return converged_posture(plant, ro.com[0], left, right, upper, solver=solver)
 
 
 def _solve_tick(solver, q, ro: Rollout, i):

@@ -34,11 +34,10 @@ from drake_estop.model import (
     UPPER_BODY_JOINTS,
     joint_position_indices,
     load_humanoid,
-    nominal_standing_configuration,
 )
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters
-from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver
+from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.stop_controller import (
     REFERENCE_LAYOUT,
     add_stop_controller,
@@ -76,21 +75,9 @@ def initial_configuration(plant, pattern, *, attempts=20):
     starts with the feet ``step_width`` apart, so the IK is solved offline
     here instead of letting the first servo tick jump.
     """
-    solver = WholeBodyIkSolver(plant, max_iterations=50)
-    reference = reference_vector(0.0, pattern=pattern)
-    parts = _split(reference)
-    q = nominal_standing_configuration(plant, pattern.params.com_height)
-    upper = dict(zip(UPPER_BODY_JOINTS, parts["upper_body"]))
-    for _ in range(attempts):
-        result = solver.solve(q, parts["com"], parts["left_foot"], parts["right_foot"],
-                              None, upper)
-        q = result.q
-        if result.success and result.iterations <= 1:
-            break
-    if not result.success:
-        raise RuntimeError("the IK cannot reach the pattern's initial posture "
-                           f"(COG error {result.com_error:.2e} m)")
-    return q
+    parts = _split(reference_vector(0.0, pattern=pattern))
+    return converged_posture(plant, parts["com"], parts["left_foot"], parts["right_foot"],
+                             dict(zip(UPPER_BODY_JOINTS, parts["upper_body"])), attempts=attempts)
 
 
 def _split(reference):

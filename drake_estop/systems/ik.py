@@ -515,3 +515,19 @@ def shared_ik():
         _SHARED["context"] = plant.CreateDefaultContext()
     return _SHARED["plant"], _SHARED["solver"], _SHARED["context"]
 
+
+def converged_posture(plant, com, left_foot, right_foot, upper_body: dict, *, solver=None, attempts: int = 20):
+    """The IK posture that reaches these targets from the standing posture, iterated until a solve
+    starts converged (so the first servo tick does not jump).
+
+    ``com`` [m] xyz; ``left_foot`` / ``right_foot`` sole poses ``[x, y, z, qw, qx, qy, qz]``;
+    ``upper_body`` joint name -> angle [rad]. Raises RuntimeError if the IK cannot reach them.
+    """
+    solver = solver or WholeBodyIkSolver(plant, max_iterations=50)
+    q = nominal_standing_configuration(plant, float(com[2]))
+    for _ in range(attempts):
+        result = solver.solve(q, com, left_foot, right_foot, None, upper_body)
+        q = result.q
+        if result.success and result.iterations <= 1:
+            return q
+    raise RuntimeError(f"the IK cannot reach the initial posture (COG error {result.com_error:.2e} m)")
