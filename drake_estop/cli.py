@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
+import typing
 from dataclasses import replace
 from pathlib import Path
 
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
-from drake_estop.planning.gait import NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, plan_stop, warm_up
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
 
@@ -100,6 +102,30 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
     s.add_argument("--quantisation", choices=("resolve", "round"), default=_STOP.quantisation,
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
                         "'round' only rounds the times, as in the paper")
+    _add_field_options(p, scenario)
+
+
+#: fields set by the curated options above (or only in a scenario file: tuples, the sole)
+_CURATED = {"crouch"}
+_OPTION_TYPES = {float: finite_float, int: number(integer=True), str: str}
+
+
+def _scalar_fields(cls):
+    hints = typing.get_type_hints(cls)
+    return [(f.name, hints[f.name]) for f in dataclasses.fields(cls) if hints[f.name] in _OPTION_TYPES]
+
+
+def _add_field_options(p, scenario: Scenario):
+    """One option per remaining scalar field of GaitParameters and StopParameters, generated from the
+    dataclasses (``--lift-height``, ``--zmp-margin``, ...); the classes validate the values."""
+    curated = _CURATED | {action.dest for action in p._actions}
+    group = p.add_argument_group("every other gait / stop parameter (validated by GaitParameters / StopParameters)")
+    for cls, defaults in ((GaitParameters, scenario.gait), (StopParameters, scenario.stop)):
+        for name, kind in _scalar_fields(cls):
+            if name not in curated:
+                group.add_argument(f"--{name.replace('_', '-')}", type=_OPTION_TYPES[kind],
+                                   default=getattr(defaults, name),
+                                   help=f"{cls.__name__}.{name} (default %(default)s)")
 
 
 def _add_simulate(sub, scenario: Scenario):
@@ -142,17 +168,9 @@ def _add_simulate(sub, scenario: Scenario):
 
 
 def _parameters(args):
-    gait = replace(
-        args.scenario.gait,
-        com_height=args.com_height, step_length=args.step_length, step_width=args.step_width,
-        step_time=args.step_time, double_support_ratio=args.double_support_ratio, num_steps=args.num_steps,
-    )
-    stop = replace(
-        args.scenario.stop,
-        a_ss=args.a_ss, b_ss=args.b_ss, a_ds=args.a_ds, b_ds=args.b_ds, servo_period=args.servo_period,
-        max_step_length=args.max_step_length, max_swing_speed=args.max_swing_speed,
-        crouch=not args.no_crouch, crouch_depth=args.crouch_depth, quantisation=args.quantisation,
-    )
+    gait = replace(args.scenario.gait, **{name: getattr(args, name) for name, _ in _scalar_fields(GaitParameters)})
+    stop = replace(args.scenario.stop, crouch=not args.no_crouch,
+                   **{name: getattr(args, name) for name, _ in _scalar_fields(StopParameters) if name != "crouch"})
     if gait.step_length > stop.max_step_length:
         raise ValueError(f"step_length {gait.step_length} m exceeds max_step_length {stop.max_step_length} m")
     if gait.step_length < 0:

@@ -128,3 +128,35 @@ def test_paper_scenario_files_hold_the_paper_values():
     double = by_name["double_support_stop"]
     assert (double.estop_time, double.stop.a_ds, double.stop.b_ds) == (3.5, 50.0, 1000.0)
     assert replace(by_name["hrp2_experiment"].gait, step_length=0.3) == single.gait
+
+
+@pytest.mark.parametrize("option,field,value", [
+    ("--zmp-margin", "zmp_margin", 0.02),
+    ("--max-landing-time", "max_landing_time", 0.6),
+    ("--lift-height", "lift_height", 0.07),
+    ("--landing", "landing", "nominal"),
+])
+def test_generated_field_options_reach_the_plan(tmp_path, option, field, value):
+    """Options generated from the dataclass fields act like the curated ones: the plan equals one
+    made from the parameter classes with that field set."""
+    summary = tmp_path / "s.json"
+    assert main(["simulate", "--kinematic", "--estop-time", "3.3", option, str(value), "--summary", str(summary)]) == 0
+    gait, stop = GaitParameters(), StopParameters()
+    if field in {f for f in GaitParameters.__dataclass_fields__}:
+        gait = replace(gait, **{field: value})
+    else:
+        stop = replace(stop, **{field: value})
+    plan = plan_stop(NominalPattern(gait), 3.3, stop)
+    data = json.loads(summary.read_text())
+    assert data["phase_times"]["halt_end"] == pytest.approx(plan.halt_end, abs=1e-12)
+    assert data["phase_times"]["landing_end"] == pytest.approx(plan.landing_time, abs=1e-12)
+
+
+@pytest.mark.parametrize("args,named", [
+    (["--zmp-margin", "-1"], "zmp_margin"),
+    (["--landing", "teleport"], "landing"),
+    (["--min-landing-time", "2"], "landing_time"),
+])
+def test_generated_field_options_reject_bad_values(capsys, args, named):
+    assert main(["simulate", "--kinematic", *args]) == 2
+    assert named in capsys.readouterr().err
