@@ -53,6 +53,7 @@ from drake_estop.model import (
     RIGHT_SOLE,
     load_humanoid,
 )
+from drake_estop.planning.planner import snap_to_tick
 
 SIDES = ("left", "right")
 
@@ -353,7 +354,7 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
     context = simulator.get_mutable_context()
     planner_context = planner.GetMyContextFromRoot(context)
     dt = servo_period
-    planned_by = snap_time(estop_time, dt) + 2 * dt
+    planned_by = snap_to_tick(estop_time, dt) + 2 * dt
     system = simulator.get_system()
 
     def end_of(plan):
@@ -384,11 +385,6 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
 
 #: [s] an upper bound on signal-to-halt-end of any stop, re-plans included
 _LONGEST_STOP = 10.0
-
-
-def snap_time(t: float, period: float) -> float:
-    """First servo tick at or after ``t``."""
-    return math.ceil(t / period - 1e-9) * period
 
 
 class DesiredStateInterpolator(LeafSystem):

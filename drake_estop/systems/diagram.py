@@ -40,6 +40,7 @@ from drake_estop.planning.planner import PHASES, StopParameters
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.stop_controller import (
     REFERENCE_LAYOUT,
+    REFERENCE_SLICES,
     add_stop_controller,
     connect_reference,
     reference_vector,
@@ -81,12 +82,8 @@ def initial_configuration(plant, pattern, *, attempts=20):
 
 
 def _split(reference):
-    """Dict name -> slice of a reference vector (REFERENCE_LAYOUT)."""
-    out, start = {}, 0
-    for name, size in REFERENCE_LAYOUT:
-        out[name] = reference[start:start + size]
-        start += size
-    return out
+    """Dict name -> entry of a reference vector (REFERENCE_LAYOUT)."""
+    return {name: reference[REFERENCE_SLICES[name]] for name, _ in REFERENCE_LAYOUT}
 
 
 def _add_plant(builder):
@@ -261,18 +258,10 @@ def _align_ticks(handles, context):
     plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
     targets = np.array([reference_vector(t, pattern=handles.pattern, plan=plan)
                         for t in times[:-1]])
-    ref = {name: targets[:, sl] for name, sl in _slices().items()}
+    ref = {name: targets[:, sl] for name, sl in REFERENCE_SLICES.items()}
     solved = {name: data[name][1:] for name in
               ("q", "ik_com_error", "ik_foot_error", "velocity_limit_violations")}
     return times[:-1], ref, solved, data, plan
-
-
-def _slices():
-    out, start = {}, 0
-    for name, size in REFERENCE_LAYOUT:
-        out[name] = slice(start, start + size)
-        start += size
-    return out
 
 
 def collect_result(handles, context, *, wall_time, html=None):

@@ -39,10 +39,11 @@ from drake_estop.timing import timed
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
                     ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
                     ("arm_joints", len(ARM_JOINTS)), ("phase", 1))
-_SLICES = {}
+#: name -> slice of the reference vector, in REFERENCE_LAYOUT order
+REFERENCE_SLICES = {}
 _start = 0
 for _name, _size in REFERENCE_LAYOUT:
-    _SLICES[_name] = slice(_start, _start + _size)
+    REFERENCE_SLICES[_name] = slice(_start, _start + _size)
     _start += _size
 REFERENCE_SIZE = _start
 _ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
@@ -96,7 +97,7 @@ class _ReferenceSystem(LeafSystem):
                           calc=self._calc_reference_value),
             prerequisites)
         for name, size in REFERENCE_LAYOUT:  # one output port per entry, looked up by name
-            self.DeclareVectorOutputPort(name, size, self._output_calc(_SLICES[name]),
+            self.DeclareVectorOutputPort(name, size, self._output_calc(REFERENCE_SLICES[name]),
                                          prerequisites_of_calc={self._reference.ticket()})
 
     def _calc_reference_value(self, context, value):
@@ -557,8 +558,8 @@ class StopPlannerSystem(_ReferenceSystem):
         d0 = (-30 * s**2 + 60 * s**3 - 30 * s**4) / duration
         d1 = 1 - 18 * s**2 + 32 * s**3 - 15 * s**4
         out = reference.copy()
-        out[_SLICES["com"]][:2] += dp * h0 + dv * duration * h1
-        out[_SLICES["com_vel"]][:2] += dp * d0 + dv * d1
+        out[REFERENCE_SLICES["com"]][:2] += dp * h0 + dv * duration * h1
+        out[REFERENCE_SLICES["com_vel"]][:2] += dp * d0 + dv * d1
         return out
 
     def _blend_into(self, context, plan):
@@ -568,8 +569,8 @@ class StopPlannerSystem(_ReferenceSystem):
             return None
         current = self._reference.Eval(context)
         pos, vel, _, _ = plan.com([t])
-        dp = current[_SLICES["com"]][:2] - pos[0]
-        dv = current[_SLICES["com_vel"]][:2] - vel[0]
+        dp = current[REFERENCE_SLICES["com"]][:2] - pos[0]
+        dv = current[REFERENCE_SLICES["com_vel"]][:2] - vel[0]
         if max(np.max(np.abs(dp)), np.max(np.abs(dv))) < 1e-9:
             return None
         return (t, dp, dv, self._blend_time)
