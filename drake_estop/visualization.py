@@ -46,7 +46,8 @@ _PLAN_ZMP_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
 _NOMINAL_FOOT_RGBA = Rgba(0.55, 0.55, 0.55, 1.0)
 _TAKEN_FOOT_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
 _POLYGON_RGBA = Rgba(0.85, 0.1, 0.85, 1.0)
-_PHASE_COLOURS = {"walking": "#2a6fdb", "landing": "#e08a00", "transition": "#c2185b",
+# walking is teal, not blue: the replay-render test finds the robot by its blue material
+_PHASE_COLOURS = {"walking": "#00838f", "landing": "#e08a00", "transition": "#c2185b",
                   "slowdown": "#d32f2f", "halt": "#6a1b9a", "stopped": "#2e7d32"}
 _TRACE_Z = 0.002  # lines slightly above the floor
 
@@ -204,9 +205,10 @@ class StopVisualizer(LeafSystem):
     exist), never in Python attributes.
     """
 
-    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX):
+    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
         super().__init__()
         self._meshcat = meshcat
+        self._follow = tuple(follow)
         self._pattern = pattern
         self._period = publish_period
         self._prefix = prefix
@@ -235,6 +237,8 @@ class StopVisualizer(LeafSystem):
         for k, step in enumerate(pattern.steps):
             m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"]),
                       1.5, _NOMINAL_FOOT_RGBA)
+        if self._follow:
+            set_follow_camera(m, pattern)
         m.SetObject(f"{p}/markers/cog", Sphere(0.03), _COG_RGBA)
         m.SetObject(f"{p}/markers/cog_floor", Cylinder(0.02, 0.004), _COG_RGBA)
         m.SetObject(f"{p}/markers/zmp", Sphere(0.02), _ZMP_RGBA)
@@ -279,7 +283,12 @@ class StopVisualizer(LeafSystem):
         m.SetTransform(f"{p}/cog", RigidTransform(com), t)
         m.SetTransform(f"{p}/cog_floor", RigidTransform([com[0], com[1], 0.002]), t)
         m.SetTransform(f"{p}/zmp", RigidTransform([zmp[0], zmp[1], 0.01]), t)
-        m.SetTransform(f"{self._prefix}/phase", RigidTransform([com[0], -0.35, 1.75]), t)
+        plate = [com[0] - 0.55, -0.3, 1.3] if self._follow else [com[0], -0.35, 1.75]  # in the camera's view
+        m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
+        if self._follow:
+            shift = RigidTransform([self._pattern.com([0.0])[0][0, 0] - com[0], 0.0, 0.0])
+            for path in self._follow:
+                m.SetTransform(path, shift, t)
 
     def _switch_polygon(self, plan, t):
         """Show the polygon of ``t``; hide the one of the previous publish."""
@@ -308,6 +317,17 @@ class StopVisualizer(LeafSystem):
 def set_side_camera(meshcat, x_center=1.2):
     """Look at the walk from the robot's right side, slightly above."""
     meshcat.SetCameraPose(np.array([x_center, -3.6, 1.6]), np.array([x_center, 0.0, 0.7]))
+
+
+def follow_camera_paths(robot_prefix="robot", prefix=PREFIX):
+    """Meshcat paths a follow camera slides: the robot, the stop's drawings and the grid."""
+    return (f"/drake/{robot_prefix}", prefix, "/Grid")
+
+
+def set_follow_camera(meshcat, pattern):
+    """Frame the robot at its start, from the front right and slightly above."""
+    x0 = float(pattern.com([0.0])[0][0, 0])
+    meshcat.SetCameraPose(np.array([x0 + 0.6, -1.3, 1.05]), np.array([x0, 0.0, 0.74]))
 
 
 def add_floor(meshcat, length=4.0, prefix=PREFIX):
