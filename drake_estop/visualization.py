@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import ipaddress
 import os
 import re
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -56,20 +58,55 @@ _TRACE_Z = 0.002  # lines slightly above the floor
 # Meshcat server and replay files.
 
 
-def make_meshcat(port=None):
-    """A Meshcat server; ``port`` None lets Drake pick a free one (7000-7099).
+def is_loopback_host(host):
+    """True when ``host`` names this machine only ("localhost", 127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
+
+def make_meshcat(port=None, *, host="localhost"):
+    """A Meshcat server listening on ``host`` (this machine only, by default).
+
+    Parameters
+    ----------
+    port : int, optional
+        TCP port; None lets Drake pick a free one (7000-7099).
+    host : str, optional
+        Interface to listen on: "localhost" (default) serves this machine
+        only; "*" or an address opens the live view, and its "Emergency stop"
+        button, to the network, with a warning.
+
+    Returns
+    -------
+    pydrake.geometry.Meshcat
+        The server; ``web_url()`` is its address.
+
+    Raises
+    ------
+    RuntimeError
+        Naming the port when it is already in use.
+
+    Notes
+    -----
     ``DRAKE_ALLOW_NETWORK=meshcat`` is set only while the server is created
     and restored afterwards: in Drake 1.51 a process-wide "meshcat" value
     also disables the PackageMap, which makes every default ``Parser`` throw
     (drake_models remote), even for a local file.  The humanoid itself loads
     either way (:func:`drake_estop.model.offline_parser`).
-    Raises RuntimeError naming the port when it is already in use.
     """
+    if not isinstance(host, str) or not host:
+        raise ValueError(f"host must be a non-empty host name or address, got {host!r}")
+    if not is_loopback_host(host):
+        warnings.warn(f"Meshcat listens on {host!r}, not only on this machine: anyone who can reach it can "
+                      "watch the robot and press its emergency-stop button", UserWarning, stacklevel=2)
     previous = os.environ.get("DRAKE_ALLOW_NETWORK")
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     try:
-        return Meshcat(MeshcatParams(port=port)) if port else Meshcat()
+        return Meshcat(MeshcatParams(host=host, port=port)) if port else Meshcat(MeshcatParams(host=host))
     except RuntimeError as error:
         where = f"port {port}" if port else "any port in 7000-7099"
         raise RuntimeError(
@@ -203,6 +240,27 @@ class StopVisualizer(LeafSystem):
     every ``publish_period`` with the context time as the recording time.
     Everything it needs to remember lives in the Meshcat scene (paths that
     exist), never in Python attributes.
+
+    Parameters
+    ----------
+    meshcat : pydrake.geometry.Meshcat
+        Where to draw.
+    pattern : NominalPattern
+        The nominal walk (its traces and footsteps are drawn at initialization).
+    publish_period : float, optional
+        Publish period [s] (default 1/64 s).
+    prefix : str, optional
+        Meshcat path of the drawings (default "/estop").
+    follow : tuple of str, optional
+        Meshcat paths slid along -x by the COG's travel at every publish, so
+        that a fixed camera (:func:`set_follow_camera`) keeps the robot framed
+        (recorded into replays); see :func:`follow_camera_paths`. Empty: no
+        follow camera.
+
+    Notes
+    -----
+    Inputs: ``com`` (3) [m], ``zmp`` (2) [m], ``phase`` (1) index into
+    ``PHASES``, ``plan`` (abstract).
     """
 
     def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
