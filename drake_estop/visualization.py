@@ -74,7 +74,8 @@ def make_meshcat(port=None, *, host="localhost"):
     Parameters
     ----------
     port : int, optional
-        TCP port; None lets Drake pick a free one (7000-7099).
+        TCP port (no physical units); None lets Drake pick a free one
+        (7000-7099).
     host : str, optional
         Interface to listen on: "localhost" (default) serves this machine
         only; "*" or an address opens the live view, and its "Emergency stop"
