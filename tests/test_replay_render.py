@@ -43,3 +43,46 @@ def test_empty_scene_is_not_taken_for_the_robot(tmp_path):
     png = tmp_path / "empty.png"
     RENDER.screenshot(html, png, chromium=CHROMIUM)
     assert RENDER.robot_pixels(png) < 800
+
+
+# the trace and polygon colours of drake_estop.visualization (0-255)
+ZMP_TRACE_GREEN = (26, 179, 51)
+POLYGON_MAGENTA = (217, 26, 217)
+
+
+@pytest.fixture(scope="module")
+def stop_replay(tmp_path_factory):
+    """The replay `drake-estop simulate --html` writes for the paper's 3.4 s stop."""
+    html = tmp_path_factory.mktemp("replay") / "replay.html"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = simulate_diagram(GaitParameters(), StopParameters(), 3.4, html=str(html), after_halt=1.0)
+    assert result.times[-1] < 8.0  # the end screenshot below lets 10 s of virtual time play it out
+    return html
+
+
+@pytest.mark.parametrize("moment, budget_ms", [("start", 1000), ("end", 10000)])
+def test_camera_frames_the_robot_at_the_start_and_the_end(stop_replay, tmp_path, moment, budget_ms):
+    """The robot fills >= 40 % of the frame height as the replay opens and after it has played to the
+    halt (1.3 m further on): the camera follows it. The COG/ZMP traces are in view; at the end, with
+    the feet apart, so is the support polygon."""
+    png = tmp_path / f"{moment}.png"
+    # swiftshader renders every frame of the virtual time: on a loaded 2-core machine 10 s took 75-180 s
+    RENDER.screenshot(stop_replay, png, chromium=CHROMIUM, budget_ms=budget_ms, timeout=240, attempts=2)
+    share = RENDER.robot_height_share(png)
+    print(f"{moment}: robot (blue parts) {share:.1%} of the frame height")
+    assert share >= 0.40
+    assert RENDER.colour_pixels(png, ZMP_TRACE_GREEN) >= 50
+    if moment == "end":
+        assert RENDER.colour_pixels(png, POLYGON_MAGENTA) >= 30
+
+
+def test_height_share_ignores_thin_blue_lines(tmp_path):
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    image = np.full((100, 100, 3), 0.8)
+    image[10:90, 50, :] = (0.1, 0.3, 0.9)  # a 1 px blue line, like the COG trace
+    image[40:60, 20:30, :] = (0.15, 0.3, 0.75)  # a 20 px tall blue limb
+    mpimg.imsave(tmp_path / "synthetic.png", image)
+    assert RENDER.robot_height_share(tmp_path / "synthetic.png") == pytest.approx(0.20)
