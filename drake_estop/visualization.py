@@ -173,18 +173,21 @@ def _sole_loop(sole, ankle_xy, side):
 
 
 def _phase_plate(directory, phase):
-    """OBJ file of a quad textured with the phase name (matplotlib PNG)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """OBJ file of a quad textured with the phase name (matplotlib PNG).
+
+    Draws on a bare ``Figure`` (Agg canvas): no pyplot, so the user's
+    matplotlib backend (e.g. a notebook's inline one) is left alone.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     png = Path(directory) / f"{phase}.png"
-    fig = plt.figure(figsize=(4, 1), dpi=100)
+    fig = Figure(figsize=(4, 1), dpi=100)
+    FigureCanvasAgg(fig)
     fig.patch.set_facecolor("white")
     fig.text(0.5, 0.5, phase, ha="center", va="center", fontsize=44,
              color=_PHASE_COLOURS[phase], weight="bold")
     fig.savefig(png, facecolor="white")
-    plt.close(fig)
     (Path(directory) / f"{phase}.mtl").write_text(
         f"newmtl plate\nKa 1 1 1\nKd 1 1 1\nmap_Kd {png.name}\n")
     obj = Path(directory) / f"{phase}.obj"

@@ -15,7 +15,8 @@ import drake_estop
 
 NAMES = [name for name in drake_estop.__all__ if name != "__version__"]
 # a unit in brackets ([m], [s], [rad], [m/s], [N s], ...) or an explicit "dimensionless"
-UNIT = re.compile(r"\[(m|s|rad|N|kg|m/s|rad/s|m/s\^2|N s|N m/rad|1/s\^2|1/m\^2|1/\(m/s\)\^2|m, rad)\]|dimensionless|no physical units")
+UNIT = re.compile(r"\[(m|s|rad|N|kg|m/s|rad/s|m/s\^2|N s|N m/rad|1/s\^2|1/m\^2|1/\(m/s\)\^2|m, rad)\]"
+                  r"|dimensionless|no physical units")
 SECTION = re.compile(r"^\s*(Parameters|Attributes|Returns)\n\s*-{5,}$", re.M)
 
 
