@@ -7,8 +7,8 @@ paper, which shows its ZMP overshoot near 4 s:
 
     python diagrams/double_support_stop.py [OUT_DIR] [--round]
 
-Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
-no path set-up.
+Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
+``pip install .``), through ``scenario.py`` next to this script; no path set-up.
 """
 
 import argparse
@@ -16,14 +16,9 @@ import sys
 import warnings
 from pathlib import Path
 
-import matplotlib
+from scenario import describe, plot_cog_zmp, run_stop  # diagrams/scenario.py
 
-matplotlib.use("Agg")
-
-from drake_estop.diagram import simulate_diagram
-from drake_estop.gait import GaitParameters
-from drake_estop.planner import StopParameters
-from drake_estop.visualization import describe, plot_cog_zmp
+from drake_estop import GaitParameters, StopParameters
 
 GAIT = GaitParameters(step_length=0.3, step_time=0.8)
 SIGNAL = 3.5
@@ -42,7 +37,7 @@ def main(argv=None):
                           quantisation="round" if args.round else "resolve")
     suffix = "_round" if args.round else ""
     html = out / f"double_support_stop{suffix}.html"
-    result = simulate_diagram(GAIT, stop, SIGNAL, html=html)
+    result = run_stop(GAIT, stop, SIGNAL, html=html)
     print(describe(result))
     png = plot_cog_zmp(result, out / f"double_support_cog_zmp{suffix}.png",
                        "Stop in double support (signal 3.5 s): COG and ZMP (cf. Fig. 12)")
