@@ -304,8 +304,8 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
         def columns(self):
             return {}
 
-    def fake_meshcat(port=None):
-        seen["port"] = port
+    def fake_meshcat(port=None, *, host="localhost"):
+        seen["port"], seen["host"] = port, host
         return FakeMeshcat()
 
     def fake_simulate(gait, stop, estop_time, **kwargs):
@@ -316,9 +316,12 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     monkeypatch.setattr(diagram, "simulate_diagram", fake_simulate)
     assert main(["simulate", "--meshcat", "--meshcat-port", "7123", "--button-only", "--after-halt", "2"]) == 0
     assert seen["port"] == 7123 and seen["estop_time"] is None and seen["after_halt"] == 2.0
+    assert seen["host"] == "localhost"  # Meshcat on this machine only unless --meshcat-host says otherwise
     assert isinstance(seen["meshcat"], FakeMeshcat)
     out = capsys.readouterr().out
     assert "http://localhost:7123" in out and "walk ended without a stop signal" in out
     # without --button-only the scheduled signal goes along (whichever comes first stops)
     assert main(["simulate", "--meshcat", "--estop-time", "3.2"]) == 0
     assert seen["port"] is None and seen["estop_time"] == 3.2
+    assert main(["simulate", "--meshcat", "--meshcat-host", "*", "--estop-time", "3.2"]) == 0
+    assert seen["host"] == "*"
