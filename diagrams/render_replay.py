@@ -55,6 +55,12 @@ def _run_once(command, png, timeout):
         return None, stderr
 
 
+def _address(html):
+    """A file's URI, or ``html`` itself when it is already a URL (a live Meshcat's ``web_url()``)."""
+    text = str(html)
+    return text if text.startswith(("http://", "https://")) else Path(html).resolve().as_uri()
+
+
 def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeout=60,
                attempts=3):
     """Run headless Chromium on ``html`` and write ``png``.
@@ -74,7 +80,7 @@ def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeou
                        "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
                        f"--user-data-dir={profile}", f"--screenshot={png}",
                        f"--window-size={size[0]},{size[1]}",
-                       f"--virtual-time-budget={budget_ms}", Path(html).resolve().as_uri()]
+                       f"--virtual-time-budget={budget_ms}", _address(html)]
             returncode, stderr = _run_once(command, png, timeout)
         if png.is_file() and png.stat().st_size > 0:
             return png

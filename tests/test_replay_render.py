@@ -86,3 +86,22 @@ def test_height_share_ignores_thin_blue_lines(tmp_path):
     image[40:60, 20:30, :] = (0.15, 0.3, 0.75)  # a 20 px tall blue limb
     mpimg.imsave(tmp_path / "synthetic.png", image)
     assert RENDER.robot_height_share(tmp_path / "synthetic.png") == pytest.approx(0.20)
+
+
+def test_live_view_frames_the_robot(tmp_path):
+    """The live Meshcat page (what --meshcat prints) opens on the robot too, here mid-stop."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+
+    from drake_estop import AddEmergencyStop
+
+    meshcat = make_meshcat()
+    builder = DiagramBuilder()
+    AddEmergencyStop(builder, estop_time=3.4, meshcat=meshcat, log=False)
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(3.75)  # the slowdown, 1.2 m from where the walk started
+    png = tmp_path / "live.png"
+    RENDER.screenshot(meshcat.web_url(), png, chromium=CHROMIUM, budget_ms=3000, timeout=240, attempts=2)
+    share = RENDER.robot_height_share(png)
+    print(f"live view: robot (blue parts) {share:.1%} of the frame height")
+    assert share >= 0.40
