@@ -118,13 +118,13 @@ def _image(png):
     return np.round(mpimg.imread(str(png))[..., :3] * 255).astype(np.int32)
 
 
-def robot_height_share(png):
-    """Vertical extent of the robot's blue material as a share of the frame height (0 if absent).
+def robot_box(png):
+    """Bounding box ``(top, bottom, left, right)`` of the robot's blue material, as fractions of the
+    frame's height and width (None if absent).
 
     Thin lines of the same hue (the blue COG trace) are removed by a 5x5
     morphological opening first, so only the robot's limbs and chest count.
-    The blue parts span the chest to the shins, so this is a lower bound on
-    the whole robot's share (head and soles are white and grey).
+    The blue parts span the chest to the shins: a lower bound on the robot.
     """
     from scipy import ndimage
 
@@ -132,8 +132,18 @@ def robot_height_share(png):
     red, green, blue = image[..., 0], image[..., 1], image[..., 2]
     mask = ndimage.binary_opening((blue > 110) & (blue > red + 50) & (blue > green + 30),
                                   structure=np.ones((5, 5)))
-    rows = np.flatnonzero(mask.any(axis=1))
-    return float((rows[-1] - rows[0] + 1) / image.shape[0]) if rows.size else 0.0
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return None
+    height, width = mask.shape
+    return rows[0] / height, (rows[-1] + 1) / height, cols[0] / width, (cols[-1] + 1) / width
+
+
+def robot_height_share(png):
+    """Vertical extent of the robot's blue material as a share of the frame height (0 if absent);
+    see :func:`robot_box` (head and soles are white and grey, so this is a lower bound)."""
+    box = robot_box(png)
+    return 0.0 if box is None else float(box[1] - box[0])
 
 
 def colour_pixels(png, rgb, tolerance=40):
