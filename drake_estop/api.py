@@ -276,9 +276,6 @@ def _add_meshcat(builder, meshcat, scene_graph, planner, pattern, publish_period
     """Robot (MeshcatVisualizer), stop traces and the follow camera (StopVisualizer)."""
     from drake_estop.visualization import StopVisualizer, follow_camera_paths
 
-    if scene_graph is None:
-        raise ValueError("meshcat needs a scene_graph to draw the robot from (the plant is a system of the "
-                         "diagram: pass its scene_graph too)")
     visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
         publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
     stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
@@ -353,6 +350,8 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     gait = gait or GaitParameters()
     stop = stop or StopParameters()
     pattern = NominalPattern(gait)
+    if meshcat is not None and plant is not None and scene_graph is None:
+        raise ValueError("meshcat needs a scene_graph to draw the robot from: pass the plant's scene_graph too")
     plant, scene_graph, pose_it = _robot_plant(builder, plant, scene_graph)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop, estop_time=estop_time,
                                            meshcat=meshcat)

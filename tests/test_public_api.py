@@ -119,3 +119,28 @@ def test_a_users_plant_in_the_diagram_is_left_for_the_user_to_drive():
     assert estop.q.size() == plant.num_positions()
     builder.ExportOutput(estop.q, "q")
     builder.Build()
+
+
+def test_a_users_scene_graph_gets_the_robot_posed_in_it():
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.analysis import Simulator
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    estop = drake_estop.AddEmergencyStop(builder, scene_graph=scene_graph, estop_time=0.5)
+    assert estop.scene_graph is scene_graph and estop.plant.geometry_source_is_registered()
+    assert any(s.get_name() == "q_to_pose" for s in builder.GetSystems())
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(0.6)
+    assert estop.plan(simulator.get_context()).signal_time == pytest.approx(0.5)
+
+
+def test_meshcat_without_a_scene_graph_is_refused():
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlantSceneGraph(builder, time_step=1e-3)
+    drake_estop.load_humanoid(plant)
+    plant.Finalize()
+    with pytest.raises(ValueError, match="meshcat needs a scene_graph"):
+        drake_estop.AddEmergencyStop(builder, plant=plant, meshcat=object())
