@@ -98,7 +98,7 @@ class EmergencyStop:
     q : pydrake.systems.framework.OutputPort
         The IK's joint positions (plant.num_positions()) [m, rad], one solve
         per servo tick: connect it to your servo targets.
-    com, zmp, phase, plan : pydrake.systems.framework.OutputPort
+    com, zmp, phase, plan_port : pydrake.systems.framework.OutputPort
         The planner's COG target (3) [m], ZMP (2) [m], phase index into
         ``PHASES`` (1) and the stored stop plan (abstract; None before the latch).
     loggers : dict

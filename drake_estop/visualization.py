@@ -111,7 +111,7 @@ def make_meshcat(port=None, *, host="localhost"):
     except RuntimeError as error:
         where = f"port {port}" if port else "any port in 7000-7099"
         raise RuntimeError(
-            f"could not start Meshcat on {where} ({error}); is another "
+            f"could not start Meshcat on host {host!r}, {where} ({error}); is another "
             "Meshcat/drake-estop already running? Close it or pass a free "
             "port (or none, to let Drake choose)") from error
     finally:
