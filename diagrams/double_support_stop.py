@@ -7,26 +7,23 @@ paper, which shows its ZMP overshoot near 4 s:
 
     python diagrams/double_support_stop.py [OUT_DIR] [--round]
 
-Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
-no path set-up.
+Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
+``pip install .``), through ``scenario.py`` next to this script; no path set-up.
 """
 
 import argparse
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
+from scenario import describe, plot_cog_zmp, run_stop  # diagrams/scenario.py
 
-matplotlib.use("Agg")
+from drake_estop import load_scenario
 
-from drake_estop.planning.gait import GaitParameters
-from drake_estop.planning.planner import StopParameters
-from drake_estop.systems.diagram import simulate_diagram
-from drake_estop.systems.visualization import describe, plot_cog_zmp
-
-GAIT = GaitParameters(step_length=0.3, step_time=0.8)
-SIGNAL = 3.5
+# the paper's values, as data: scenarios/double_support_stop.yaml (also `drake-estop simulate --scenario-file`)
+SCENARIO = load_scenario(filename=Path(__file__).with_name("scenarios") / "double_support_stop.yaml")
+GAIT, SIGNAL = SCENARIO.gait, SCENARIO.estop_time
 
 
 def main(argv=None):
@@ -38,11 +35,10 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     warnings.simplefilter("always", RuntimeWarning)
-    stop = StopParameters(a_ds=50.0, b_ds=1000.0,
-                          quantisation="round" if args.round else "resolve")
+    stop = replace(SCENARIO.stop, quantisation="round" if args.round else "resolve")
     suffix = "_round" if args.round else ""
     html = out / f"double_support_stop{suffix}.html"
-    result = simulate_diagram(GAIT, stop, SIGNAL, html=html)
+    result = run_stop(GAIT, stop, SIGNAL, html=html)
     print(describe(result))
     png = plot_cog_zmp(result, out / f"double_support_cog_zmp{suffix}.png",
                        "Stop in double support (signal 3.5 s): COG and ZMP (cf. Fig. 12)")

@@ -6,8 +6,8 @@ in its steady cycle).  Writes the Meshcat replay and the COG/ZMP figure:
 
     python diagrams/hrp2_experiment.py [OUT_DIR] [--step N]
 
-Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
-no path set-up.
+Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
+``pip install .``), through ``scenario.py`` next to this script; no path set-up.
 """
 
 import argparse
@@ -15,17 +15,13 @@ import sys
 import warnings
 from pathlib import Path
 
-import matplotlib
+from scenario import describe, plot_cog_zmp, run_stop  # diagrams/scenario.py
 
-matplotlib.use("Agg")
+from drake_estop import NominalPattern, load_scenario
 
-from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import StopParameters
-from drake_estop.systems.diagram import simulate_diagram
-from drake_estop.systems.visualization import describe, plot_cog_zmp
-
-GAIT = GaitParameters(step_length=0.15, step_time=0.8)
-STOP = StopParameters(a_ss=5.0, b_ss=1000.0, a_ds=50.0, b_ds=1000.0)
+# the paper's values, as data: scenarios/hrp2_experiment.yaml (its estop_time is the third step's mid single support)
+SCENARIO = load_scenario(filename=Path(__file__).with_name("scenarios") / "hrp2_experiment.yaml")
+GAIT, STOP = SCENARIO.gait, SCENARIO.stop
 
 
 def mid_single_support(gait, step_index):
@@ -44,7 +40,7 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     warnings.simplefilter("always", RuntimeWarning)
     signal = mid_single_support(GAIT, args.step)
-    result = simulate_diagram(GAIT, STOP, signal, html=out / "hrp2_experiment.html")
+    result = run_stop(GAIT, STOP, signal, html=out / "hrp2_experiment.html")
     print(describe(result))
     png = plot_cog_zmp(result, out / "hrp2_experiment_cog_zmp.png",
                        f"HRP-2 experiment setting: 0.15 m steps, signal {signal:.2f} s (mid single support)")

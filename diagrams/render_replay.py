@@ -55,6 +55,12 @@ def _run_once(command, png, timeout):
         return None, stderr
 
 
+def _address(html):
+    """A file's URI, or ``html`` itself when it is already a URL (a live Meshcat's ``web_url()``)."""
+    text = str(html)
+    return text if text.startswith(("http://", "https://")) else Path(html).resolve().as_uri()
+
+
 def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeout=60,
                attempts=3):
     """Run headless Chromium on ``html`` and write ``png``.
@@ -74,7 +80,7 @@ def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeou
                        "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
                        f"--user-data-dir={profile}", f"--screenshot={png}",
                        f"--window-size={size[0]},{size[1]}",
-                       f"--virtual-time-budget={budget_ms}", Path(html).resolve().as_uri()]
+                       f"--virtual-time-budget={budget_ms}", _address(html)]
             returncode, stderr = _run_once(command, png, timeout)
         if png.is_file() and png.stat().st_size > 0:
             return png
@@ -106,11 +112,53 @@ def robot_pixels(png):
     return int(np.sum((blue > 110) & (blue > red + 50) & (blue > green + 30)))
 
 
+def _image(png):
+    import matplotlib.image as mpimg
+
+    return np.round(mpimg.imread(str(png))[..., :3] * 255).astype(np.int32)
+
+
+def robot_box(png):
+    """Bounding box ``(top, bottom, left, right)`` of the robot's blue material, as fractions of the
+    frame's height and width (None if absent).
+
+    Thin lines of the same hue (the blue COG trace) are removed by a 5x5
+    morphological opening first, so only the robot's limbs and chest count.
+    The blue parts span the chest to the shins: a lower bound on the robot.
+    """
+    from scipy import ndimage
+
+    image = _image(png)
+    red, green, blue = image[..., 0], image[..., 1], image[..., 2]
+    mask = ndimage.binary_opening((blue > 110) & (blue > red + 50) & (blue > green + 30),
+                                  structure=np.ones((5, 5)))
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return None
+    height, width = mask.shape
+    return rows[0] / height, (rows[-1] + 1) / height, cols[0] / width, (cols[-1] + 1) / width
+
+
+def robot_height_share(png):
+    """Vertical extent of the robot's blue material as a share of the frame height (0 if absent);
+    see :func:`robot_box` (head and soles are white and grey, so this is a lower bound)."""
+    box = robot_box(png)
+    return 0.0 if box is None else float(box[1] - box[0])
+
+
+def colour_pixels(png, rgb, tolerance=40):
+    """Pixels within ``tolerance`` (per channel, 0-255) of ``rgb`` (e.g. a trace's colour)."""
+    image = _image(png)
+    return int(np.sum(np.abs(image - np.asarray(rgb)).max(axis=-1) <= tolerance))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("html")
     parser.add_argument("png")
     parser.add_argument("--chromium", default=None)
+    parser.add_argument("--budget-ms", type=int, default=10000,
+                        help="virtual time before the screenshot [ms]; the replay plays in it (default %(default)s)")
     parser.add_argument("--min-robot-pixels", type=int, default=800,
                         help="minimum count of robot-blue pixels (default %(default)s)")
     args = parser.parse_args(argv)
@@ -119,14 +167,15 @@ def main(argv=None):
         print("render_replay: no Chromium found (apt-get install chromium)", file=sys.stderr)
         return 2
     try:
-        screenshot(args.html, args.png, chromium=chromium)
+        screenshot(args.html, args.png, chromium=chromium, budget_ms=args.budget_ms)
     except RuntimeError as error:
         print(f"render_replay: {error}", file=sys.stderr)
         return 2
     share, _ = foreground_stats(args.png)
     count = robot_pixels(args.png)
     ok = count >= args.min_robot_pixels
-    print(f"{args.png}: {count} robot pixels, {share * 100:.1f}% non-background -> "
+    print(f"{args.png}: {count} robot pixels, robot (blue parts) {robot_height_share(args.png) * 100:.0f}% of the "
+          f"frame height, {share * 100:.1f}% non-background -> "
           f"{'robot on screen' if ok else 'robot not found'}")
     return 0 if ok else 1
 

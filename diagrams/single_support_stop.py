@@ -6,8 +6,8 @@ figure (Fig. 9) and the knee comparison with and without crouch (Fig. 10):
 
     python diagrams/single_support_stop.py [OUT_DIR]
 
-Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
-no path set-up.
+Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
+``pip install .``), through ``scenario.py`` next to this script; no path set-up.
 """
 
 import argparse
@@ -16,18 +16,13 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
+from scenario import describe, plot_cog_zmp, plot_knees, run_stop  # diagrams/scenario.py
 
-matplotlib.use("Agg")
+from drake_estop import load_scenario
 
-from drake_estop.planning.gait import GaitParameters
-from drake_estop.planning.planner import StopParameters
-from drake_estop.systems.diagram import simulate_diagram
-from drake_estop.systems.visualization import describe, plot_cog_zmp, plot_knees
-
-GAIT = GaitParameters(step_length=0.3, step_time=0.8)
-STOP = StopParameters(a_ss=5.0, b_ss=1000.0, crouch=True)
-SIGNAL = 3.4
+# the paper's values, as data: scenarios/single_support_stop.yaml (also `drake-estop simulate --scenario-file`)
+SCENARIO = load_scenario(filename=Path(__file__).with_name("scenarios") / "single_support_stop.yaml")
+GAIT, STOP, SIGNAL = SCENARIO.gait, SCENARIO.stop, SCENARIO.estop_time
 
 
 def main(argv=None):
@@ -37,9 +32,9 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     warnings.simplefilter("always", RuntimeWarning)
-    crouch = simulate_diagram(GAIT, STOP, SIGNAL, html=out / "single_support_stop.html")
+    crouch = run_stop(GAIT, STOP, SIGNAL, html=out / "single_support_stop.html")
     print("with crouch:   ", describe(crouch))
-    flat = simulate_diagram(GAIT, replace(STOP, crouch=False), SIGNAL)
+    flat = run_stop(GAIT, replace(STOP, crouch=False), SIGNAL)
     print("without crouch:", describe(flat))
     plot_cog_zmp(crouch, out / "single_support_cog_zmp.png",
                  "Stop in single support (signal 3.4 s): COG and ZMP (cf. Fig. 9)")

@@ -3,8 +3,9 @@ time and screenshot the Meshcat page in headless Chromium.
 
     python diagrams/snapshot.py [--estop-time 3.4] [--at 3.75] [--out docs/robot_mid_stop.png]
 
-Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
-no path set-up.
+Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
+``pip install .``); no path set-up. The camera is the follow camera of the
+replay and the live view.
 """
 
 import argparse
@@ -13,12 +14,10 @@ import tempfile
 from pathlib import Path
 
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 from render_replay import find_chromium  # diagrams/render_replay.py (the script folder is on sys.path)
 
-from drake_estop.planning.gait import GaitParameters
-from drake_estop.planning.planner import StopParameters
-from drake_estop.systems.diagram import build_diagram
-from drake_estop.systems.visualization import add_floor, make_meshcat, set_side_camera
+from drake_estop import AddEmergencyStop, GaitParameters, StopParameters, make_meshcat
 
 
 def main():
@@ -28,11 +27,10 @@ def main():
     parser.add_argument("--out", default="docs/robot_mid_stop.png")
     args = parser.parse_args()
     meshcat = make_meshcat()
-    handles = build_diagram(gait_params=GaitParameters(), stop_params=StopParameters(),
-                            estop_time=args.estop_time, meshcat=meshcat)
-    add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)
-    set_side_camera(meshcat, x_center=0.6)
-    simulator = Simulator(handles.diagram)
+    builder = DiagramBuilder()
+    AddEmergencyStop(builder, gait=GaitParameters(), stop=StopParameters(), estop_time=args.estop_time,
+                     meshcat=meshcat)
+    simulator = Simulator(builder.Build())
     simulator.AdvanceTo(args.at)
     chromium = find_chromium()
     out = Path(args.out).resolve()

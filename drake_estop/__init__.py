@@ -1,3 +1,71 @@
-"""drake_estop: emergency stop for walking humanoids (Morisawa et al., IROS 2005) on Drake."""
+"""drake_estop: emergency stop for walking humanoids (Morisawa et al., IROS 2005) on Drake.
+
+The public API, for scripts, notebooks and system-level tests::
+
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from drake_estop import AddEmergencyStop
+
+    builder = DiagramBuilder()
+    estop = AddEmergencyStop(builder, estop_time=3.4)
+    simulator = Simulator(builder.Build())
+
+Building blocks (Drake LeafSystems): `WalkingPatternSource`, `EStopTrigger`,
+`StopPlannerSystem`, `WholeBodyIK`; parameters: `GaitParameters`,
+`StopParameters`, `Sole`, `PhysicsParameters`, `Perturbations`, `Push`;
+the planner itself: `plan_stop` returning a `StopPlan` (or raising
+`InfeasibleStop`). World frame x forward, y left, z up; SI units throughout
+(m, s, rad, N).
+
+Names are imported on first use (PEP 562), so ``import drake_estop`` stays
+cheap; ``from drake_estop import X`` works for every name in ``__all__``.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+# public name -> module that defines it (the package's current layout)
+_EXPORTS = {
+    "AddEmergencyStop": "drake_estop.api",
+    "EmergencyStop": "drake_estop.api",
+    "EmergencyStopLog": "drake_estop.api",
+    "WalkingPatternSource": "drake_estop.systems.stop_controller",
+    "EStopTrigger": "drake_estop.systems.stop_controller",
+    "StopPlannerSystem": "drake_estop.systems.stop_controller",
+    "WholeBodyIK": "drake_estop.systems.ik",
+    "StopVisualizer": "drake_estop.systems.visualization",
+    "GaitParameters": "drake_estop.planning.gait",
+    "Sole": "drake_estop.planning.gait",
+    "NominalPattern": "drake_estop.planning.gait",
+    "StopParameters": "drake_estop.planning.planner",
+    "StopPlan": "drake_estop.planning.planner",
+    "InfeasibleStop": "drake_estop.planning.planner",
+    "PHASES": "drake_estop.planning.planner",
+    "plan_stop": "drake_estop.planning.planner",
+    "PhysicsParameters": "drake_estop.physics.plant",
+    "Perturbations": "drake_estop.physics.perturbations",
+    "Push": "drake_estop.physics.perturbations",
+    "Scenario": "drake_estop.scenario",
+    "load_scenario": "drake_estop.scenario",
+    "load_humanoid": "drake_estop.model",
+    "make_meshcat": "drake_estop.systems.visualization",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name):
+    """Import a public name from its module on first use (PEP 562)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'drake_estop' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

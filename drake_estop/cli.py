@@ -157,6 +157,9 @@ def _add_simulate(sub, scenario: Scenario):
                    help="show the run live in Meshcat (prints the URL; runs in real time; the "
                         "'Emergency stop' button stops the robot)")
     d.add_argument("--meshcat-port", type=port_number, default=None, help="Meshcat port (default: a free one)")
+    d.add_argument("--meshcat-host", default=None, metavar="HOST",
+                   help="interface Meshcat listens on (default localhost: this machine only); '*' or an "
+                        "address opens the live view and its stop button to the network (warns)")
     d.add_argument("--button-only", action="store_true",
                    help="with --meshcat: no scheduled stop, only the Meshcat button stops the walk")
     o = p.add_argument_group("output")
@@ -182,6 +185,8 @@ def _parameters(args):
                          f"{COG_HEIGHT_LOWEST} m, the lowest the legs reach (knees at their limit)")
     if getattr(args, "meshcat_port", None) is not None and not args.meshcat:
         raise ValueError("meshcat_port needs --meshcat")
+    if getattr(args, "meshcat_host", None) is not None and not args.meshcat:
+        raise ValueError("meshcat_host needs --meshcat")
     return gait, stop
 
 
@@ -317,7 +322,7 @@ def _run_diagram(args, gait, stop, estop_time):
 
     meshcat = None
     if args.meshcat:
-        meshcat = make_meshcat(args.meshcat_port)
+        meshcat = make_meshcat(args.meshcat_port, host=args.meshcat_host or "localhost")
         print(f"Meshcat: {meshcat.web_url()}  (press 'Emergency stop' in the controls to stop the robot)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # IK misses are reported in the summary below

@@ -140,10 +140,27 @@ def load_humanoid(plant, model_path=MODEL_PATH):
 
     Parses with :func:`offline_parser` (no network, whatever
     ``DRAKE_ALLOW_NETWORK`` says) and sets the plant's gravity to
-    :data:`drake_estop.planning.lipm.GRAVITY`, the one value the planner and the
-    controllers use (Drake's default is 9.81).  Raises FileNotFoundError or
-    ValueError naming the file when the file is missing or cannot be parsed,
-    instead of a raw parser traceback.
+    :data:`drake_estop.planning.lipm.GRAVITY` [m/s^2], the one value the planner and
+    the controllers use (Drake's default is 9.81).
+
+    Parameters
+    ----------
+    plant : pydrake.multibody.plant.MultibodyPlant
+        A plant that is not finalized yet.
+    model_path : str or pathlib.Path, optional
+        The URDF (default: the packaged ``humanoid.urdf``; lengths in m,
+        masses in kg).
+
+    Returns
+    -------
+    pydrake.multibody.tree.ModelInstanceIndex
+        The humanoid's model instance.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Naming the file when it is missing or cannot be parsed, instead of a
+        raw parser traceback.
     """
     path = Path(model_path)
     _check_model_file(path)

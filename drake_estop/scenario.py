@@ -184,8 +184,26 @@ def load_scenario(*, filename: str | Path | None = None, text: str | None = None
                   defaults: Scenario | None = None) -> Scenario:
     """A :class:`Scenario` from a YAML file or string (exactly one), on top of ``defaults``.
 
-    Raises ``ValueError`` naming the key or the value that is wrong (unknown keys,
-    wrong types, values the parameter classes reject).
+    Parameters
+    ----------
+    filename : str or pathlib.Path, optional
+        A YAML scenario file.
+    text : str, optional
+        The same, as a string, e.g. ``"{gait: {step_length: 0.2}, estop_time: 3.3}"`` (step length [m],
+        signal time [s]).
+    defaults : Scenario, optional
+        What the document does not name (default: ``Scenario()``).
+
+    Returns
+    -------
+    Scenario
+        Lengths in m, times in s, forces in N, as in the parameter classes.
+
+    Raises
+    ------
+    ValueError
+        Naming the key or the value that is wrong (unknown keys, wrong types, values the
+        parameter classes reject).
     """
     if (filename is None) == (text is None):
         raise ValueError("load_scenario needs exactly one of filename= or text=")

@@ -161,7 +161,7 @@ def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
 
 
 def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, capsys):
-    from drake_estop.physics import sweep as sweep_module
+    from drake_estop.physics.plant import sweep as sweep_module
 
     def fake_sweep(gait, stop, **kwargs):
         return [{"signal_time": 3.05, "case": "one-step", "success": True},
@@ -287,7 +287,7 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     """``--meshcat --meshcat-port P --button-only --after-halt S``: the port goes to Meshcat, no
     scheduled stop goes to the diagram (only the button stops), the log span goes along.
     The diagram is replaced by a stand-in (a live run walks in real time)."""
-    from drake_estop.systems import diagram, visualization
+    from drake_estop.systems.stop_controller import diagram, visualization
     seen = {}
 
     class FakeMeshcat:
@@ -303,8 +303,8 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
         def columns(self):
             return {}
 
-    def fake_meshcat(port=None):
-        seen["port"] = port
+    def fake_meshcat(port=None, *, host="localhost"):
+        seen["port"], seen["host"] = port, host
         return FakeMeshcat()
 
     def fake_simulate(gait, stop, estop_time, **kwargs):
@@ -315,9 +315,12 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     monkeypatch.setattr(diagram, "simulate_diagram", fake_simulate)
     assert main(["simulate", "--meshcat", "--meshcat-port", "7123", "--button-only", "--after-halt", "2"]) == 0
     assert seen["port"] == 7123 and seen["estop_time"] is None and seen["after_halt"] == 2.0
+    assert seen["host"] == "localhost"  # Meshcat on this machine only unless --meshcat-host says otherwise
     assert isinstance(seen["meshcat"], FakeMeshcat)
     out = capsys.readouterr().out
     assert "http://localhost:7123" in out and "walk ended without a stop signal" in out
     # without --button-only the scheduled signal goes along (whichever comes first stops)
     assert main(["simulate", "--meshcat", "--estop-time", "3.2"]) == 0
     assert seen["port"] is None and seen["estop_time"] == 3.2
+    assert main(["simulate", "--meshcat", "--meshcat-host", "*", "--estop-time", "3.2"]) == 0
+    assert seen["host"] == "*"

@@ -64,9 +64,17 @@ def _finite(value) -> bool:
 class Push:
     """A constant force on the pelvis COM, world frame, during [time, time + duration).
 
-    ``time`` [s], ``force_x``/``force_y`` [N], ``duration`` [s] (> 0). The
-    impulse is ``force * duration`` [N s]; on the 58 kg robot a push of
+    The impulse is ``force * duration`` [N s]; on the 58 kg robot a push of
     17 N s changes the COG velocity by about 0.3 m/s.
+
+    Attributes
+    ----------
+    time : float
+        Start of the push [s].
+    force_x, force_y : float
+        World-frame force [N].
+    duration : float
+        Length of the push [s], > 0.
     """
 
     time: float
@@ -96,19 +104,30 @@ class Push:
 class Perturbations:
     """Everything that makes the simulated robot differ from the controller's model.
 
-    * ``pushes``: tuple of :class:`Push` (``--push``, repeatable).
-    * ``mass_scale`` (> 0): every link's mass and rotational inertia (``--mass-scale``).
-    * ``torso_mass_scale`` (> 0): the torso's mass and inertia, on top of
-      ``mass_scale`` (``--torso-mass-scale``).
-    * ``torso_com_offset`` [m]: the torso COM moved along the torso frame's
-      x axis, forward positive, |dx| <= 0.1 m (``--torso-com-offset``).
-    * ``friction`` (> 0, < 1.6, or None for the model's 1.0 / 0.8): the
-      effective foot-ground friction coefficient (``--friction``; see
-      :func:`ground_friction`).
-    * ``latency_ticks`` (int >= 0): servo ticks between sensing and the
-      estimator output (``--latency``).
-    * ``sensor_noise``: white noise on encoders / gyro / accelerometer (``--sensor-noise``).
-    * ``seed`` (int >= 0): the noise seed (``--seed``).
+    Attributes
+    ----------
+    pushes : tuple of Push
+        Pelvis pushes (``--push``, repeatable).
+    mass_scale : float
+        Factor (> 0, dimensionless) on every link's mass and rotational
+        inertia (``--mass-scale``).
+    torso_mass_scale : float
+        Factor (> 0) on the torso's mass and inertia, on top of
+        ``mass_scale`` (``--torso-mass-scale``).
+    torso_com_offset : float
+        Torso COM moved along the torso frame's x axis [m], forward positive,
+        abs value <= 0.1 m (``--torso-com-offset``).
+    friction : float or None
+        Effective foot-ground friction coefficient (dimensionless, in (0, 1.6);
+        None for the model's 1.0 / 0.8; ``--friction``, see
+        :func:`ground_friction`).
+    latency_ticks : int
+        Servo ticks between sensing and the estimator output, >= 0 (``--latency``).
+    sensor_noise : bool
+        White noise on encoders [rad] / gyro [rad/s] / accelerometer [m/s^2]
+        (``--sensor-noise``).
+    seed : int
+        The noise seed, >= 0 (``--seed``).
     """
 
     pushes: tuple = ()

@@ -78,6 +78,39 @@ class PhysicsParameters:
     harmonic-drive joints are position controlled); below about 2e4 N m/rad
     on the legs the open-loop walk tips over (measured: 1e4 fell at the
     3.4 s stop, 3e4 tracks the COG to a few mm).
+
+    Attributes
+    ----------
+    time_step : float
+        Discrete plant step [s].
+    contact : str
+        "point" (sole corner spheres) or "hydroelastic" (sole boxes).
+    mu_static, mu_dynamic : float
+        Foot-ground friction coefficients (dimensionless).
+    gains : tuple
+        (joint-name key, kp [N m/rad]) per joint group.
+    damping_time : float
+        kd = damping_time * kp [s].
+    log_period : float
+        Log period [s].
+    pelvis_height_bounds : tuple of float
+        Pelvis origin above the floor that counts as upright [m].
+    max_torso_tilt : float
+        Torso z axis from the vertical [rad].
+    max_slip : float
+        Sole travel while it stands [m].
+    rest_speed : float
+        Measured COG speed that counts as rest [m/s].
+    rest_within : float
+        Time after the planned halt end to come to rest [s].
+    rest_offset : float
+        Final COG distance from the feet's midpoint [m].
+    cop_tolerance : float
+        How far the CoP may leave the planned polygon [m].
+    contact_force_fraction : float
+        Share of the weight above which a foot is in contact (dimensionless).
+    filter_iterations : int
+        Dynamics-filter passes on the COG reference.
     """
 
     time_step: float = 1e-3  # [s] discrete plant step

@@ -22,7 +22,15 @@ from drake_estop.planning import lipm
 
 @dataclass(frozen=True)
 class Sole:
-    """Sole rectangle around the ankle, metres (HRP-2 class, models/README.md)."""
+    """Sole rectangle around the ankle (HRP-2 class, models/README.md).
+
+    Attributes
+    ----------
+    toe, heel : float
+        Distance from the ankle to the toe and the heel edge [m].
+    inner, outer : float
+        Distance from the ankle to the inner and the outer edge [m].
+    """
 
     toe: float = 0.135
     heel: float = 0.105
@@ -52,7 +60,38 @@ def _positive(name: str, value: float) -> float:
 
 @dataclass(frozen=True)
 class GaitParameters:
-    """Nominal gait; defaults follow the paper's simulation (Section V)."""
+    """Nominal gait; defaults follow the paper's simulation (Section V).
+
+    Attributes
+    ----------
+    com_height : float
+        COG height of the linear inverted pendulum [m] (HRP-2's 0.814).
+    step_length : float
+        Sagittal step length [m].
+    step_width : float
+        Lateral distance between the ankles [m].
+    step_time : float
+        One step: single + double support [s].
+    double_support_ratio : float
+        Share of ``step_time`` in double support (dimensionless, in (0, 1)).
+    num_steps : int
+        Steps of the walk, including the final one that closes the feet.
+    initial_shift_time : float
+        Weight shift before the first step [s].
+    final_shift_time : float
+        Double support that ends the walk at rest [s].
+    lift_height : float
+        Swing-foot apex above the floor [m].
+    arm_swing : float
+        Shoulder-pitch swing amplitude [rad].
+    sole : Sole
+        The sole rectangle [m].
+
+    Raises
+    ------
+    ValueError
+        On a non-physical value; the message names the field.
+    """
 
     com_height: float = 0.814  # HRP-2 walking pattern COG height [m]
     step_length: float = 0.3  # [m]
@@ -127,6 +166,19 @@ class NominalPattern:
 
     Time 0 is the start of the initial weight shift; the robot stands still
     before it and after :attr:`end_time`.
+
+    Parameters
+    ----------
+    params : GaitParameters, optional
+        The gait (default: the paper's).
+
+    Notes
+    -----
+    ``com(times)`` returns the COG position [m], velocity [m/s],
+    acceleration [m/s^2] and the ZMP [m], each (n, 2); ``feet_at(t)`` the
+    ankles' (x, y, lift) [m]; ``steps`` the footsteps with their ``liftoff``
+    and ``touchdown`` times [s]; ``stride()`` the (start, end) [s] of one
+    stride (single then double support of the third step).
     """
 
     def __init__(self, params: GaitParameters | None = None):

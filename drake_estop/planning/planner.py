@@ -61,11 +61,60 @@ algorithm, results equal to rounding). Off without numba or with the environment
 variable ``DRAKE_ESTOP_PURE_PYTHON`` set; tests flip it to compare the paths."""
 
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
+"""Phase labels; the planner's ``phase`` output port is an index into this tuple."""
 
 
 @dataclass(frozen=True)
 class StopParameters:
-    """Weights and limits of the stop planner. Defaults reproduce the paper (V-VI)."""
+    """Weights and limits of the stop planner. Defaults reproduce the paper (V-VI).
+
+    Attributes
+    ----------
+    a_ss, b_ss : float
+        Weights of the mean swing speed [1/(m/s)^2] and the double-support
+        time [1/s^2] in J_ss (eq. 24).
+    a_ds, b_ds : float
+        Weights of the ZMP displacement [1/m^2] and the double-support time
+        [1/s^2] in J_ds (eq. 30).
+    servo_period : float
+        Control period [s]; phase boundaries fall on its ticks (HRP-2: 0.005).
+    max_step_length, min_step_length : float
+        Landing step from the support ankle, sagittal [m].
+    min_landing_time, max_landing_time : float
+        Time to touchdown [s].
+    min_transition_time, max_transition_time : float
+        Double-support ZMP transition [s].
+    min_slowdown_time, max_slowdown_time : float
+        Slowdown phase [s].
+    max_swing_speed : float
+        Mean swing-ankle speed to the landing point [m/s].
+    max_swing_descent_speed : float
+        Fastest descent of the landing foot [m/s].
+    zmp_margin : float
+        ZMP distance kept from the sole edges [m].
+    crouch : bool
+        Lower the COG during the stop (IV.A).
+    crouch_depth : float
+        COG lowering [m].
+    halt_durations : tuple of float
+        Settle-segment candidates of the halt [s].
+    quantisation : str
+        "resolve" (re-solve the ZMP after snapping the phase times to ticks)
+        or "round" (the paper's rounding).
+    landing : str
+        "replan" or "nominal" (keep the nominal footstep).
+    landing_zmp_offset : float
+        Single support: slowdown ZMP ahead of the landing ankle [m].
+    max_fore_reach, max_rear_reach : float
+        Leg reach from the COG to the landing / rear ankle [m].
+    cost_tolerance : float
+        Relative suboptimality of the interior-point solution (dimensionless).
+
+    Raises
+    ------
+    ValueError
+        On a non-physical value; the message names the field.
+    """
 
     a_ss: float = 5.0  # weight of the mean swing speed in J_ss (eq. 24)
     b_ss: float = 1000.0  # weight of the double-support time in J_ss
@@ -150,7 +199,39 @@ class PhaseSolution:
 
 @dataclass
 class StopPlan:
-    """A planned stop. Times are absolute (pattern clock)."""
+    """A planned stop. Times are absolute, in seconds on the pattern's clock.
+
+    Attributes
+    ----------
+    signal_time : float
+        Servo tick of the stop signal [s].
+    start_time : float
+        Where the stop motion leaves the nominal pattern [s].
+    case : str
+        "one-step", "next-step" (III.C), "standing" or "already-stopping".
+    support : str
+        Support at the signal: "single", "double" or "standing".
+    landing_time, transition_end, slowdown_end, halt_end : float
+        Ends of the four phases [s].
+    step_length : float or None
+        Single-support stops: the landing step from the support ankle [m].
+    zmp_max : float or None
+        Double-support stops: the ZMP displacement from the start [m].
+    landing_foot : str or None
+        "left" or "right".
+    final_feet : dict
+        Side -> ankle (x, y) at rest [m].
+    min_zmp_margin : float
+        Smallest ZMP distance inside the support polygon [m].
+    compute_time : float
+        Wall-clock time of the plan [s].
+
+    Notes
+    -----
+    ``com(times)`` returns the COG position [m], velocity [m/s],
+    acceleration [m/s^2] and ZMP [m] (each (n, 2)); ``phase(t)`` the phase
+    label; ``polygon(t)`` the support polygon; ``summary()`` a JSON-ready dict.
+    """
 
     signal_time: float
     start_time: float  # where the stop motion leaves the nominal pattern
@@ -326,7 +407,10 @@ def soles_polygon(sole, feet: tuple) -> SupportPolygon:
 
 
 class InfeasibleStop(Exception):
-    """No one-step plan satisfies the limits from this state."""
+    """No stop satisfies the planner's limits from this state.
+
+    The message names the limit that made the stop infeasible.
+    """
 
 
 # ---------------------------------------------------------------------------
@@ -1364,12 +1448,33 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
               measured=None) -> StopPlan:
     """Plan the stop for a signal at ``signal_time`` (snapped to the next servo tick).
 
-    ``measured``: optional ``(com_xy, com_vel_xy)`` of the robot at that tick
-    (a state estimate); the plan then starts from it, so the continuity
-    conditions (eq. 10-11) hold against what the robot is doing, with the
-    ZMP continuous with the pattern's (eq. 12-13). A next-step fallback
-    (III.C) starts at a later tick from the pattern's state there plus the
-    measured deviation propagated by the LIPM.
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk the stop interrupts.
+    signal_time : float
+        Time of the stop signal [s] on the pattern's clock.
+    params : StopParameters, optional
+        Weights and limits (default: the paper's).
+    measured : tuple of array_like, optional
+        ``(com_xy [m], com_vel_xy [m/s])`` of the robot at that tick (a state
+        estimate); the plan then starts from it, so the continuity conditions
+        (eq. 10-11) hold against what the robot is doing, with the ZMP
+        continuous with the pattern's (eq. 12-13). A next-step fallback
+        (III.C) starts at a later tick from the pattern's state there plus
+        the measured deviation propagated by the LIPM.
+
+    Returns
+    -------
+    StopPlan
+        The four-phase stop; the COG ends at rest between the feet.
+
+    Raises
+    ------
+    InfeasibleStop
+        If no stop within two steps meets the limits (names the limit).
+    ValueError
+        If ``signal_time`` or ``measured`` is not finite.
     """
     params = params or StopParameters()
     if measured is not None:

@@ -120,7 +120,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     robot (MeshcatVisualizer), traces and phase (StopVisualizer) are drawn
     and an "Emergency stop" button is added.
     """
-    from drake_estop.systems.visualization import StopVisualizer
+    from drake_estop.systems.visualization import StopVisualizer, follow_camera_paths
 
     gait_params = gait_params or GaitParameters()
     stop_params = stop_params or StopParameters()
@@ -146,7 +146,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
             builder, scene_graph, meshcat, MeshcatVisualizerParams(
                 publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
         stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
-            meshcat=meshcat, pattern=pattern, publish_period=publish_period))
+            meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths()))
         for name in ("com", "zmp", "phase", "plan"):
             builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
     diagram = builder.Build()
@@ -354,13 +354,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     Meshcat without a replay file (so a person can press the button), else
     as fast as possible.
     """
-    from drake_estop.systems.visualization import (
-        add_floor,
-        make_meshcat,
-        set_side_camera,
-        start_recording,
-        write_replay,
-    )
+    from drake_estop.systems.visualization import add_floor, make_meshcat, start_recording, write_replay
 
     if html is not None and meshcat is None:
         meshcat = make_meshcat()
@@ -369,8 +363,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     handles = build_diagram(gait_params=gait_params, stop_params=stop_params,
                             estop_time=estop_time, meshcat=meshcat)
     if meshcat is not None:
-        add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)
-        set_side_camera(meshcat, x_center=0.5 * handles.pattern.final_feet["left"][0])
+        add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)  # the camera: StopVisualizer
     if html is not None:
         start_recording(meshcat)
     simulator, wall = run(handles, after_halt=after_halt, realtime_rate=realtime_rate)

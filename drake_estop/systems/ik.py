@@ -398,6 +398,21 @@ class WholeBodyIK(LeafSystem):
     The pelvis orientation target is level with the feet's mean heading.
     Non-finite inputs keep the previous q and report infinite errors.
     The solver's scratch plant context lives in a per-Context cache entry.
+
+    Parameters
+    ----------
+    plant : pydrake.multibody.plant.MultibodyPlant
+        Finalized plant holding the humanoid (the IK's model; it need not be
+        a system of the diagram).
+    servo_period : float, optional
+        Solve period [s] (default 0.005).
+    initial_q : array_like, optional
+        Initial positions (plant.num_positions()) [m, rad]; default the
+        standing posture.
+    solver : WholeBodyIkSolver, optional
+        A configured solver (default: one for ``plant``).
+    timer : drake_estop.timing.TickTimer, optional
+        Records the wall-clock time of every solve [s].
     """
 
     def __init__(self, *, plant, servo_period=0.005, initial_q=None,

@@ -133,8 +133,20 @@ class WalkingPatternSource(_ReferenceSystem):
         - arm_joints
         - phase
 
-    See the module docstring for the port layouts; ``phase`` is always the
-    index of "walking" in ``PHASES``.
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk to play; its clock is the context time [s].
+
+    Notes
+    -----
+    Output ports (world frame, SI units): ``com`` (3) COG position [m];
+    ``com_vel`` (3) [m/s]; ``zmp`` (2) [m]; ``left_foot`` / ``right_foot``
+    (7) sole pose ``[x, y, z, qw, qx, qy, qz]`` ([m], unit quaternion, z is
+    the foot's lift above the floor); ``upper_body`` (18) joint targets in
+    ``UPPER_BODY_JOINTS`` order [rad]; ``arm_joints`` (4) the arm angles in
+    ``ARM_JOINTS`` order [rad]; ``phase`` (1) always the index of "walking"
+    in ``PHASES``.
     """
 
     def __init__(self, *, pattern: NominalPattern):
@@ -168,8 +180,25 @@ class EStopTrigger(LeafSystem):
         output_ports:
         - stop
 
-    State: discrete ``[latched, latch_time]`` plus the button's click count
-    at initialization (so a reused Meshcat button does not fire at once).
+    Parameters
+    ----------
+    servo_period : float
+        Period of the latch check [s] (HRP-2: 0.005 s).
+    scheduled_time : float, optional
+        Time of a scheduled stop signal [s]; None for none.
+    meshcat : pydrake.geometry.Meshcat, optional
+        Adds the button ``button_name`` there; a click latches the stop.
+    button_name : str, optional
+        Label of the Meshcat button (default "Emergency stop").
+    request_size : int, optional
+        Size of the ``stop_request`` input (default 1).
+
+    Notes
+    -----
+    ``stop`` (2) is ``[latched (0 or 1), latch_time [s]]`` (latch_time is NaN
+    before the latch). State: discrete ``[latched, latch_time]`` plus the
+    button's click count at initialization (so a reused Meshcat button does
+    not fire at once).
     """
 
     def __init__(self, *, servo_period, scheduled_time=None, meshcat=None,
@@ -371,6 +400,44 @@ class StopPlannerSystem(_ReferenceSystem):
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
     update fails and the Simulator raises with the planner's message.
+
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk the stop interrupts.
+    params : StopParameters
+        Weights, limits and servo period [s] of the planner.
+    replan_threshold : float, optional
+        DCM deviation that triggers a plan from the measured state, and a
+        re-plan before the landing [m] (default 0.05).
+    bias_time_constant : float, optional
+        Time constant of the learned tracking bias [s] (default 0.5).
+    filter_time_constant : float, optional
+        Low-pass time constant of the measured COG [s] (default 0.03).
+    blend_time : float, optional
+        Duration of the COG blend into a plan from the measured state [s]
+        (default 0.2).
+    replan_interval : float, optional
+        Shortest time between re-plans [s] (default 0.05).
+    landed_replan_threshold : float, optional
+        DCM deviation that triggers a re-plan after the landing [m] (default
+        0.08).
+    timer : drake_estop.timing.TickTimer, optional
+        Records the wall-clock time of every update [s].
+
+    Notes
+    -----
+    Output ports: the same reference layout as :class:`WalkingPatternSource`
+    (``com`` [m], ``com_vel`` [m/s], ``zmp`` [m], sole poses [m], joint
+    targets [rad], ``phase``) plus the abstract ``plan``. Input ``stop``
+    (2) is :class:`EStopTrigger`'s output; ``measured_com`` (3) [m] and
+    ``measured_com_vel`` (3) [m/s] are optional.
+
+    Raises
+    ------
+    ValueError
+        If one of the time constants or thresholds is not positive and finite
+        (the message names it).
     """
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,

@@ -25,9 +25,11 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import ipaddress
 import os
 import re
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +48,8 @@ _PLAN_ZMP_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
 _NOMINAL_FOOT_RGBA = Rgba(0.55, 0.55, 0.55, 1.0)
 _TAKEN_FOOT_RGBA = Rgba(0.9, 0.1, 0.1, 1.0)
 _POLYGON_RGBA = Rgba(0.85, 0.1, 0.85, 1.0)
-_PHASE_COLOURS = {"walking": "#2a6fdb", "landing": "#e08a00", "transition": "#c2185b",
+# walking is teal, not blue: the replay-render test finds the robot by its blue material
+_PHASE_COLOURS = {"walking": "#00838f", "landing": "#e08a00", "transition": "#c2185b",
                   "slowdown": "#d32f2f", "halt": "#6a1b9a", "stopped": "#2e7d32"}
 _TRACE_Z = 0.002  # lines slightly above the floor
 
@@ -55,24 +58,60 @@ _TRACE_Z = 0.002  # lines slightly above the floor
 # Meshcat server and replay files.
 
 
-def make_meshcat(port=None):
-    """A Meshcat server; ``port`` None lets Drake pick a free one (7000-7099).
+def is_loopback_host(host):
+    """True when ``host`` names this machine only ("localhost", 127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
+
+def make_meshcat(port=None, *, host="localhost"):
+    """A Meshcat server listening on ``host`` (this machine only, by default).
+
+    Parameters
+    ----------
+    port : int, optional
+        TCP port (no physical units); None lets Drake pick a free one
+        (7000-7099).
+    host : str, optional
+        Interface to listen on: "localhost" (default) serves this machine
+        only; "*" or an address opens the live view, and its "Emergency stop"
+        button, to the network, with a warning.
+
+    Returns
+    -------
+    pydrake.geometry.Meshcat
+        The server; ``web_url()`` is its address.
+
+    Raises
+    ------
+    RuntimeError
+        Naming the port when it is already in use.
+
+    Notes
+    -----
     ``DRAKE_ALLOW_NETWORK=meshcat`` is set only while the server is created
     and restored afterwards: in Drake 1.51 a process-wide "meshcat" value
     also disables the PackageMap, which makes every default ``Parser`` throw
     (drake_models remote), even for a local file.  The humanoid itself loads
     either way (:func:`drake_estop.model.offline_parser`).
-    Raises RuntimeError naming the port when it is already in use.
     """
+    if not isinstance(host, str) or not host:
+        raise ValueError(f"host must be a non-empty host name or address, got {host!r}")
+    if not is_loopback_host(host):
+        warnings.warn(f"Meshcat listens on {host!r}, not only on this machine: anyone who can reach it can "
+                      "watch the robot and press its emergency-stop button", UserWarning, stacklevel=2)
     previous = os.environ.get("DRAKE_ALLOW_NETWORK")
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     try:
-        return Meshcat(MeshcatParams(port=port)) if port else Meshcat()
+        return Meshcat(MeshcatParams(host=host, port=port)) if port else Meshcat(MeshcatParams(host=host))
     except RuntimeError as error:
         where = f"port {port}" if port else "any port in 7000-7099"
         raise RuntimeError(
-            f"could not start Meshcat on {where} ({error}); is another "
+            f"could not start Meshcat on host {host!r}, {where} ({error}); is another "
             "Meshcat/drake-estop already running? Close it or pass a free "
             "port (or none, to let Drake choose)") from error
     finally:
@@ -134,18 +173,21 @@ def _sole_loop(sole, ankle_xy, side):
 
 
 def _phase_plate(directory, phase):
-    """OBJ file of a quad textured with the phase name (matplotlib PNG)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """OBJ file of a quad textured with the phase name (matplotlib PNG).
+
+    Draws on a bare ``Figure`` (Agg canvas): no pyplot, so the user's
+    matplotlib backend (e.g. a notebook's inline one) is left alone.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     png = Path(directory) / f"{phase}.png"
-    fig = plt.figure(figsize=(4, 1), dpi=100)
+    fig = Figure(figsize=(4, 1), dpi=100)
+    FigureCanvasAgg(fig)
     fig.patch.set_facecolor("white")
     fig.text(0.5, 0.5, phase, ha="center", va="center", fontsize=44,
              color=_PHASE_COLOURS[phase], weight="bold")
     fig.savefig(png, facecolor="white")
-    plt.close(fig)
     (Path(directory) / f"{phase}.mtl").write_text(
         f"newmtl plate\nKa 1 1 1\nKd 1 1 1\nmap_Kd {png.name}\n")
     obj = Path(directory) / f"{phase}.obj"
@@ -202,11 +244,33 @@ class StopVisualizer(LeafSystem):
     every ``publish_period`` with the context time as the recording time.
     Everything it needs to remember lives in the Meshcat scene (paths that
     exist), never in Python attributes.
+
+    Parameters
+    ----------
+    meshcat : pydrake.geometry.Meshcat
+        Where to draw.
+    pattern : NominalPattern
+        The nominal walk (its traces and footsteps are drawn at initialization).
+    publish_period : float, optional
+        Publish period [s] (default 1/64 s).
+    prefix : str, optional
+        Meshcat path of the drawings (default "/estop").
+    follow : tuple of str, optional
+        Meshcat paths slid along -x by the COG's travel at every publish, so
+        that a fixed camera (:func:`set_follow_camera`) keeps the robot framed
+        (recorded into replays); see :func:`follow_camera_paths`. Empty: no
+        follow camera.
+
+    Notes
+    -----
+    Inputs: ``com`` (3) [m], ``zmp`` (2) [m], ``phase`` (1) index into
+    ``PHASES``, ``plan`` (abstract).
     """
 
-    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX):
+    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
         super().__init__()
         self._meshcat = meshcat
+        self._follow = tuple(follow)
         self._pattern = pattern
         self._period = publish_period
         self._prefix = prefix
@@ -235,6 +299,8 @@ class StopVisualizer(LeafSystem):
         for k, step in enumerate(pattern.steps):
             m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"]),
                       1.5, _NOMINAL_FOOT_RGBA)
+        if self._follow:
+            set_follow_camera(m, pattern)
         m.SetObject(f"{p}/markers/cog", Sphere(0.03), _COG_RGBA)
         m.SetObject(f"{p}/markers/cog_floor", Cylinder(0.02, 0.004), _COG_RGBA)
         m.SetObject(f"{p}/markers/zmp", Sphere(0.02), _ZMP_RGBA)
@@ -279,7 +345,12 @@ class StopVisualizer(LeafSystem):
         m.SetTransform(f"{p}/cog", RigidTransform(com), t)
         m.SetTransform(f"{p}/cog_floor", RigidTransform([com[0], com[1], 0.002]), t)
         m.SetTransform(f"{p}/zmp", RigidTransform([zmp[0], zmp[1], 0.01]), t)
-        m.SetTransform(f"{self._prefix}/phase", RigidTransform([com[0], -0.35, 1.75]), t)
+        plate = [com[0] - 0.55, -0.3, 1.3] if self._follow else [com[0], -0.35, 1.75]  # in the camera's view
+        m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
+        if self._follow:
+            shift = RigidTransform([self._pattern.com([0.0])[0][0, 0] - com[0], 0.0, 0.0])
+            for path in self._follow:
+                m.SetTransform(path, shift, t)
 
     def _switch_polygon(self, plan, t):
         """Show the polygon of ``t``; hide the one of the previous publish."""
@@ -308,6 +379,17 @@ class StopVisualizer(LeafSystem):
 def set_side_camera(meshcat, x_center=1.2):
     """Look at the walk from the robot's right side, slightly above."""
     meshcat.SetCameraPose(np.array([x_center, -3.6, 1.6]), np.array([x_center, 0.0, 0.7]))
+
+
+def follow_camera_paths(robot_prefix="robot", prefix=PREFIX):
+    """Meshcat paths a follow camera slides: the robot, the stop's drawings and the grid."""
+    return (f"/drake/{robot_prefix}", prefix, "/Grid")
+
+
+def set_follow_camera(meshcat, pattern):
+    """Frame the robot at its start, from the front right and slightly above."""
+    x0 = float(pattern.com([0.0])[0][0, 0])
+    meshcat.SetCameraPose(np.array([x0 + 0.6, -1.3, 1.05]), np.array([x0, 0.0, 0.74]))
 
 
 def add_floor(meshcat, length=4.0, prefix=PREFIX):
