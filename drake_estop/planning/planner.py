@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from drake_estop.planning import lipm
+from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import ARM_NEUTRAL, NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.newton import barrier_newton
@@ -1292,6 +1293,11 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     sole = pattern.params.sole
     t_solve = time.perf_counter()
     problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
+    if kind == "single":  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
+        landing_y = capture_landing_y(pattern, state, solution.landing)
+        if landing_y is not None and abs(landing_y - float(state.next_landing[1])) > 1e-9:
+            state = replace(state, next_landing=np.array([float(state.next_landing[0]), landing_y]))
+            problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":
         support, swing = feet["support"], feet["swing"]
         step_length = problem.step_length(solution.target)
