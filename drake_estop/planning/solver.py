@@ -209,8 +209,10 @@ def _limit_derivatives(d, y, rg, rh, eg, eh):
             eg[0, 2] = -dx / dist
             eh[0, 2, 2] = -dy * dy / (dist * (dist * dist))
         ahead, rate = _ahead(d, y[0])
-        eg[1, 0], eg[1, 2] = rate, -1.0
-        eh[1, 0, 0] = d[W] * d[W] * ahead
+        eg[1, 2] = -1.0
+        if ahead == ahead:
+            eg[1, 0] = rate
+            eh[1, 0, 0] = d[W] * d[W] * ahead
         k = 2
     for i in range(3):
         eg[k, i] = -rg[i]
@@ -222,8 +224,9 @@ def _limit_derivatives(d, y, rg, rh, eg, eh):
 def point(d, x, derivatives, jg, jh, g, gg, gh):
     """The Newton evaluator (:func:`~drake_estop.planning.newton.barrier_newton_for`): J at the free variables
     ``x``, the constraints into ``g`` (lower / upper bound of each free variable, then :func:`limits`)
-    and with ``derivatives`` their gradients and Hessians over the free variables. Without
-    derivatives, a point where no slowdown stops the COG has J = inf and every ``g = -1``."""
+    and with ``derivatives`` their gradients and Hessians over the free variables. Where no
+    slowdown stops the COG, J = inf and the slowdown and rear-reach limits are -1 (without
+    derivatives every ``g = -1``: the line search rejects the point)."""
     n, m, first = dims(d)
     y = full(d, x)
     w = d[W]
@@ -252,12 +255,13 @@ def point(d, x, derivatives, jg, jh, g, gg, gh):
     else:
         for k in range(r, m):
             g[k] = -1.0
-    value = cost(d, y[0], y[1], y[2], t3)
+    value = cost(d, y[0], y[1], y[2], t3) if math.isfinite(t3) else math.inf
     if not derivatives:
         return value
     cg = np.zeros(3)
     ch = np.zeros((3, 3))
-    cost_derivatives(d, y, t3, tg, th, cg, ch)
+    if math.isfinite(t3):
+        cost_derivatives(d, y, t3, tg, th, cg, ch)
     eg = np.zeros((3, 3))
     eh = np.zeros((3, 3, 3))
     _limit_derivatives(d, y, rg, rh, eg, eh)
