@@ -224,9 +224,9 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
         touchdown = pattern.steps[state.step_index]["touchdown"]
         problem = SingleSupportProblem(start, w, params, float(state.zmp[0]),
-                                        state.feet[swing][:2].copy(), float(state.next_landing[1]),
-                                        min_landing=descent_time(float(state.feet[swing][2]), params),
-                                        nominal_landing=float(touchdown - state.time))
+                                       state.feet[swing][:2].copy(), float(state.next_landing[1]),
+                                       min_landing=descent_time(float(state.feet[swing][2]), params),
+                                       nominal_landing=float(touchdown - state.time))
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"
@@ -315,6 +315,8 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
         span = slowdown_end - t0
         plan.upper_body_peak = state.upper_body + state.upper_body_rate * span / 3.0  # eq. 33
         plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
+        if not math.isfinite(plan.min_zmp_margin):  # guard: never hand out a plan with a NaN ZMP
+            raise InfeasibleStop("the planned ZMP is not finite")
         if required is None:
             start_zmp = np.array([[plan.x.evaluate_at(t0)[3], plan.y.evaluate_at(t0)[3]]])
             required = min(params.zmp_margin, float(_support_polygon(plan).margin(start_zmp)[0]))
@@ -385,9 +387,9 @@ def _trivial_plan(pattern, state, params, signal_time, case):
 
 def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
     """Plan once (single and double support) so the compiled solver is loaded before the
-    robot walks: the first call in a process loads numba's cache (~0.3 s; ~17 s to
-    compile after an install), which must not land on the servo tick of a real stop.
-    Returns the seconds it took."""
+    robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
+    compile after an install or an edit of the solver), which must not land on the servo
+    tick of a real stop. Returns the seconds it took."""
     wall = time.perf_counter()
     start, end = pattern.stride()
     for fraction in (0.3, 0.9):

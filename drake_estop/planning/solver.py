@@ -225,8 +225,8 @@ def point(d, x, derivatives, jg, jh, g, gg, gh):
     """The Newton evaluator (:func:`~drake_estop.planning.newton.barrier_newton_for`): J at the free variables
     ``x``, the constraints into ``g`` (lower / upper bound of each free variable, then :func:`limits`)
     and with ``derivatives`` their gradients and Hessians over the free variables. Where no
-    slowdown stops the COG, J = inf and the slowdown and rear-reach limits are -1 (without
-    derivatives every ``g = -1``: the line search rejects the point)."""
+    slowdown stops the COG, J = inf and the slowdown limits are -1 (without derivatives every
+    ``g = -1``: the line search rejects the point); no NaN."""
     n, m, first = dims(d)
     y = full(d, x)
     w = d[W]
