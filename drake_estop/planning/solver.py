@@ -37,7 +37,6 @@ from drake_estop.planning.newton import barrier_newton_for
 from drake_estop.planning.plan import InfeasibleStop, PhaseSolution, snap_to_tick
 from drake_estop.planning.stop_condition import (
     TERMS,
-    TRANSITION_TERMS,
     closed_form,
     exp_or_inf,
     rest,
@@ -171,14 +170,14 @@ def _ahead(d, t1):
 
 
 @jit
-def limits(d, t, t1, z, t3, g, offset):
+def limits(d, t1, z, t3, x_rest, g, offset):
     """The limits other than the variable bounds, as ``g >= 0``, into ``g[offset:]``; returns their number.
 
-    Slowdown duration above its minimum and below its maximum (-1 where ``t3`` is not finite);
-    single support: mean swing-ankle speed to the landing point, ``v_max t_i - distance``, and
-    the fore-leg reach at touchdown, ``reach - (l_s - x_G(t_i))``; both: rear-leg reach where
-    the COG comes to rest, ``reach - (x_rest - rear ankle)`` (-1 where no slowdown stops it).
-    ``t``: the closed form's terms at (t1, t2).
+    Slowdown duration ``t3`` above its minimum and below its maximum (-1 where ``t3`` is not
+    finite); single support: mean swing-ankle speed to the landing point, ``v_max t_i - distance``,
+    and the fore-leg reach at touchdown, ``reach - (l_s - x_G(t_i))``; both: rear-leg reach where
+    the COG comes to rest, ``reach - (x_rest - rear ankle)`` (-1 where ``x_rest`` is not finite:
+    no slowdown stops the COG with target ``z``).
     """
     finite = math.isfinite(t3)
     g[offset] = t3 - d[MIN_T3] if finite else -1.0
@@ -190,9 +189,6 @@ def limits(d, t, t1, z, t3, g, offset):
         ahead, _ = _ahead(d, t1)
         g[k + 1] = d[FORE_REACH] - (z - d[ZMP_OFFSET]) + ahead if ahead == ahead else -1.0
         k += 2
-    w = d[W]
-    t3_rest = slowdown(t, w, z)
-    x_rest = rest(t, w, z, t3_rest) if t3_rest == t3_rest else math.nan
     g[k] = d[REAR_REACH] - x_rest + d[REAR_ANKLE] if math.isfinite(x_rest) else -1.0
     return k + 1 - offset
 
@@ -221,12 +217,34 @@ def _limit_derivatives(d, y, rg, rh, eg, eh):
 
 
 @jit
-def point(d, x, derivatives, jg, jh, g, gg, gh):
-    """The Newton evaluator (:func:`~drake_estop.planning.newton.barrier_newton_for`): J at the free variables
-    ``x``, the constraints into ``g`` (lower / upper bound of each free variable, then :func:`limits`)
-    and with ``derivatives`` their gradients and Hessians over the free variables. Where no
-    slowdown stops the COG, J = inf and the slowdown limits are -1 (without derivatives every
-    ``g = -1``: the line search rejects the point); no NaN."""
+def _bounds(d, x, g):
+    """Lower and upper bound of each free variable, as ``g >= 0``, into ``g[:2n]``."""
+    n, _, first = dims(d)
+    for i in range(n):
+        g[2 * i] = x[i] - d[BOUNDS + 2 * (first + i)]
+        g[2 * i + 1] = d[BOUNDS + 2 * (first + i) + 1] - x[i]
+
+
+@jit
+def _point_values(d, x, g):
+    """:func:`point` without derivatives."""
+    n, m, _ = dims(d)
+    y = full(d, x)
+    w = d[W]
+    t = np.empty(TERMS)
+    t3 = slowdown(t, w, y[2]) if terms_at(d[DCM], d[CCM], d[RATE], d[ACCEL], w, y[0], y[1], t) else math.nan
+    if not math.isfinite(t3):
+        for k in range(m):
+            g[k] = -1.0
+        return math.inf
+    _bounds(d, x, g)
+    limits(d, y[0], y[2], t3, rest(t, w, y[2], t3), g, 2 * n)
+    return cost(d, y[0], y[1], y[2], t3)
+
+
+@jit
+def _point_derivatives(d, x, jg, jh, g, gg, gh):
+    """:func:`point` with derivatives."""
     n, m, first = dims(d)
     y = full(d, x)
     w = d[W]
@@ -237,30 +255,24 @@ def point(d, x, derivatives, jg, jh, g, gg, gh):
     th = np.zeros((3, 3))
     rg = np.zeros(3)
     rh = np.zeros((3, 3))
-    if derivatives and t3 == t3:
+    x_rest = math.nan
+    if t3 == t3:
         if slowdown_derivatives(t, w, y[2], t3, tg, th):
-            rest_derivatives(t, w, y[2], t3, tg, th, rg, rh)
+            x_rest = rest_derivatives(t, w, y[2], t3, tg, th, rg, rh)
         else:  # Z independent of T3 here (0/0): no derivatives, reported infeasible
             t3 = math.nan
-    if not derivatives and not math.isfinite(t3):
-        for k in range(m):
-            g[k] = -1.0
-        return math.inf
-    for i in range(n):
-        g[2 * i] = x[i] - d[BOUNDS + 2 * (first + i)]
-        g[2 * i + 1] = d[BOUNDS + 2 * (first + i) + 1] - x[i]
+    _bounds(d, x, g)
     r = 2 * n
     if have_terms:
-        limits(d, t, y[0], y[2], t3, g, r)
+        limits(d, y[0], y[2], t3, x_rest, g, r)
     else:
         for k in range(r, m):
             g[k] = -1.0
-    value = cost(d, y[0], y[1], y[2], t3) if math.isfinite(t3) else math.inf
-    if not derivatives:
-        return value
     cg = np.zeros(3)
     ch = np.zeros((3, 3))
+    value = math.inf
     if math.isfinite(t3):
+        value = cost(d, y[0], y[1], y[2], t3)
         cost_derivatives(d, y, t3, tg, th, cg, ch)
     eg = np.zeros((3, 3))
     eh = np.zeros((3, 3, 3))
@@ -285,6 +297,18 @@ def point(d, x, derivatives, jg, jh, g, gg, gh):
             for j in range(n):
                 gh[r + 2 + e, i, j] = eh[e, first + i, first + j]
     return value
+
+
+@jit
+def point(d, x, derivatives, jg, jh, g, gg, gh):
+    """The Newton evaluator (:func:`~drake_estop.planning.newton.barrier_newton_for`): J at the free variables
+    ``x``, the constraints into ``g`` (lower / upper bound of each free variable, then :func:`limits`)
+    and with ``derivatives`` their gradients and Hessians over the free variables. Where no
+    slowdown stops the COG, J = inf and the slowdown limits are -1 (without derivatives every
+    ``g = -1``: the line search rejects the point); no NaN."""
+    if derivatives:
+        return _point_derivatives(d, x, jg, jh, g, gg, gh)
+    return _point_values(d, x, g)
 
 
 barrier_newton = barrier_newton_for(point)
@@ -314,16 +338,15 @@ def grid_start(d, landing_axis, transition_axis, samples):
     worst = np.full((nl, nt, nk), -math.inf)
     values = np.full((nl, nt, nk), math.inf)
     zs = np.zeros((nl, nt, nk))
-    tt = np.empty(TRANSITION_TERMS)
     t = np.empty(TERMS)
     g = np.empty(5)
     lo2, hi2 = d[BOUNDS + 4], d[BOUNDS + 5]
     for jt in range(nt):
         t2 = transition_axis[jt]
-        have_transition = transition_terms(w, t2, d[RATE], d[ACCEL], tt)
+        have_transition = transition_terms(w, t2, d[RATE], d[ACCEL], t)
         for il in range(nl):
             t1 = landing_axis[il]
-            if not (have_transition and closed_form(d[DCM], d[CCM], w, t1, t2, tt, t)):
+            if not (have_transition and closed_form(d[DCM], d[CCM], w, t1, t2, t)):
                 continue
             long = stop_zmp(t, w, d[MAX_T3])
             short = stop_zmp(t, w, d[MIN_T3])
@@ -345,7 +368,7 @@ def grid_start(d, landing_axis, transition_axis, samples):
                 if not (high >= low and math.isfinite(t3)):
                     continue
                 margin = math.inf
-                for k in range(limits(d, t, t1, z, t3, g, 0)):
+                for k in range(limits(d, t1, z, t3, rest(t, w, z, t3), g, 0)):
                     margin = _npmin(margin, g[k])
                 if single:  # variable bounds
                     margin = _npmin(_npmin(margin, t1 - d[BOUNDS + 0]), d[BOUNDS + 1] - t1)
@@ -432,11 +455,10 @@ def quantise(d, y, t3):
         o1 = np.zeros(1)
     o2 = _tick_options(y[1], d[BOUNDS + 2], d[BOUNDS + 3], dt)
     o3 = _tick_options(t3, d[MIN_T3], d[MAX_T3], dt)
-    tts = np.empty((o2.shape[0], TRANSITION_TERMS))
+    terms = np.empty((o2.shape[0], TERMS))
     have = np.zeros(o2.shape[0], dtype=np.bool_)
     for jt in range(o2.shape[0]):
-        have[jt] = transition_terms(w, o2[jt], d[RATE], d[ACCEL], tts[jt])
-    t = np.empty(TERMS)
+        have[jt] = transition_terms(w, o2[jt], d[RATE], d[ACCEL], terms[jt])
     g = np.empty(5)
     best_value = math.inf
     best_i = best_j = best_k = -1
@@ -445,7 +467,8 @@ def quantise(d, y, t3):
         t1 = o1[il]
         for jt in range(o2.shape[0]):
             t2 = o2[jt]
-            if not (have[jt] and closed_form(d[DCM], d[CCM], w, t1, t2, tts[jt], t)):
+            t = terms[jt]
+            if not (have[jt] and closed_form(d[DCM], d[CCM], w, t1, t2, t)):
                 continue
             for kz in range(o3.shape[0]):
                 t3q = o3[kz]
@@ -455,7 +478,9 @@ def quantise(d, y, t3):
                 ok = ok and (z >= d[BOUNDS + 4] - 1e-12) and (z <= d[BOUNDS + 5] + 1e-12)
                 if not ok:
                     continue
-                for k in range(limits(d, t, t1, z, t3q, g, 0)):
+                t3_rest = slowdown(t, w, z)  # where the re-solved (or kept) Z brings the COG to rest
+                x_rest = rest(t, w, z, t3_rest) if t3_rest == t3_rest else math.nan
+                for k in range(limits(d, t1, z, t3q, x_rest, g, 0)):
                     ok = ok and g[k] >= -1e-12
                 if ok:
                     v = cost(d, t1, t2, z, t3q)
@@ -497,21 +522,20 @@ def infeasible_limits(d, landing_axis, transition_axis, targets):
     blocking = np.zeros(total, dtype=np.bool_)
     holds = np.zeros(total, dtype=np.bool_)
     stops = False
-    tt = np.empty(TRANSITION_TERMS)
     t = np.empty(TERMS)
     g = np.empty(total)
     for t2 in transition_axis:
-        if not transition_terms(w, t2, d[RATE], d[ACCEL], tt):
+        if not transition_terms(w, t2, d[RATE], d[ACCEL], t):
             continue
         for t1 in landing_axis:
-            if not closed_form(d[DCM], d[CCM], w, t1, t2, tt, t):
+            if not closed_form(d[DCM], d[CCM], w, t1, t2, t):
                 continue
             for z in targets:
                 t3 = slowdown(t, w, z)
                 if not math.isfinite(t3):
                     continue
                 stops = True
-                count = limits(d, t, t1, z, t3, g, 0)
+                count = limits(d, t1, z, t3, rest(t, w, z, t3), g, 0)
                 g[count] = z - d[BOUNDS + 4]
                 g[count + 1] = d[BOUNDS + 5] - z
                 violated = 0

@@ -31,7 +31,8 @@ these functions. They are written in the numba subset and compiled by
 :func:`~drake_estop.planning.backend.jit` (plain Python without numba). The closed form is
 split where its data split: :func:`transition_terms` depends on the transition duration
 only (the quadrature, once per transition duration of a grid), :func:`closed_form` adds
-the landing duration and the start state. Terms are float64 vectors (layout below).
+the landing duration and the start state. Both write into one float64 terms vector
+(:data:`TERMS`).
 """
 
 from __future__ import annotations
@@ -55,13 +56,12 @@ _BASIS = np.array(
 # moments of the three shapes against u^k, k = 0, 1, 2 (rows: 3 shapes x 3 powers)
 _STACK = np.ascontiguousarray(np.vstack([_BASIS, _BASIS * _U, _BASIS * _U * _U]))
 
-TRANSITION_TERMS = 12
-"""Size of :func:`transition_terms`' output: ``S_L, S_L', S_L''`` (responses to the start ZMP rate
-and acceleration, ``d/dT2``), ``S_R, S_R', S_R''``, ``F, F', F''`` (``F = L_sigma + 1``),
-``G, G', G''`` (``G = R_sigma``)."""
-TERMS = 18
-"""Size of :func:`closed_form`'s output: ``A, A_1, A_2, A_11, A_12, A_22`` (index 1: landing,
-2: transition duration), ``B`` likewise, then ``F, F', F''`` and ``G, G', G''``."""
+TERMS = 24
+"""Size of the terms vector of the closed form: ``A, A_1, A_2, A_11, A_12, A_22`` (index 1: landing,
+2: transition duration), ``B`` likewise (from :func:`closed_form`), then ``F, F', F''``
+(``F = L_sigma + 1``, primes ``d/dT2``), ``G, G', G''`` (``G = R_sigma``), ``S_L, S_L', S_L''`` and
+``S_R, S_R', S_R''`` (the responses to the start ZMP rate and acceleration; from
+:func:`transition_terms`)."""
 _EXP_MAX = 709.78  # math.exp overflows above log(max float)
 
 
@@ -89,8 +89,8 @@ def exp_or_inf(x):
 
 
 @jit
-def transition_terms(w, transition, rate, accel, tt):
-    """The transition-only part of the closed form into ``tt`` (:data:`TRANSITION_TERMS`).
+def transition_terms(w, transition, rate, accel, t):
+    """The transition-only part of the closed form into ``t[12:24]`` (:data:`TERMS`).
 
     ``L_b = kappa M0_b``, ``L' = M0 + kappa M1``, ``L'' = 2 M1 + kappa M2`` with ``Mk_b`` the
     moments of shape ``b`` against ``u^k exp(kappa u)``; ``R`` likewise against
@@ -100,37 +100,31 @@ def transition_terms(w, transition, rate, accel, tt):
     """
     kappa = w * transition
     n = _U.shape[0]
-    grow = np.empty(n)
-    inv = np.empty(n)
+    grow = np.empty((2, n))  # exp(kappa u), exp(-kappa u) at the nodes
     for q in range(n):
-        grow[q] = exp_or_inf(kappa * _U[q])
-        if not (grow[q] > 0.0 and grow[q] < math.inf):
+        grow[0, q] = exp_or_inf(kappa * _U[q])
+        if not (grow[0, q] > 0.0 and grow[0, q] < math.inf):
             return False
-        inv[q] = 1.0 / grow[q]
-    mp = np.zeros(9)
-    mm = np.zeros(9)
+        grow[1, q] = 1.0 / grow[0, q]
+    moments = np.zeros((2, 9))  # M, P: 3 shapes x 3 powers
     for r in range(9):
         sp = 0.0
         sm = 0.0
         for q in range(n):
-            sp += _STACK[r, q] * grow[q]
-            sm += _STACK[r, q] * inv[q]
-        mp[r] = sp
-        mm[r] = sm
+            sp += _STACK[r, q] * grow[0, q]
+            sm += _STACK[r, q] * grow[1, q]
+        moments[0, r] = sp
+        moments[1, r] = sm
+    mp, mm = moments[0], moments[1]
     ww = w * w
-    lval = np.empty(3)
-    ld1 = np.empty(3)
-    ld2 = np.empty(3)
-    rval = np.empty(3)
-    rd1 = np.empty(3)
-    rd2 = np.empty(3)
+    lr = np.empty((6, 3))  # L, L', L'', R, R', R'' per shape
     for b in range(3):
-        lval[b] = kappa * mp[b]
-        ld1[b] = mp[b] + kappa * mp[3 + b]
-        ld2[b] = 2.0 * mp[3 + b] + kappa * mp[6 + b]
-        rval[b] = kappa * mm[b]
-        rd1[b] = mm[b] - kappa * mm[3 + b]
-        rd2[b] = -2.0 * mm[3 + b] + kappa * mm[6 + b]
+        lr[0, b] = kappa * mp[b]
+        lr[1, b] = mp[b] + kappa * mp[3 + b]
+        lr[2, b] = 2.0 * mp[3 + b] + kappa * mp[6 + b]
+        lr[3, b] = kappa * mm[b]
+        lr[4, b] = mm[b] - kappa * mm[3 + b]
+        lr[5, b] = -2.0 * mm[3 + b] + kappa * mm[6 + b]
     sl0 = sl1 = sl2 = sr0 = sr1 = sr2 = 0.0
     for power in (1, 2):  # shape b = power: h1 (rate), h2 (acceleration)
         coef = rate / w if power == 1 else accel / ww
@@ -139,64 +133,69 @@ def transition_terms(w, transition, rate, accel, tt):
                 k_p, k_p1, k_p2 = kappa, 1.0, 0.0
             else:
                 k_p, k_p1, k_p2 = kappa * kappa, 2.0 * kappa, 2.0
-            sl0 += coef * k_p * lval[power]
-            sl1 += coef * (k_p1 * lval[power] + k_p * ld1[power])
-            sl2 += coef * (k_p2 * lval[power] + 2.0 * k_p1 * ld1[power] + k_p * ld2[power])
-            sr0 += coef * k_p * rval[power]
-            sr1 += coef * (k_p1 * rval[power] + k_p * rd1[power])
-            sr2 += coef * (k_p2 * rval[power] + 2.0 * k_p1 * rd1[power] + k_p * rd2[power])
-    tt[0], tt[1], tt[2], tt[3], tt[4], tt[5] = sl0, sl1, sl2, sr0, sr1, sr2
-    tt[6], tt[7], tt[8] = lval[0] + 1.0, w * ld1[0], ww * ld2[0]
-    tt[9], tt[10], tt[11] = rval[0], w * rd1[0], ww * rd2[0]
+            lval, ld1, ld2 = lr[0, power], lr[1, power], lr[2, power]
+            rval, rd1, rd2 = lr[3, power], lr[4, power], lr[5, power]
+            sl0 += coef * k_p * lval
+            sl1 += coef * (k_p1 * lval + k_p * ld1)
+            sl2 += coef * (k_p2 * lval + 2.0 * k_p1 * ld1 + k_p * ld2)
+            sr0 += coef * k_p * rval
+            sr1 += coef * (k_p1 * rval + k_p * rd1)
+            sr2 += coef * (k_p2 * rval + 2.0 * k_p1 * rd1 + k_p * rd2)
+    t[12], t[13], t[14] = lr[0, 0] + 1.0, w * lr[1, 0], ww * lr[2, 0]
+    t[15], t[16], t[17] = lr[3, 0], w * lr[4, 0], ww * lr[5, 0]
+    t[18], t[19], t[20], t[21], t[22], t[23] = sl0, sl1, sl2, sr0, sr1, sr2
     return True
 
 
 @jit
-def closed_form(dcm, ccm, w, landing, transition, tt, t):
-    """The closed form's terms (:data:`TERMS`) at (landing, transition) into ``t``, from the start
-    state and :func:`transition_terms` ``tt``: ``A = E1 E2 xi0 - S_L``, ``B = zeta0 / (E1 E2) + S_R``
-    and their partials. False where ``E1 E2`` over- or underflows."""
+def closed_form(dcm, ccm, w, landing, transition, t):
+    """The closed form's ``A = E1 E2 xi0 - S_L``, ``B = zeta0 / (E1 E2) + S_R`` and their partials at
+    (landing, transition) into ``t[:12]``, from the start state and :func:`transition_terms`
+    (``t[12:24]``, for this transition). False where ``E1 E2`` over- or underflows."""
     e12 = exp_or_inf(w * (landing + transition))
     if not (e12 > 0.0 and e12 < math.inf):
         return False
     ww = w * w
     p_fwd = e12 * dcm
     p_bwd = ccm / e12
-    t[0] = p_fwd - tt[0]
+    t[0] = p_fwd - t[18]
     t[1] = w * p_fwd
-    t[2] = w * p_fwd - w * tt[1]
+    t[2] = w * p_fwd - w * t[19]
     t[3] = ww * p_fwd
     t[4] = ww * p_fwd
-    t[5] = ww * p_fwd - ww * tt[2]
-    t[6] = p_bwd + tt[3]
+    t[5] = ww * p_fwd - ww * t[20]
+    t[6] = p_bwd + t[21]
     t[7] = -w * p_bwd
-    t[8] = -w * p_bwd + w * tt[4]
+    t[8] = -w * p_bwd + w * t[22]
     t[9] = ww * p_bwd
     t[10] = ww * p_bwd
-    t[11] = ww * p_bwd + ww * tt[5]
-    for k in range(6):
-        t[12 + k] = tt[6 + k]
+    t[11] = ww * p_bwd + ww * t[23]
     return True
 
 
 @jit
 def terms_at(dcm, ccm, rate, accel, w, landing, transition, t):
-    """:func:`transition_terms` and :func:`closed_form` at one point (False: no terms there)."""
-    tt = np.empty(TRANSITION_TERMS)
-    if not transition_terms(w, transition, rate, accel, tt):
+    """:func:`transition_terms` and :func:`closed_form` at one point into ``t`` (False: no terms there)."""
+    if not transition_terms(w, transition, rate, accel, t):
         return False
-    return closed_form(dcm, ccm, w, landing, transition, tt, t)
+    return closed_form(dcm, ccm, w, landing, transition, t)
+
+
+@jit
+def _zmp_parts(t, w, slowdown):
+    """``(E3^2, den, Z)`` of :func:`stop_zmp`."""
+    e3sq = exp_or_inf(2.0 * w * slowdown)
+    den = e3sq * t[12] + t[15] - 1.0
+    if den == 0.0:
+        return e3sq, den, math.nan
+    return e3sq, den, (e3sq * t[0] - t[6]) / den
 
 
 @jit
 def stop_zmp(t, w, slowdown):
     """ZMP target ``Z`` of the slowdown that meets the stop condition (eq. 17): eq. 22 in single
     support (step length), eq. 29 in double support (ZMP_max). NaN where the closed form is 0/0."""
-    e3sq = exp_or_inf(2.0 * w * slowdown)
-    den = e3sq * t[12] + t[15] - 1.0
-    if den == 0.0:
-        return math.nan
-    return (e3sq * t[0] - t[6]) / den
+    return _zmp_parts(t, w, slowdown)[2]
 
 
 @jit
@@ -204,15 +203,13 @@ def stop_zmp_derivatives(t, w, slowdown, grad, hess):
     """:func:`stop_zmp` with its gradient and Hessian in (T1, T2, T3) into ``grad`` (3,), ``hess``
     (3, 3), by the quotient rule: ``Z = num / den``, ``num = E3^2 A - B``, ``den = E3^2 F + G - 1``
     (free of T1). Returns Z (NaN, derivatives untouched, where the closed form is 0/0)."""
-    z = stop_zmp(t, w, slowdown)
+    e3sq, den, z = _zmp_parts(t, w, slowdown)
     if z != z:
         return z
-    e3sq = exp_or_inf(2.0 * w * slowdown)
     a0, a1, a2, a11, a12, a22 = t[0], t[1], t[2], t[3], t[4], t[5]
     b1, b2, b11, b12, b22 = t[7], t[8], t[9], t[10], t[11]
     f0, f1, f2 = t[12], t[13], t[14]
-    g0, g1, g2 = t[15], t[16], t[17]
-    den = e3sq * f0 + g0 - 1.0
+    g1, g2 = t[16], t[17]
     e_1 = 2.0 * w * e3sq  # d(E3^2)/dT3
     e_2 = 2.0 * w * e_1
     d2 = e3sq * f1 + g1  # den_2, den_3 (den_1 = 0)
@@ -272,12 +269,18 @@ def slowdown_derivatives(t, w, target, t3, grad, hess):
 
 
 @jit
+def _rest_parts(t, w, target, t3):
+    """``(zeta_ii - Z, exp(-w T3), rest position)`` of :func:`rest`."""
+    u = t[6] + target * (t[15] - 1.0)
+    decay = exp_or_inf(-w * t3)
+    return u, decay, target + u * decay
+
+
+@jit
 def rest(t, w, target, t3):
     """COG position where it comes to rest at the slowdown end (relative to the start ZMP): with
     zero velocity there, ``x = zeta = Z + (zeta_ii - Z) exp(-w T3)``, ``zeta_ii = B + Z G``."""
-    u = t[6] + target * (t[15] - 1.0)
-    decay = exp_or_inf(-w * t3)
-    return target + u * decay
+    return _rest_parts(t, w, target, t3)[2]
 
 
 @jit
@@ -287,8 +290,7 @@ def rest_derivatives(t, w, target, t3, tg, th, grad, hess):
     position."""
     b1, b2, b11, b12, b22 = t[7], t[8], t[9], t[10], t[11]
     g0, g1, g2 = t[15], t[16], t[17]
-    u = t[6] + target * (g0 - 1.0)
-    decay = exp_or_inf(-w * t3)
+    u, decay, value = _rest_parts(t, w, target, t3)
     ug = (b1, b2 + target * g1, g0 - 1.0)
     uh = np.empty((3, 3))
     uh[0, 0], uh[0, 1], uh[0, 2] = b11, b12, 0.0
@@ -306,7 +308,7 @@ def rest_derivatives(t, w, target, t3, tg, th, grad, hess):
             v = decay * uh[i, j] + ug[i] * eg[j] + ug[j] * eg[i] + u * eh
             hess[i, j] = v
             hess[j, i] = v
-    return rest(t, w, target, t3)
+    return value
 
 
 # ---------------------------------------------------------------------------
