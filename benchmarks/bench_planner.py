@@ -70,9 +70,9 @@ def main():
     pattern = NominalPattern()
     params = StopParameters()
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
-    from drake_estop.planning import planner
-    print("solver backend: " + ("compiled (numba " + __import__("numba").__version__ + ", planning.fastcore)"
-                                if planner.COMPILED else "pure Python (numba missing or DRAKE_ESTOP_PURE_PYTHON set)"))
+    from drake_estop.planning import backend
+    print("solver backend: " + (f"compiled (numba {backend.numba.__version__}, planning.solver)" if backend.COMPILED
+                                else "plain Python (numba missing, DRAKE_ESTOP_PURE_PYTHON or NUMBA_DISABLE_JIT set)"))
     times, plans, compute, solve = sweep(pattern, params, args.repeats)
     iterations = np.array([p.newton_iterations for p in plans])
     fallback = [p for p in plans if p.case != "one-step"]

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
-# Mutation testing of the pure-Python numeric core with mutmut, on the fast tests (issue 11).
+# Mutation testing of the numeric core with mutmut, on the fast tests (issue 11).
 #
-#   benchmarks/mutation.sh [MODULE ...]     e.g. benchmarks/mutation.sh lipm stop_condition newton
+#   benchmarks/mutation.sh [MODULE ...]     e.g. benchmarks/mutation.sh lipm stop_condition newton solver
 #
-# Default modules: lipm stop_condition newton (the LIPM, the closed-form stop condition and its
-# derivatives, the interior-point Newton method); add planner for the planner and the halt
-# (slower: about 1500 mutants). Runs in a scratch copy of the tracked files (the work tree stays
-# clean), with DRAKE_ESTOP_PURE_PYTHON=1 so the tests exercise the Python solver, not the numba
-# copy. Needs mutmut >= 3.8 (pip install mutmut); MUTMUT_PYTHONPATH may point at a --target
+# Modules of drake_estop/planning/. Default: lipm stop_condition newton solver (the LIPM, the
+# closed-form stop condition and its derivatives, the interior-point Newton method, grid start and
+# quantisation); add planner and halt for the planner and the halt (slower). Runs in a scratch copy
+# of the tracked files (the work tree stays clean), with DRAKE_ESTOP_PURE_PYTHON=1: the solver's one
+# source runs as plain Python, so the mutants need no numba compile. Needs mutmut >= 3.8 (pip install mutmut); MUTMUT_PYTHONPATH may point at a --target
 # install. Not in CI: tens of minutes on two cores. Prints mutmut's per-mutant results and the
 # score; the README lists the result and the surviving (equivalent) mutants.
 set -euo pipefail
@@ -15,7 +15,7 @@ repo=$(cd "$(dirname "$0")/.." && pwd)
 python=${PYTHON:-$repo/.venv/bin/python}
 [ -x "$python" ] || python=python3
 modules=("$@")
-[ ${#modules[@]} -gt 0 ] || modules=(lipm stop_condition newton)
+[ ${#modules[@]} -gt 0 ] || modules=(lipm stop_condition newton solver)
 work=$(mktemp -d)
 trap 'echo "mutmut workspace: $work"' EXIT
 git -C "$repo" ls-files -z | (cd "$repo" && xargs -0 tar -cf -) | tar -xf - -C "$work"
@@ -29,8 +29,8 @@ cd "$work"
   echo "    tests"
   echo "    models"
   echo "    pyproject.toml"
-  # the fast tests; left out: the numba-vs-Python comparison (test_fastcore: its compile cache would
-  # be rebuilt in the scratch copy) and three slow ones that only repeat what others check
+  # the fast tests (test_solver's compiled-vs-Python comparison skips itself: nothing is compiled);
+  # left out: three slow ones that only repeat what others check
   echo "pytest_add_cli_args ="
   for arg in -p no:cacheprovider -k "not 1e-06" \
              --deselect tests/test_planner.py::test_one_step_wherever_feasible \
@@ -38,7 +38,7 @@ cd "$work"
     echo "    $arg"
   done
   echo "pytest_add_cli_args_test_selection ="
-  for t in test_lipm test_stop_condition test_newton test_planner test_short_steps test_properties test_gait; do
+  for t in test_lipm test_stop_condition test_newton test_solver test_planner test_short_steps test_properties test_gait; do
     echo "    tests/$t.py"
   done
 } > setup.cfg

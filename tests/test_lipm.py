@@ -116,14 +116,16 @@ def test_chain_bvp_weighted_least_norm():
 
 
 def test_per_tick_evaluation_equals_vectorised_one_everywhere():
-    """``evaluate_at`` (the servo-tick path) against ``evaluate`` and ``zmp_derivatives``: all six
-    outputs, inside every segment, on the breaks (the later segment wins) and outside the chain."""
+    """``evaluate_at`` (the servo-tick path) against ``evaluate`` and the ZMP polynomials' derivatives:
+    all six outputs, inside every segment, on the breaks (the later segment wins) and outside the chain."""
     w = lipm.omega(0.814)
     coeffs = [lipm.pad([0.0]), lipm.transition_coeffs(0.0, 0.1, 0.4, 0.2, -1.0), lipm.pad([0.1])]
     traj = lipm.LipmTrajectory.from_zmp(1.0, [0.3, 0.4, 0.5], coeffs, 0.02, 0.3, w)
     times = [0.5, 1.0, 1.1, 1.3, 1.45, 1.7, 1.9, 2.2, 2.5]
     pos, vel, acc, zmp = traj.evaluate(times)
-    rate, accel = traj.zmp_derivatives(times)
+    k = np.clip(np.searchsorted(traj.breaks, times, side="right") - 1, 0, len(traj.zmp) - 1)
+    tau = np.asarray(times) - traj.breaks[k]
+    rate, accel = ([lipm.poly_eval(traj.zmp[i], s, order) for i, s in zip(k, tau)] for order in (1, 2))
     for i, t in enumerate(times):
         np.testing.assert_allclose(traj.evaluate_at(t), [pos[i], vel[i], acc[i], zmp[i], rate[i], accel[i]],
                                    rtol=1e-12, atol=1e-12, err_msg=str(t))

@@ -202,14 +202,14 @@ def test_planner_plans_from_the_measured_state_after_a_push_and_blends_the_comma
 
 
 def test_blend_starts_at_the_old_command_and_ends_on_the_plan_at_rest():
-    from drake_estop.systems.stop_controller import _SLICES, REFERENCE_SIZE
+    from drake_estop.systems.stop_controller import REFERENCE_SIZE, REFERENCE_SLICES
     reference = np.zeros(REFERENCE_SIZE)
     dp, dv, duration = np.array([0.02, -0.01]), np.array([0.1, 0.05]), 0.2
     blend = (1.0, dp, dv, duration)
 
     def command(t):
         out = StopPlannerSystem._blended(reference, blend, t)
-        return out[_SLICES["com"]][:2], out[_SLICES["com_vel"]][:2]
+        return out[REFERENCE_SLICES["com"]][:2], out[REFERENCE_SLICES["com_vel"]][:2]
 
     np.testing.assert_allclose(command(1.0)[0], dp)
     np.testing.assert_allclose(command(1.0)[1], dv)

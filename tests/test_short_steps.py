@@ -66,12 +66,12 @@ def test_infeasible_stop_names_the_limit():
     pattern = NominalPattern()
     state = pattern.state(3.25)
     problem, kind, _ = stop_problem(pattern, state, StopParameters(max_swing_speed=0.3))
-    from drake_estop.planning.planner import _solve
+    from drake_estop.planning.planner import solve_phases
 
     with pytest.raises(InfeasibleStop, match="max_swing_speed"):
-        _solve(problem, kind)
+        solve_phases(problem, kind)
     problem, kind, _ = stop_problem(pattern, pattern.state(3.5), StopParameters(max_slowdown_time=0.02))
     with pytest.raises(InfeasibleStop, match="max_slowdown_time"):
-        _solve(problem, kind)
+        solve_phases(problem, kind)
     with pytest.raises(InfeasibleStop, match=r"t=3\.300 s; at the signal: .*max_slowdown_time.*last try: "):
         plan_stop(pattern, 3.3, StopParameters(max_slowdown_time=0.006, max_transition_time=0.11))

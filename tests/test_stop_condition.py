@@ -6,16 +6,30 @@ import pytest
 from drake_estop.planning import lipm
 from drake_estop.planning.stop_condition import (
     StopStart,
-    rest_position,
-    rest_position_grid,
+    rest,
+    rest_derivatives,
+    slowdown,
+    slowdown_derivatives,
     slowdown_time,
-    slowdown_time_grid,
     target_zmp,
-    target_zmp_grid,
+    terms,
 )
 
 W = lipm.omega(0.814)
 STARTS = [StopStart.from_state(0.05, 0.4, 0.0, W), StopStart.from_state(0.08, 0.5, 0.02, W, 1.5, -20.0)]
+
+
+def rest_position(start, w, landing, transition, target):
+    """Rest position of the COG (the rear-reach limit's value) with gradient and Hessian in (landing,
+    transition, target), the slowdown eliminated: the solver's own chain of closed-form functions."""
+    t = terms(start, w, landing, transition)
+    grad, hess, tg, th = np.zeros(3), np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3))
+    t3 = slowdown(t, w, target)
+    if not (t3 == t3 and slowdown_derivatives(t, w, target, t3, tg, th)):
+        return float("nan"), grad, hess
+    value = rest_derivatives(t, w, target, t3, tg, th, grad, hess)
+    assert value == rest(t, w, target, t3)
+    return float(value), grad, hess
 
 
 def _simulate_end_velocity(start_state, durations, target, rate=0.0, accel=0.0):
@@ -71,13 +85,13 @@ def test_unreachable_target_gives_nan_not_garbage():
     assert np.isnan(t3) and np.all(grad == 0)
 
 
-def test_vectorised_versions_agree():
-    t1, t2, t3 = np.meshgrid([0.1, 0.4], [0.1, 0.3], [0.05, 0.5], indexing="ij")
-    z = target_zmp_grid(STARTS[1], W, t1, t2, t3)
-    for idx in np.ndindex(z.shape):
-        assert z[idx] == pytest.approx(target_zmp(STARTS[1], W, t1[idx], t2[idx], t3[idx], False), rel=1e-12)
-    back = slowdown_time_grid(STARTS[1], W, t1, t2, z)
-    np.testing.assert_allclose(back, t3, atol=1e-9)
+def test_slowdown_time_inverts_target_over_a_grid():
+    """With the start ZMP moving (rate and acceleration), over a grid of durations."""
+    for t1, t2, t3 in np.stack(np.meshgrid([0.1, 0.4], [0.1, 0.3], [0.05, 0.5], indexing="ij")).reshape(3, -1).T:
+        z, grad, _ = target_zmp(STARTS[1], W, t1, t2, t3)
+        assert z == target_zmp(STARTS[1], W, t1, t2, t3, derivatives=False)
+        assert slowdown_time(STARTS[1], W, t1, t2, z, derivatives=False) == pytest.approx(t3, abs=1e-9)
+        assert grad[2] < 0  # Z falls as the slowdown lengthens (the grid start's target interval)
 
 
 @pytest.mark.parametrize("start", STARTS)
@@ -104,12 +118,6 @@ def test_rest_position_is_where_the_simulated_cog_stops():
     coeffs = [lipm.pad([p0]), lipm.transition_coeffs(p0, y[2], 0.2), lipm.pad([y[2]])]
     traj = lipm.LipmTrajectory.from_zmp(0.0, [0.3, 0.2, 0.25], coeffs, x0, v0, W)
     assert rest_position(STARTS[0], W, *y)[0] == pytest.approx(traj.evaluate(traj.end_time)[0][0], abs=1e-9)
-    # the vectorised version, over a grid around that point (slowdown given, not eliminated)
-    t1, t2 = np.meshgrid([0.25, 0.3], [0.15, 0.2], indexing="ij")
-    z = target_zmp_grid(STARTS[0], W, t1, t2, 0.25)
-    grid = rest_position_grid(STARTS[0], W, t1, t2, z, 0.25)
-    for idx in np.ndindex(grid.shape):
-        assert grid[idx] == pytest.approx(rest_position(STARTS[0], W, t1[idx], t2[idx], z[idx])[0], rel=1e-9)
 
 
 def test_infeasible_points_give_nan_and_zero_derivatives_of_the_right_shape():

@@ -212,13 +212,6 @@ class LipmTrajectory:
         zmp = np.sum(self.zmp[k] * powers, axis=1)
         return pos, vel, acc, zmp
 
-    def zmp_derivatives(self, t):
-        """ZMP rate and acceleration at the times ``t`` (vectorised; :meth:`evaluate_at` gives them per tick)."""
-        k, tau = self._locate(t)
-        rate = np.array([poly_eval(self.zmp[i], s, 1) for i, s in zip(k, tau)])
-        accel = np.array([poly_eval(self.zmp[i], s, 2) for i, s in zip(k, tau)])
-        return rate, accel
-
     def evaluate_at(self, t: float):
         """:meth:`evaluate` at one instant in plain floats (position, velocity,
         acceleration, ZMP, ZMP rate, ZMP acceleration), for per-tick callers."""

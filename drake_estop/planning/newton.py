@@ -18,177 +18,212 @@ a backtracking line search on the log-barrier merit keeps every ``g_k > 0``,
 and the Hessian is shifted when it is not positive definite. Iterates are
 strictly feasible; at convergence ``mean(lam g)`` (the duality gap per
 constraint) is below ``mu_final``. Gradients and Hessians of J and the g_k are
-analytic (:mod:`drake_estop.planning.stop_condition`).
+analytic (:mod:`drake_estop.planning.solver`, :mod:`drake_estop.planning.stop_condition`).
 
-The problems are tiny (n <= 3 unknowns, m <= 11 constraints), so the loop works
-on plain Python floats and lists: numpy's per-call overhead (microseconds) is
-larger than the arithmetic. Evaluators may return numpy arrays or lists, and a
-constraint Hessian may be ``None`` for a linear constraint.
+Written in the numba subset (:func:`~drake_estop.planning.backend.jit`), generic over the
+problem: ``evaluate(data, x, derivatives, jg, jh, g, gg, gh)`` returns J and writes the
+constraint values ``g`` (m,) and, with ``derivatives``, ``grad J`` (n,), ``hess J`` (n, n),
+``grad g`` (m, n) and ``hess g`` (m, n, n) into the arrays; ``data`` is the problem's float
+vector; :func:`barrier_newton_for` returns the method for one evaluator (compiled, ``evaluate``
+must be compiled too).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
-from operator import gt, mul
 
 import numpy as np
 
+from drake_estop.planning.backend import jit
 
-@dataclass
-class NewtonResult:
-    x: np.ndarray
-    cost: float
-    iterations: int
-    converged: bool
-
-
-Evaluator = Callable[[np.ndarray], tuple]
-"""x -> (J, grad J, hess J, g (m,), grad g (m, n), hess g (m, n, n)); arrays or nested
-lists, a ``None`` constraint Hessian meaning zero."""
+CONVERGED, NOT_CONVERGED, INFEASIBLE_START = 0, 1, -1
+"""Status of :func:`barrier_newton`: converged; stopped (iteration limit, no line-search step, a
+constraint at or below zero: the last accepted iterate is returned); the start is not strictly
+feasible."""
 
 
-def _floats(value):
-    """Nested lists of floats from an array or a (nested) list."""
-    return value.tolist() if isinstance(value, np.ndarray) else value
-
-
-def _as_lists(point):
-    j, jg, jh, g, gg, gh = point
-    if isinstance(gh, np.ndarray):
-        gh = gh.tolist()
-    return j, _floats(jg), _floats(jh), _floats(g), _floats(gg), gh
-
-
-def _cholesky_solve(matrix, rhs):
-    """Solve a small symmetric positive-definite system (nested lists; None if not PD).
-
-    numpy.linalg costs microseconds per call on 2x2 / 3x3 systems; this is the
-    planner's inner loop.
-    """
-    n = len(rhs)
-    a = _floats(matrix)
-    low = [[0.0] * n for _ in range(n)]
+@jit
+def cholesky_solve(a, b, out):
+    """Solve a small symmetric positive-definite system into ``out``; False if not positive definite."""
+    n = b.shape[0]
+    low = np.zeros((n, n))
     for i in range(n):
-        row = low[i]
         for j in range(i + 1):
-            other = low[j]
             dot = 0.0
             for k in range(j):
-                dot += row[k] * other[k]
-            acc = a[i][j] - dot
+                dot += low[i, k] * low[j, k]
+            acc = a[i, j] - dot
             if i == j:
-                if acc <= 0.0:
-                    return None
-                row[i] = acc**0.5
+                if not acc > 0.0:
+                    return False
+                low[i, i] = math.sqrt(acc)
             else:
-                row[j] = acc / other[j]
-    b = _floats(rhs)
-    y = [0.0] * n
+                low[i, j] = acc / low[j, j]
+    y = np.zeros(n)
     for i in range(n):  # forward: L y = b
         dot = 0.0
         for k in range(i):
-            dot += low[i][k] * y[k]
-        y[i] = (b[i] - dot) / low[i][i]
-    x = [0.0] * n
-    for i in reversed(range(n)):  # backward: L^T x = y
+            dot += low[i, k] * y[k]
+        y[i] = (b[i] - dot) / low[i, i]
+    for i in range(n - 1, -1, -1):  # backward: L^T x = y
         dot = 0.0
         for k in range(i + 1, n):
-            dot += low[k][i] * x[k]
-        x[i] = (y[i] - dot) / low[i][i]
-    return x
+            dot += low[k, i] * out[k]
+        out[i] = (y[i] - dot) / low[i, i]
+    return True
 
 
-def _newton_direction(hess, rhs):
-    """Newton step (list); the Hessian is shifted until positive definite (descent direction)."""
-    n = len(rhs)
-    scale = max(1e-12, max(abs(hess[i][i]) for i in range(n)))
-    shift = 0.0
-    for _ in range(40):
-        shifted = hess if not shift else [[h + shift if i == j else h for j, h in enumerate(row)]
-                                          for i, row in enumerate(hess)]
-        step = _cholesky_solve(shifted, rhs)
-        if step is not None:
-            return step
-        shift = max(2.0 * shift, 1e-8 * scale)
-    return [r / scale for r in rhs]
-
-
-def _kkt_system(jg, jh, g, cols, gh, lam, mu):
-    """Newton system of the perturbed KKT conditions (eq. 26 with the Lagrangian Hessian):
-    ``hess J - sum lam_k hess g_k + sum (lam_k/g_k) grad g_k grad g_k^T`` and
-    ``-(grad J - sum (mu/g_k) grad g_k)``; also returns lam_k/g_k. ``cols[i]``: the
-    constraint gradients' i-th components."""
-    n = len(jg)
-    ratio = [lk / gk for lk, gk in zip(lam, g)]
-    curvature = [row[:] for row in jh]  # hess J - sum lam_k hess g_k
-    for lk, hk in zip(lam, gh):
-        if hk is not None:
-            for i in range(n):
-                out, h = curvature[i], hk[i]
-                for j in range(i, n):
-                    out[j] -= lk * h[j]
-    hess = [[0.0] * n for _ in range(n)]
+@jit
+def newton_direction(hess, rhs, out):
+    """Newton step into ``out``; the Hessian is shifted until positive definite (descent direction)."""
+    n = rhs.shape[0]
+    scale = 0.0
     for i in range(n):
-        weighted = list(map(mul, cols[i], ratio))
-        for j in range(i, n):
-            hess[i][j] = hess[j][i] = curvature[i][j] + sum(map(mul, weighted, cols[j]))
-    barrier = [mu / gk for gk in g]
-    rhs = [-(jg[i] - sum(map(mul, barrier, cols[i]))) for i in range(n)]
-    return hess, rhs, ratio
+        v = abs(hess[i, i])
+        if i == 0 or v > scale:
+            scale = v
+    scale = max(1e-12, scale)
+    shift = 0.0
+    shifted = hess.copy()
+    for _ in range(40):
+        for i in range(n):
+            shifted[i, i] = hess[i, i] + shift if shift else hess[i, i]
+        if cholesky_solve(shifted, rhs, out):
+            return
+        shift = max(2.0 * shift, 1e-8 * scale)
+    for i in range(n):
+        out[i] = rhs[i] / scale
 
 
-def _max_step(lam, dlam):
-    """Largest step <= 1 keeping the multipliers positive (fraction to the boundary 0.995)."""
-    limits = [-0.995 * lk / dk for lk, dk in zip(lam, dlam) if dk < 0]
-    return min(1.0, min(limits)) if limits else 1.0
+def barrier_newton_for(evaluate):
+    """The method for one problem evaluator: ``barrier_newton(data, x0, m, mu0, mu_final, sigma=0.1,
+    max_iterations=100, grad_tol=1e-8)``.
 
-
-def barrier_newton(evaluate: Evaluator, x0: np.ndarray, *, mu0: float, mu_final: float,
-                   values: Callable | None = None, sigma: float = 0.1, max_iterations: int = 100,
-                   grad_tol: float = 1e-8) -> NewtonResult:
-    """Minimise J subject to g(x) > 0 from a strictly feasible ``x0``.
-
-    ``values(x) -> (J, g)`` is an optional cheaper evaluator for line-search
-    trial points (no derivatives); ``evaluate`` runs once per accepted step.
-    Both receive ``x`` as a numpy array.
+    Compiled, the evaluator is a constant of the returned function (numba caches it; passed as
+    an argument instead, it would be a run-time address and nothing could be cached).
     """
-    values = values or (lambda point: evaluate(point)[::3][:2])
-    x = np.array(x0, dtype=float).tolist()
-    j, jg, jh, g, gg, gh = _as_lists(evaluate(np.array(x)))
-    if not all(gk > 0 for gk in g):
-        raise ValueError("barrier_newton needs a strictly feasible start")
-    m = len(g)
-    lam = [mu0 / gk for gk in g]
-    mu = mu0
-    grad_scale = max(1.0, max(abs(v) for v in jg))
-    for iteration in range(1, max_iterations + 1):
-        gap = sum(map(mul, lam, g)) / m
-        cols = list(zip(*gg))  # cols[i]: d g_k / d x_i over k
-        dual_residual = [jg_i - sum(map(mul, lam, col)) for jg_i, col in zip(jg, cols)]
-        if gap <= mu_final and max(map(abs, dual_residual)) <= grad_tol * grad_scale:
-            return NewtonResult(np.array(x), j, iteration - 1, True)
-        mu = max(min(mu, sigma * gap), 0.1 * mu_final)
-        hess, rhs, ratio = _kkt_system(jg, jh, g, cols, gh, lam, mu)
-        dx = _newton_direction(hess, rhs)
-        dlam = [mu / gk - lk - rk * sum(map(mul, row, dx)) for gk, lk, rk, row in zip(g, lam, ratio, gg)]
-        alpha = _max_step(lam, dlam)
-        merit = j - mu * sum(map(math.log, g))
-        slope = -sum(map(mul, rhs, dx))
-        floor = [0.005 * gk for gk in g]  # trial points keep every g_k above 0.5 % of its value
-        while alpha > 1e-14:
-            trial = [xi + alpha * di for xi, di in zip(x, dx)]
-            trial_cost, trial_g = values(np.array(trial))
-            trial_g = _floats(trial_g)
-            if all(map(gt, trial_g, floor)):
-                merit_new = trial_cost - mu * sum(map(math.log, trial_g))
-                if merit_new <= merit + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(merit):
-                    break
-            alpha *= 0.5
-        else:
-            return NewtonResult(np.array(x), j, iteration, False)
-        x = trial
-        lam = [max(lk + alpha * dk, 1e-16) for lk, dk in zip(lam, dlam)]
-        j, jg, jh, g, gg, gh = _as_lists(evaluate(np.array(x)))
-    return NewtonResult(np.array(x), j, max_iterations, False)
+
+    @jit
+    def barrier_newton(data, x0, m, mu0, mu_final, sigma=0.1, max_iterations=100, grad_tol=1e-8):
+        """Minimise J subject to g(x) > 0 (``m`` constraints) from a strictly feasible ``x0``.
+
+        Returns ``(x, J, iterations, status)`` (:data:`CONVERGED`, :data:`NOT_CONVERGED`,
+        :data:`INFEASIBLE_START`). Line-search trial points are evaluated without derivatives;
+        ``evaluate`` runs with derivatives once per accepted step.
+        """
+        n = x0.shape[0]
+        x = x0.copy()
+        jg = np.zeros(n)
+        jh = np.zeros((n, n))
+        g = np.zeros(m)
+        gg = np.zeros((m, n))
+        gh = np.zeros((m, n, n))
+        j = evaluate(data, x, True, jg, jh, g, gg, gh)
+        for k in range(m):
+            if not g[k] > 0:
+                return x, j, 0, INFEASIBLE_START
+        lam = np.empty(m)
+        for k in range(m):
+            lam[k] = mu0 / g[k]
+        mu = mu0
+        grad_scale = 1.0
+        for i in range(n):
+            grad_scale = max(grad_scale, abs(jg[i]))
+        hess = np.zeros((n, n))
+        rhs = np.zeros(n)
+        ratio = np.zeros(m)
+        dx = np.zeros(n)
+        dlam = np.zeros(m)
+        trial = np.zeros(n)
+        trial_g = np.zeros(m)
+        scratch_jg, scratch_jh = np.zeros(n), np.zeros((n, n))  # untouched: trial points take no derivatives
+        scratch_gg, scratch_gh = np.zeros((m, n)), np.zeros((m, n, n))
+        curvature = np.zeros((n, n))
+        for iteration in range(1, max_iterations + 1):
+            gap = 0.0
+            for k in range(m):
+                gap += lam[k] * g[k]
+            gap = gap / m
+            worst = 0.0  # dual residual grad J - sum lam_k grad g_k
+            for i in range(n):
+                s = 0.0
+                for k in range(m):
+                    s += lam[k] * gg[k, i]
+                r = abs(jg[i] - s)
+                if i == 0 or r > worst:
+                    worst = r
+            if gap <= mu_final and worst <= grad_tol * grad_scale:
+                return x, j, iteration - 1, CONVERGED
+            for k in range(m):  # an accepted point where a constraint evaluates at or below zero (0/0 cases)
+                if not g[k] > 0:
+                    return x, j, iteration, NOT_CONVERGED
+            mu = max(min(mu, sigma * gap), 0.1 * mu_final)
+            # KKT system (eq. 26 with the Lagrangian Hessian)
+            for k in range(m):
+                ratio[k] = lam[k] / g[k]
+            for i in range(n):
+                for jj in range(n):
+                    curvature[i, jj] = jh[i, jj]
+            for k in range(m):  # hess J - sum lam_k hess g_k
+                lk = lam[k]
+                for i in range(n):
+                    for jj in range(i, n):
+                        curvature[i, jj] -= lk * gh[k, i, jj]
+            for i in range(n):
+                for jj in range(i, n):
+                    s = 0.0
+                    for k in range(m):
+                        s += (gg[k, i] * ratio[k]) * gg[k, jj]
+                    hess[i, jj] = curvature[i, jj] + s
+                    hess[jj, i] = hess[i, jj]
+            for i in range(n):
+                s = 0.0
+                for k in range(m):
+                    s += (mu / g[k]) * gg[k, i]
+                rhs[i] = -(jg[i] - s)
+            newton_direction(hess, rhs, dx)
+            for k in range(m):
+                s = 0.0
+                for i in range(n):
+                    s += gg[k, i] * dx[i]
+                dlam[k] = mu / g[k] - lam[k] - ratio[k] * s
+            alpha = 1.0  # largest step <= 1 keeping the multipliers positive (fraction to the boundary 0.995)
+            for k in range(m):
+                if dlam[k] < 0:
+                    alpha = min(alpha, -0.995 * lam[k] / dlam[k])
+            logs = 0.0
+            for k in range(m):
+                logs += math.log(g[k])
+            merit = j - mu * logs
+            slope = 0.0
+            for i in range(n):
+                slope += rhs[i] * dx[i]
+            slope = -slope
+            accepted = False
+            while alpha > 1e-14:
+                for i in range(n):
+                    trial[i] = x[i] + alpha * dx[i]
+                trial_cost = evaluate(data, trial, False, scratch_jg, scratch_jh, trial_g, scratch_gg, scratch_gh)
+                inside = True  # trial points keep every g_k above 0.5 % of its value
+                for k in range(m):
+                    if not trial_g[k] > 0.005 * g[k]:
+                        inside = False
+                        break
+                if inside:
+                    logs = 0.0
+                    for k in range(m):
+                        logs += math.log(trial_g[k])
+                    merit_new = trial_cost - mu * logs
+                    if merit_new <= merit + 1e-4 * alpha * min(slope, 0.0) + 1e-12 * abs(merit):
+                        accepted = True
+                        break
+                alpha *= 0.5
+            if not accepted:
+                return x, j, iteration, NOT_CONVERGED
+            x[:] = trial
+            for k in range(m):
+                lam[k] = max(lam[k] + alpha * dlam[k], 1e-16)
+            j = evaluate(data, x, True, jg, jh, g, gg, gh)
+        return x, j, max_iterations, NOT_CONVERGED
+
+    return barrier_newton

@@ -1,0 +1,402 @@
+"""The stop plan: parameters, the solved phase durations, and the plan the robot follows.
+
+:class:`StopParameters` (weights and limits, defaults from the paper), :class:`PhaseSolution`
+(phase durations and ZMP value of phases (i)-(iii)) and :class:`StopPlan` (COG, ZMP, feet,
+crouch and upper body over time, eq. 32-33), the swing of the landing foot, the support
+polygon of the soles, the servo grid (:func:`snap_to_tick`) and :class:`InfeasibleStop`.
+Built by :func:`drake_estop.planning.planner.plan_stop`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drake_estop.planning import lipm
+from drake_estop.planning.gait import ARM_NEUTRAL, NominalPattern, PatternState
+from drake_estop.planning.geometry import SupportPolygon
+
+PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
+"""Phase labels; the planner's ``phase`` output port is an index into this tuple."""
+
+
+@dataclass(frozen=True)
+class StopParameters:
+    """Weights and limits of the stop planner. Defaults reproduce the paper (V-VI).
+
+    Attributes
+    ----------
+    a_ss, b_ss : float
+        Weights of the mean swing speed [1/(m/s)^2] and the double-support
+        time [1/s^2] in J_ss (eq. 24).
+    a_ds, b_ds : float
+        Weights of the ZMP displacement [1/m^2] and the double-support time
+        [1/s^2] in J_ds (eq. 30).
+    servo_period : float
+        Control period [s]; phase boundaries fall on its ticks (HRP-2: 0.005).
+    max_step_length, min_step_length : float
+        Landing step from the support ankle, sagittal [m].
+    min_landing_time, max_landing_time : float
+        Time to touchdown [s].
+    min_transition_time, max_transition_time : float
+        Double-support ZMP transition [s].
+    min_slowdown_time, max_slowdown_time : float
+        Slowdown phase [s].
+    max_swing_speed : float
+        Mean swing-ankle speed to the landing point [m/s].
+    max_swing_descent_speed : float
+        Fastest descent of the landing foot [m/s].
+    zmp_margin : float
+        ZMP distance kept from the sole edges [m].
+    crouch : bool
+        Lower the COG during the stop (IV.A).
+    crouch_depth : float
+        COG lowering [m].
+    halt_durations : tuple of float
+        Settle-segment candidates of the halt [s].
+    quantisation : str
+        "resolve" (re-solve the ZMP after snapping the phase times to ticks)
+        or "round" (the paper's rounding).
+    landing : str
+        "replan" or "nominal" (keep the nominal footstep).
+    landing_zmp_offset : float
+        Single support: slowdown ZMP ahead of the landing ankle [m].
+    max_fore_reach, max_rear_reach : float
+        Leg reach from the COG to the landing / rear ankle [m].
+    cost_tolerance : float
+        Relative suboptimality of the interior-point solution (dimensionless).
+
+    Raises
+    ------
+    ValueError
+        On a non-physical value; the message names the field.
+    """
+
+    a_ss: float = 5.0  # weight of the mean swing speed in J_ss (eq. 24)
+    b_ss: float = 1000.0  # weight of the double-support time in J_ss
+    a_ds: float = 50.0  # weight of the ZMP displacement in J_ds (eq. 30)
+    b_ds: float = 1000.0  # weight of the double-support time in J_ds
+    servo_period: float = 0.005  # HRP-2 control period [s]
+    max_step_length: float = 0.4  # [m] from the support ankle, sagittal
+    min_step_length: float = 0.0  # [m] no stepping backwards
+    min_landing_time: float = 0.1  # minimum time to touchdown [s]
+    max_landing_time: float = 1.0
+    min_transition_time: float = 0.1  # minimum double-support ZMP transition [s]
+    max_transition_time: float = 0.8
+    min_slowdown_time: float = 0.005
+    max_slowdown_time: float = 1.5
+    # mean swing-ankle speed to the landing point [m/s]; the quintic swing from rest peaks at 15/8
+    # of it (2.1 m/s; the nominal swing peaks at 1.76). At 1.2 the hip and ankle pitch of the swing
+    # leg went up to 5.2 rad/s against their 5 rad/s limit; 1.12 leaves every joint 4 % under its
+    # limit over the stride (benchmarks/bench_joint_velocity.py)
+    max_swing_speed: float = 1.12
+    # fastest descent of the landing foot [m/s]: landing from swing height h takes at least
+    # 15/8 h / this (the quintic's peak speed), so a foot caught high in the swing is not slammed
+    # down while the landing leg is nearly straight (knee speed = leg-extension rate / sin(knee)).
+    # The nominal swing descends at up to 0.27 m/s (64 h s^3 (1-s)^3 over the single support).
+    max_swing_descent_speed: float = 0.30
+    zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
+    crouch: bool = True
+    crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
+    halt_durations: tuple = (0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2, 1.5)  # settle-segment candidates [s]
+    quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
+    landing: str = "replan"  # or "nominal": keep the nominal footstep ("finish the step" baseline)
+    # single support: slowdown ZMP ahead of the landing ankle [m]; 0 is the paper's eq. 20, up to
+    # toe - zmp_margin lets the ZMP use the fore sole as the double-support stop does (III.B)
+    landing_zmp_offset: float = 0.0
+    # leg reach: horizontal distance from the COG to the landing ankle at touchdown (fore) and to
+    # the rear ankle where the COG comes to rest (rear) [m]. Measured with the whole-body IK on
+    # models/humanoid.urdf at the walking COG height 0.814 m (0.245 and 0.26; a 4 cm crouch adds
+    # about 5 cm); beyond them a knee is stretched straight. Conservative: the crouch is ignored.
+    # The fore reach keeps the landing knee bent at touchdown: at 0.22 the knee landed straight,
+    # where the knee speed (leg-extension rate / sin(knee)) is unbounded, and the IK drove it at
+    # up to 26 rad/s against its 6 rad/s limit; 0.195 lands it bent by 0.4 rad or more.
+    max_fore_reach: float = 0.195
+    max_rear_reach: float = 0.26
+    cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
+
+    def __post_init__(self):
+        for name in ("a_ss", "b_ss", "a_ds", "b_ds", "servo_period", "max_step_length",
+                     "min_landing_time", "max_landing_time", "min_transition_time",
+                     "max_transition_time", "min_slowdown_time", "max_slowdown_time",
+                     "max_swing_speed", "cost_tolerance", "max_fore_reach", "max_rear_reach",
+                     "max_swing_descent_speed"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        for low, high in (("min_landing_time", "max_landing_time"),
+                          ("min_transition_time", "max_transition_time"),
+                          ("min_slowdown_time", "max_slowdown_time"),
+                          ("min_step_length", "max_step_length")):
+            if getattr(self, low) >= getattr(self, high):
+                raise ValueError(f"{low} must be below {high}")
+        if self.zmp_margin < 0 or self.crouch_depth < 0:
+            raise ValueError("zmp_margin and crouch_depth must be >= 0")
+        if self.quantisation not in ("resolve", "round"):
+            raise ValueError(f"quantisation must be 'resolve' or 'round', got {self.quantisation!r}")
+        if self.landing not in ("replan", "nominal"):
+            raise ValueError(f"landing must be 'replan' or 'nominal', got {self.landing!r}")
+        if not self.halt_durations or min(self.halt_durations) <= 0:
+            raise ValueError("halt_durations must be positive")
+
+
+@dataclass
+class PhaseSolution:
+    """Solved durations and ZMP value of phases (i)-(iii)."""
+
+    landing: float
+    transition: float
+    slowdown: float
+    target: float  # Z relative to the start ZMP: step length (single) or ZMP_max (double)
+    cost: float
+    iterations: int
+    continuous: tuple  # durations and target before quantisation
+
+
+@dataclass
+class StopPlan:
+    """A planned stop. Times are absolute, in seconds on the pattern's clock.
+
+    Attributes
+    ----------
+    signal_time : float
+        Servo tick of the stop signal [s].
+    start_time : float
+        Where the stop motion leaves the nominal pattern [s].
+    case : str
+        "one-step", "next-step" (III.C), "standing" or "already-stopping".
+    support : str
+        Support at the signal: "single", "double" or "standing".
+    landing_time, transition_end, slowdown_end, halt_end : float
+        Ends of the four phases [s].
+    step_length : float or None
+        Single-support stops: the landing step from the support ankle [m].
+    zmp_max : float or None
+        Double-support stops: the ZMP displacement from the start [m].
+    landing_foot : str or None
+        "left" or "right".
+    final_feet : dict
+        Side -> ankle (x, y) at rest [m].
+    min_zmp_margin : float
+        Smallest ZMP distance inside the support polygon [m].
+    compute_time : float
+        Wall-clock time of the plan [s].
+
+    Notes
+    -----
+    ``com(times)`` returns the COG position [m], velocity [m/s],
+    acceleration [m/s^2] and ZMP [m] (each (n, 2)); ``phase(t)`` the phase
+    label; ``polygon(t)`` the support polygon; ``summary()`` a JSON-ready dict.
+    """
+
+    signal_time: float
+    start_time: float  # where the stop motion leaves the nominal pattern
+    case: str  # "one-step", "next-step", "standing", "already-stopping"
+    support: str  # support at the signal: "single", "double" or "standing"
+    start_support: str  # support where the planned motion starts
+    landing_time: float
+    transition_end: float
+    slowdown_end: float
+    halt_end: float
+    step_length: float | None  # single-support stops: sagittal, from the support ankle
+    zmp_max: float | None  # double-support stops: ZMP displacement from the start
+    landing_foot: str | None
+    landing_position: np.ndarray | None
+    final_feet: dict
+    x: lipm.LipmTrajectory | None
+    y: lipm.LipmTrajectory | None
+    pattern: NominalPattern
+    params: StopParameters
+    start_state: PatternState
+    newton_iterations: int = 0
+    compute_time: float = 0.0
+    solve_time: float = 0.0
+    cost: float = float("nan")
+    min_zmp_margin: float = float("nan")
+    upper_body_peak: np.ndarray | None = None  # eq. 33
+    swing_start: dict = field(default_factory=dict)
+    continuous_solution: tuple | None = None
+    crouch_window: tuple | None = None  # (start, end): a re-plan keeps the crouch of the plan it replaces
+
+    @property
+    def steps_after_signal(self) -> int:
+        """Foot landings between the signal and rest (nominal ones included)."""
+        nominal = sum(1 for step in self.pattern.steps
+                      if self.signal_time < step["touchdown"] <= self.start_time + 1e-9)
+        return nominal + (1 if self.landing_foot is not None else 0)
+
+    # -- evaluation -----------------------------------------------------
+    def phase(self, t: float) -> str:
+        if t < self.signal_time - 1e-9:
+            return "walking"
+        if self.case == "standing" or t >= self.halt_end:
+            return "stopped"
+        if t < self.start_time:
+            return "landing"  # finishing the nominal step (marginal case)
+        if t < self.landing_time:
+            return "landing"
+        if t < self.transition_end:
+            return "transition"
+        if t < self.slowdown_end:
+            return "slowdown"
+        return "halt"
+
+    def com(self, times):
+        """COG xy position, velocity, acceleration and ZMP, (n, 2) each, nominal before the start."""
+        times = np.atleast_1d(np.asarray(times, float))
+        out = [np.zeros((len(times), 2)) for _ in range(4)]
+        before = times < self.start_time
+        if np.any(before) or self.x is None:
+            nominal = self.pattern.com(times)
+            for o, n in zip(out, nominal):
+                o[:] = n
+        if self.x is not None and np.any(~before):
+            for axis, traj in enumerate((self.x, self.y)):
+                values = traj.evaluate(times[~before])
+                for o, v in zip(out, values):
+                    o[~before, axis] = v
+        return tuple(out)
+
+    def com_height(self, times):
+        """COG height, vertical velocity and acceleration: quintic crouch (IV.A)."""
+        times = np.atleast_1d(np.asarray(times, float))
+        z0 = self.pattern.params.com_height
+        moving = self.x is not None and self.case != "standing"
+        depth = self.params.crouch_depth if (self.params.crouch and moving) else 0.0
+        if depth == 0.0:
+            zeros = np.zeros_like(times)
+            return z0 + zeros, zeros, zeros.copy()
+        start, end = self.crouch_window or (self.start_time, self.halt_end)
+        duration = end - start
+        s = np.clip((times - start) / duration, 0.0, 1.0)
+        inside = (times > start) & (times < end)
+        z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
+        zd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside
+        zdd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside
+        return z, zd, zdd
+
+    def feet(self, t: float):
+        """Ankle (x, y, lift) of each foot at ``t``."""
+        if t < self.start_time or self.x is None:
+            return self.pattern.feet_at(t)[0]
+        feet = {side: np.array([*xy[:2], 0.0]) for side, xy in self.final_feet.items()}
+        if self.landing_foot is not None and t < self.landing_time:
+            s = self.swing_start
+            feet[self.landing_foot] = landing_swing(
+                s["pos"], s["vel"], s["acc"], self.landing_position, t - self.start_time,
+                self.landing_time - self.start_time, self.pattern.params.lift_height)
+        return feet
+
+    def upper_body(self, t: float):
+        """Arm joints: cubic slowdown (eq. 32) to ``slowdown_end``, then quintic halt to neutral."""
+        if t < self.start_time or self.x is None:
+            return self.pattern.upper_body(t)
+        q0, qd0 = self.start_state.upper_body, self.start_state.upper_body_rate
+        if self.case == "standing":
+            return q0.copy(), np.zeros_like(q0)
+        span = self.slowdown_end - self.start_time
+        if t <= self.slowdown_end:
+            tau = t - self.start_time
+            q = q0 + qd0 * tau - qd0 / span * tau**2 + qd0 / (3 * span**2) * tau**3  # eq. 32
+            qd = qd0 * (1.0 - tau / span) ** 2
+            return q, qd
+        peak = self.upper_body_peak
+        s = min((t - self.slowdown_end) / (self.halt_end - self.slowdown_end), 1.0)
+        sigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s))
+        dsigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / (self.halt_end - self.slowdown_end)
+        return peak + (ARM_NEUTRAL - peak) * sigma, (ARM_NEUTRAL - peak) * dsigma
+
+    def support_sides(self, t: float, feet=None) -> list:
+        """Feet on the ground at ``t`` ('left'/'right'); ``feet`` from :meth:`feet` if given."""
+        feet = self.feet(t) if feet is None else feet
+        on_ground = [side for side, p in feet.items() if p[2] <= 1e-9]
+        if t < self.start_time:
+            support, _, side = self.pattern.support_at(t)
+            if support == "single":
+                on_ground = [side]
+        elif self.landing_foot is not None and t < self.landing_time:
+            on_ground = [s for s in feet if s != self.landing_foot]
+        return on_ground
+
+    def polygon(self, t: float) -> SupportPolygon:
+        """Support polygon at ``t`` (soles on the ground)."""
+        feet = self.feet(t)
+        return soles_polygon(self.pattern.params.sole,
+                             tuple((s, float(feet[s][0]), float(feet[s][1])) for s in self.support_sides(t, feet)))
+
+    def summary(self) -> dict:
+        sole = self.pattern.params.sole
+        return {
+            "estop_time": self.signal_time,
+            "support": self.support,
+            "case": self.case,
+            "steps_after_signal": self.steps_after_signal,
+            "plan_start_time": self.start_time,
+            "phase_times": {
+                "landing_end": self.landing_time,
+                "transition_end": self.transition_end,
+                "slowdown_end": self.slowdown_end,
+                "halt_end": self.halt_end,
+            },
+            "step_length": self.step_length,
+            "zmp_max": self.zmp_max,
+            "landing_foot": self.landing_foot,
+            "landing_position": None if self.landing_position is None else list(map(float, self.landing_position)),
+            "final_feet": {k: [float(v[0]), float(v[1])] for k, v in self.final_feet.items()},
+            "sole": {"toe": sole.toe, "heel": sole.heel, "inner": sole.inner, "outer": sole.outer},
+            "newton_iterations": self.newton_iterations,
+            "plan_compute_time_s": self.compute_time,
+            "parameter_solve_time_s": self.solve_time,
+            "cost": self.cost,
+            "min_zmp_margin_m": self.min_zmp_margin,
+            "upper_body_peak_rad": None if self.upper_body_peak is None else list(map(float, self.upper_body_peak)),
+            "crouch": bool(self.params.crouch),
+            "servo_period": self.params.servo_period,
+        }
+
+
+@functools.lru_cache(maxsize=512)
+def soles_polygon(sole, feet: tuple) -> SupportPolygon:
+    """Support polygon of the soles ``feet`` = ((side, ankle x, ankle y), ...); cached, since
+    the same footholds recur from plan to plan."""
+    return SupportPolygon(np.vstack([sole.corners((x, y), side) for side, x, y in feet]))
+
+
+class InfeasibleStop(Exception):
+    """No stop satisfies the planner's limits from this state.
+
+    The message names the limit that made the stop infeasible.
+    """
+
+
+def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
+    """Swing ankle from its current state to the landing point, at rest, over ``duration``.
+
+    Quintic Hermite per axis (zero velocity and acceleration at touchdown); the
+    lift gets an extra apex bump when the Hermite part alone would dip below
+    the floor, and a clearance bump when the foot is leaving the floor (low and
+    not descending). A foot already coming down is not lifted again: that
+    re-lift, squeezed into the last 0.1 s before touchdown, drove the landing
+    knee at up to 15 rad/s (its limit is 6).
+    """
+    s = min(max(elapsed / duration, 0.0), 1.0)
+    target = np.array([target_xy[0], target_xy[1], 0.0])
+    unit = [
+        np.eye(6)[0] * pos[i] + (target[i] - pos[i]) * lipm.SMOOTHSTEP
+        + vel[i] * duration * lipm.HERMITE_D1 + acc[i] * duration**2 * lipm.HERMITE_D2
+        for i in range(3)
+    ]
+    grid = np.linspace(0, 1, 41)
+    lowest = float(np.min(lipm.poly_eval(unit[2], grid)))
+    leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
+    apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
+    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
+    return np.array([float(lipm.poly_eval(u, s)) for u in unit])
+
+
+def snap_to_tick(t: float, servo_period: float) -> float:
+    """The servo tick at or after ``t`` (the stop is sampled by the servo loop)."""
+    return math.ceil(t / servo_period - 1e-9) * servo_period
