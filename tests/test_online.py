@@ -14,7 +14,7 @@ from drake_estop.physics.online import (
     run_online,
 )
 from drake_estop.physics.perturbations import Perturbations, Push
-from drake_estop.physics.plant import offline
+from drake_estop.physics import offline
 from drake_estop.planning.gait import NominalPattern
 
 

@@ -233,7 +233,7 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
 
     weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
                                          for key, kp in PhysicsParameters().gains))
-    from drake_estop.physics.plant import online
+    from drake_estop.physics import online
     original = online.run_online  # the default controller of simulate --physics
     monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, **{**kwargs, "physics": weak}))
     summary = tmp_path / "s.json"
