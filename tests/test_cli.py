@@ -161,7 +161,7 @@ def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
 
 
 def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, capsys):
-    from drake_estop.physics.plant import sweep as sweep_module
+    from drake_estop.physics import sweep as sweep_module
 
     def fake_sweep(gait, stop, **kwargs):
         return [{"signal_time": 3.05, "case": "one-step", "success": True},
@@ -287,7 +287,7 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     """``--meshcat --meshcat-port P --button-only --after-halt S``: the port goes to Meshcat, no
     scheduled stop goes to the diagram (only the button stops), the log span goes along.
     The diagram is replaced by a stand-in (a live run walks in real time)."""
-    from drake_estop.systems.stop_controller import diagram, visualization
+    from drake_estop.systems import diagram, visualization
     seen = {}
 
     class FakeMeshcat:
