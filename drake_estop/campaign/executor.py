@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import warnings
 
 from drake_estop.campaign.config import ConfigError
 
@@ -76,7 +77,9 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, *, tim
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: needs a whole number >= 1, got {workers!r}")
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": dict(PINNED_THREADS)}):
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": dict(PINNED_THREADS)}), warnings.catch_warnings():
+        # the scheduler's HTTP server (health routes; no dashboard) moves off a busy default port: not a problem
+        warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.ERROR)
     try:
