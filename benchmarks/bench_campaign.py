@@ -8,6 +8,9 @@
    over on 2 workers (so both measure the same work per run). Each worker's
    run process is started and warmed up first (a kinematic ``simulate``), as
    it is after the first run of a long campaign.
+   The CPU seconds of the run processes are measured too (psutil): on a
+   shared machine the wall-time ratio shows the cores other jobs leave free;
+   the CPU seconds per run show whether running two at once costs more work.
 2. **Scheduler overhead per run**: ``--noop`` tasks that do nothing, submitted
    and collected through the same executor (``run_tasks``: submit,
    ``as_completed``, the callback), on the 1-worker cluster: wall time per task.
@@ -44,6 +47,24 @@ def noop(_):
     return None
 
 
+def run_process_cpu_seconds() -> float:
+    """User + system CPU seconds used so far by this worker's run processes (Dask ``client.run`` target)."""
+    import psutil
+
+    from drake_estop.campaign import runner
+
+    total = 0.0
+    for process in runner._PROCESSES:
+        if process.process is not None and process.process.poll() is None:
+            times = psutil.Process(process.process.pid).cpu_times()
+            total += times.user + times.system
+    return total
+
+
+def _cpu(client) -> float:
+    return sum(client.run(run_process_cpu_seconds).values())
+
+
 def _warm_every_worker(client):
     workers = list(client.scheduler_info()["workers"])
     futures = [client.submit(warm, address, workers=[address], pure=False) for address in workers]
@@ -70,10 +91,13 @@ def measure(workers: int, params: list, repeat: int) -> dict:
     with dask_client(workers) as client:
         _warm_every_worker(client)
         jobs = [(simulate_run, p, TIMEOUT) for p in params * repeat]
+        cpu = _cpu(client)
         elapsed, rows = _timed(client, guarded_run, jobs)
+        cpu = _cpu(client) - cpu
         outcomes = sorted({row["outcome"] for row in rows})
         figures = {"workers": workers, "runs": len(jobs), "elapsed_s": elapsed,
                    "runs_per_min": 60.0 * len(jobs) / elapsed, "outcomes": outcomes,
+                   "cpu_per_run_s": cpu / len(jobs), "cpu_share": cpu / (elapsed * workers),
                    "run_wall_median_s": sorted(row["wall_time"] for row in rows)[len(rows) // 2]}
     return figures
 
@@ -111,6 +135,11 @@ def main(argv=None):
     print(f"2 workers: {two['runs']} runs in {two['elapsed_s']:.1f} s = {two['runs_per_min']:.2f} runs/min "
           f"(median run {two['run_wall_median_s']:.1f} s; outcomes {two['outcomes']})")
     print(f"ratio 2/1 workers: {ratio:.2f}x (target >= 1.7x)")
+    for figures in (one, two):
+        print(f"  {figures['workers']} worker(s): run-process CPU {figures['cpu_per_run_s']:.1f} s per run, "
+              f"{100 * figures['cpu_share']:.0f} % of {figures['workers']} core(s) over the wall time")
+    print(f"  CPU-bound ratio (the same CPU seconds per run on cores of their own): "
+          f"{2 * one['cpu_per_run_s'] / two['cpu_per_run_s']:.2f}x")
     print(f"scheduler overhead: {per_task * 1e3:.2f} ms per task ({args.noop} no-op tasks, 1 worker)")
     print(f"10,000 runs on 64 cores (per-worker rate {two['runs_per_min'] / 2:.2f} runs/min with every core busy): "
           f"compute {plan['compute_min']:.1f} min + scheduler <= {plan['scheduler_min']:.2f} min = "

@@ -31,7 +31,7 @@ from drake_estop.campaign.runner import (
     run_campaign,
     simulate_run,
 )
-from drake_estop.campaign.storage import CRITERIA, TIMING_COLUMNS, row_table
+from drake_estop.campaign.storage import CRITERIA, TIMING_COLUMNS, ResultStore, row_table
 from drake_estop.cli import build_parser, main
 
 TESTS = Path(__file__).resolve().parent
@@ -273,3 +273,15 @@ def test_config_errors_name_the_key():
         config_from_mapping({"runs": 5}, base)
     with pytest.raises(ConfigError, match=r"signal\.phase: needs a range"):
         config_from_mapping({"signal": {"phase": 0.5}}, base)
+
+
+def test_the_campaign_command_runs_and_prints_the_success_rate(tmp_path, monkeypatch, capsys):
+    from drake_estop.campaign import runner
+
+    monkeypatch.setattr(runner, "simulate_run", fake_run)  # the stand-in physics; the CLI path is the real one
+    out = tmp_path / "c"
+    assert main(["campaign", "--runs", "3", "--seed", "4", "--out", str(out), "--workers", "1", "--no-progress"]) == 0
+    table = ResultStore(out).read()
+    wins = table.column("success").to_pylist().count(True)
+    assert f"{wins}/3 runs met every criterion" in capsys.readouterr().out
+    assert (out / "report.html").exists() and not list((out / "results").glob("run-*"))  # parts merged

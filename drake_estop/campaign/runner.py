@@ -229,7 +229,7 @@ def _code_version() -> str:
 
 
 def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = None, workers: int | None = None,
-                 scheduler: str | None = None, runner=simulate_run, progress: bool = True):
+                 scheduler: str | None = None, runner=None, progress: bool = True):
     """Run (or resume) the campaign of ``runs`` runs from ``seed`` into the folder ``out``.
 
     Parameters
@@ -245,7 +245,7 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
     workers, scheduler
         Local worker processes, or the address of an existing Dask scheduler
         (:func:`~drake_estop.campaign.executor.dask_client`).
-    runner : callable
+    runner : callable, optional
         ``runner(params, timeout) -> outcome columns``; default :func:`simulate_run` (physics).
         It must be importable by the workers.
     progress : bool
@@ -264,6 +264,7 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
         A bad input (before anything is written).
     """
     runs, seed = _whole("--runs", runs, 1), _whole("--seed", seed, 0)
+    runner = runner or simulate_run
     config = config or default_config()
     store = ResultStore(out)
     manifest = {"format": 1, "seed": seed, "config": config.as_yaml_dict()}
