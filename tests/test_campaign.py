@@ -285,3 +285,15 @@ def test_the_campaign_command_runs_and_prints_the_success_rate(tmp_path, monkeyp
     wins = table.column("success").to_pylist().count(True)
     assert f"{wins}/3 runs met every criterion" in capsys.readouterr().out
     assert (out / "report.html").exists() and not list((out / "results").glob("run-*"))  # parts merged
+
+
+def test_two_campaign_processes_cannot_write_to_one_folder(tmp_path):
+    import fcntl
+
+    out = tmp_path / "c"
+    out.mkdir()
+    with open(out / ".lock", "w") as held:  # as another campaign process would hold it
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(ConfigError, match="another campaign process"):
+            run_campaign(runs=2, seed=1, out=out, workers=1, runner=fake_run, progress=False)
+    assert not _parts(out)

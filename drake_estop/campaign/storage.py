@@ -2,6 +2,7 @@
 
 Layout of ``--out DIR``::
 
+    DIR/.lock                held (flock) by the campaign process writing here
     DIR/campaign.json        the campaign's seed and config (a resume must match them) and its sessions
     DIR/results/run-*.parquet  one row per finished run, written as soon as it finishes
     DIR/results.parquet      the parts merged (at the end of each session)
@@ -17,6 +18,7 @@ the same row twice; the copies are identical).
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 from pathlib import Path
@@ -113,8 +115,16 @@ class ResultStore:
     # -- writing
 
     def open(self, manifest: dict, session: dict):
-        """Create the folders, record the campaign and this session, remove stale temporary files."""
+        """Create the folders, lock them for this process, record the campaign and this session, and remove
+        stale temporary files. ConfigError if another campaign process holds the lock (``DIR/.lock``, an
+        ``flock`` the kernel releases when the holder exits, SIGKILL included)."""
         self.parts.mkdir(parents=True, exist_ok=True)
+        self._lock = open(self.folder / ".lock", "w")  # held until this process exits
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._lock.close()
+            raise ConfigError(f"--out: another campaign process is writing to {self.folder}") from None
         stored = json.loads(self.manifest_path.read_text()) if self.manifest_path.exists() else dict(manifest)
         stored.setdefault("sessions", []).append(session)
         self._write_json(self.manifest_path, stored)
