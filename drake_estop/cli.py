@@ -369,11 +369,15 @@ def _add_campaign(sub):
 
 def _campaign(args) -> int:
     from drake_estop.campaign.config import load_config
-    from drake_estop.campaign.runner import run_campaign
+    from drake_estop.campaign.runner import CampaignInterrupted, run_campaign
 
     config = load_config(args.config)
-    table = run_campaign(runs=args.runs, seed=args.seed, out=args.out, config=config, workers=args.workers,
-                         scheduler=args.scheduler, progress=not args.no_progress)
+    try:
+        table = run_campaign(runs=args.runs, seed=args.seed, out=args.out, config=config, workers=args.workers,
+                             scheduler=args.scheduler, progress=not args.no_progress)
+    except CampaignInterrupted as stop:
+        print(f"campaign {stop}; report {args.out}/report.html", file=sys.stderr)
+        return 130
     outcomes = table.column("outcome").to_pylist()
     wins = outcomes.count("success")
     print(f"{wins}/{len(outcomes)} runs met every criterion ({100 * wins / len(outcomes):.1f} %); "

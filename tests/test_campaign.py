@@ -147,9 +147,12 @@ KILLED_CAMPAIGN = textwrap.dedent("""
     import sys
     sys.path.insert(0, {tests!r})
     from campaign_helpers import fake_run
-    from drake_estop.campaign.runner import run_campaign
+    from drake_estop.campaign.runner import CampaignInterrupted, run_campaign
     if __name__ == "__main__":
-        run_campaign(runs={runs}, seed=11, out={out!r}, workers=2, runner=fake_run, progress=False)
+        try:
+            run_campaign(runs={runs}, seed=11, out={out!r}, workers=2, runner=fake_run, progress=False)
+        except CampaignInterrupted:
+            sys.exit(130)
 """)
 
 
@@ -158,8 +161,11 @@ def _parts(out: Path) -> list:
     return sorted(folder.glob("run-*.parquet")) if folder.exists() else []
 
 
-def _start_and_kill(out: Path, runs: int, tmp_path: Path) -> int:
-    """Start a campaign in its own process group, SIGKILL the group once 4 runs are on disk; parts left."""
+def _start_and_kill(out: Path, runs: int, tmp_path: Path, *, interrupt: bool = False):
+    """Start a campaign in its own process group, SIGKILL the group once 4 runs are on disk; parts left.
+
+    With ``interrupt``: SIGINT to the campaign process alone instead (Ctrl-C); returns its exit status.
+    """
     script = tmp_path / "campaign_script.py"
     script.write_text(KILLED_CAMPAIGN.format(tests=str(TESTS), runs=runs, out=str(out)))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
@@ -168,6 +174,11 @@ def _start_and_kill(out: Path, runs: int, tmp_path: Path) -> int:
     deadline = time.monotonic() + 90
     while len(_parts(out)) < 4 and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
+    if interrupt:
+        process.send_signal(signal.SIGINT)
+        code = process.wait(timeout=60)
+        os.killpg(process.pid, signal.SIGKILL)  # any worker left behind
+        return code
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     return len(_parts(out))
@@ -208,6 +219,15 @@ def test_a_killed_campaign_resumes_to_the_uninterrupted_table(tmp_path):
     assert failures and all(row["command"] in report for row in failures)
     assert all((out / name).stat().st_size > 10_000 for name in ("push_recovery_map.png", "success_vs_phase.png",
                                                                  "success_vs_model_error.png"))
+
+
+def test_ctrl_c_merges_and_reports_the_finished_runs(tmp_path):
+    out = tmp_path / "interrupted"
+    assert _start_and_kill(out, 40, tmp_path, interrupt=True) == 130
+    table = ResultStore(out).read()
+    assert 4 <= table.num_rows < 40 and not _parts(out)  # merged into results.parquet
+    assert pq.read_table(out / "results.parquet").num_rows == table.num_rows
+    assert (out / "report.html").exists()
 
 
 def test_resuming_with_another_seed_exits_2(tmp_path, capsys):

@@ -25,6 +25,7 @@ import contextlib
 import io
 import json
 import os
+import signal
 import sys
 import tempfile
 import traceback
@@ -63,6 +64,9 @@ def serve(requests, replies):
 
 
 def main():
+    # Ctrl-C in a terminal reaches the whole process group: the campaign process stops and reports; a run
+    # here is never cut short by it (it would look like a crashed run). The child ends when its stdin closes.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     replies = os.fdopen(os.dup(sys.stdout.fileno()), "w")
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # stray output (C++ included) must not reach the protocol
     serve(sys.stdin, replies)

@@ -51,6 +51,10 @@ class RunCrashed(RuntimeError):
     """The run process died (or stopped answering) during a run."""
 
 
+class CampaignInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped the campaign after its finished runs were merged and reported."""
+
+
 # --------------------------------------------------------------------------
 # The run process.
 
@@ -251,7 +255,8 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
     progress : bool
         Show the progress bar.
 
-    Writes ``out/report.html`` and its PNGs at the end (:func:`~drake_estop.campaign.report.write_report`).
+    Writes ``out/report.html`` and its PNGs at the end (:func:`~drake_estop.campaign.report.write_report`),
+    also after Ctrl-C (then raises :class:`CampaignInterrupted`, once the finished runs are merged).
 
     Returns
     -------
@@ -280,11 +285,19 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
         def record(index, row, error):
             store.write(row if error is None else lost_row(todo[index], error))
 
-        run_tasks(client, guarded_run, [(runner, params, config.timeout) for params in todo], on_result=record,
-                  progress=progress, desc="campaign", total=runs, initial=runs - len(todo))
+        try:
+            run_tasks(client, guarded_run, [(runner, params, config.timeout) for params in todo],
+                      on_result=record, progress=progress, desc="campaign", total=runs, initial=runs - len(todo))
+        except KeyboardInterrupt:
+            interrupted = True  # Ctrl-C: the finished runs are on disk; report them, then stop
+        else:
+            interrupted = False
     store.compact()
     table = campaign_table(store, plans)
     write_report(table, store.folder, manifest=json.loads(store.manifest_path.read_text()))
+    if interrupted:
+        raise CampaignInterrupted(f"interrupted with {table.num_rows}/{runs} runs finished; the same command "
+                                  "resumes")
     return table
 
 
