@@ -22,7 +22,7 @@ from drake_estop.campaign.config import (
     run_seed,
     sample_run,
 )
-from drake_estop.campaign.executor import map_tasks
+from drake_estop.campaign.executor import dask_client, map_tasks, pinned_environment
 from drake_estop.campaign.runner import (
     RunTimeout,
     SimulateProcess,
@@ -244,6 +244,15 @@ def test_map_tasks_keeps_the_order_and_raises_a_task_error():
     assert map_tasks(math.sqrt, [16.0, 1.0, 9.0], workers=1, progress=False) == [4.0, 1.0, 3.0]
     with pytest.raises(ValueError):
         map_tasks(math.sqrt, [4.0, -1.0], workers=1, progress=False)
+
+
+def test_workers_run_numerical_libraries_on_one_thread():
+    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+    with dask_client(2) as client:
+        seen = client.run(lambda: [os.environ.get(name) for name in names])
+        threads = {worker["nthreads"] for worker in client.scheduler_info()["workers"].values()}
+    assert len(seen) == 2 and all(values == ["1"] * 4 for values in seen.values()) and threads == {1}
+    assert all(pinned_environment({})[name] == "1" for name in names)  # the run processes' environment
 
 
 # -- the run process and one real physics run

@@ -77,7 +77,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, *, tim
         workers = os.cpu_count() or 1
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"--workers: needs a whole number >= 1, got {workers!r}")
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": dict(PINNED_THREADS)}), warnings.catch_warnings():
+    environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **PINNED_THREADS}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}), warnings.catch_warnings():
         # the scheduler's HTTP server (health routes; no dashboard) moves off a busy default port: not a problem
         warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
