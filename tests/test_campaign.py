@@ -326,3 +326,20 @@ def test_two_campaign_processes_cannot_write_to_one_folder(tmp_path):
         with pytest.raises(ConfigError, match="another campaign process"):
             run_campaign(runs=2, seed=1, out=out, workers=1, runner=fake_run, progress=False)
     assert not _parts(out)
+
+
+def test_a_run_process_that_dies_or_raises_gives_an_error_row():
+    import threading
+
+    from drake_estop.campaign import runner
+
+    params = sample_run(default_config(), run_seed(0, 3))
+    process = runner._process()  # this thread's run process, as in a worker
+    timer = threading.Timer(1.5, lambda: process.process.kill())
+    timer.start()
+    row = guarded_run((simulate_run, params, 120.0))
+    timer.join()
+    assert row["outcome"] == "error" and "the run process died (status -9)" in row["error"]
+    raised = outcome_from_reply({"returncode": None, "summary": None, "stderr": "",
+                                 "exception": "ZeroDivisionError: division by zero"})
+    assert raised["outcome"] == "error" and "ZeroDivisionError" in raised["error"] and raised["success"] is False
