@@ -275,6 +275,17 @@ def test_the_run_process_is_killed_on_timeout_and_the_next_run_starts_a_new_one(
         process.stop()
 
 
+def test_the_run_process_is_replaced_after_its_run_quota():
+    process = SimulateProcess(recycle=1)
+    try:
+        process.run(["simulate", "--kinematic", "--estop-time", "3.0"], timeout=120)
+        first = process.process.pid
+        assert process.run(["simulate", "--kinematic", "--estop-time", "3.0"], timeout=120)["returncode"] == 0
+        assert process.process.pid != first
+    finally:
+        process.stop()
+
+
 def test_a_timeout_becomes_a_row():
     params = sample_run(default_config(), run_seed(0, 2))
     row = guarded_run((simulate_run, params, 0.3))
