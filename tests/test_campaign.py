@@ -354,3 +354,17 @@ def test_a_run_process_that_dies_or_raises_gives_an_error_row():
     raised = outcome_from_reply({"returncode": None, "summary": None, "stderr": "",
                                  "exception": "ZeroDivisionError: division by zero"})
     assert raised["outcome"] == "error" and "ZeroDivisionError" in raised["error"] and raised["success"] is False
+
+
+def test_the_report_draws_bins_with_no_success_and_all_successes(tmp_path):
+    from drake_estop.campaign.report import wilson, write_report
+
+    for n in range(1, 80):  # the interval holds its rate, also at 0 and 1 (0/11 and 6/6 did not)
+        assert all(wilson(k, n)[0] <= k / n <= wilson(k, n)[1] for k in range(n + 1))
+    store = ResultStore(tmp_path / "c")
+    rows = [guarded_run((fake_run, sample_run(default_config(), run_seed(5, i), i), 1.0)) for i in range(11)]
+    store.parts.mkdir(parents=True)
+    for row in rows:  # 0/11 successes: every bin at rate 0
+        store.write({**row, "success": False, "outcome": "failure"})
+    path = write_report(store.read(), store.folder, manifest={"seed": 5, "config": {}, "sessions": []})
+    assert path.read_text().count("data:image/png;base64,") == 3

@@ -32,7 +32,10 @@ def wilson(successes: int, total: int, z: float = 1.96) -> tuple:
     p = successes / total
     centre = (p + z * z / (2 * total)) / (1 + z * z / total)
     half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # exact at the ends (rounding put the bound of 0/11 at 1e-17 and of 6/6 under 1)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == total else min(1.0, centre + half)
+    return (low, high)
 
 
 def _columns(table) -> dict:
@@ -107,8 +110,9 @@ def plot_push_map(data: dict, path, *, sectors: int = 12, impulse_step: float = 
 def _rate_axes(ax, values, success, edges, label, **style):
     centres, rate, low, high, counts = _binned_rate(values, success, edges)
     keep = counts > 0
-    ax.errorbar(centres[keep], rate[keep], yerr=[rate[keep] - low[keep], high[keep] - rate[keep]], capsize=3,
-                marker="o", label=label, **style)
+    # the Wilson bounds of a rate of 0 or 1 can sit 1e-17 inside it: clip the bar lengths at 0
+    below, above = np.maximum(rate[keep] - low[keep], 0.0), np.maximum(high[keep] - rate[keep], 0.0)
+    ax.errorbar(centres[keep], rate[keep], yerr=[below, above], capsize=3, marker="o", label=label, **style)
     ax.set_ylim(-0.03, 1.03)
 
 
