@@ -1,5 +1,6 @@
 """drake-estop campaign (issue 9): sampling, bad inputs, kill-and-resume, the run process, one physics run."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -76,6 +77,15 @@ def test_the_reproduce_command_carries_every_sampled_value():
             args.sensor_noise, args.seed) == (params.mass_scale, params.torso_mass_scale, params.torso_com_offset,
                                               params.friction, params.latency, params.sensor_noise, params.seed)
     assert params.command().startswith("drake-estop simulate --physics --estop-time ")
+
+
+def test_small_negative_values_reach_simulate_as_numbers():
+    """The default campaign found it: ``--torso-com-offset -5e-05`` was read by argparse as an option."""
+    params = dataclasses.replace(sample_run(default_config(), run_seed(0, 0)), torso_com_offset=-5e-05,
+                                 push_fy=-0.01)
+    args = build_parser().parse_args(params.argv())
+    assert args.torso_com_offset == -5e-05 and args.push[0][2] == -0.01
+    assert "-0.00005" in params.command()
 
 
 def test_a_config_file_overrides_the_defaults_key_by_key(tmp_path):

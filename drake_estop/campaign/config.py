@@ -199,6 +199,11 @@ def _snap(value: float, step: float) -> float:
     return round(round(value / step) * step, 6)
 
 
+def _number(value: float) -> str:
+    """``value`` in the shortest exact decimal form without an exponent (``-0.00005``, ``3.4``, ``57.0``)."""
+    return np.format_float_positional(float(value), unique=True, trim="0")
+
+
 @dataclass(frozen=True)
 class RunParameters:
     """One run: every value of its ``drake-estop simulate --physics`` command (SI units, degrees).
@@ -241,13 +246,18 @@ class RunParameters:
         return round(self.push_time - self.estop_time, 6)
 
     def argv(self) -> list:
-        """The ``simulate`` arguments (after ``drake-estop``) that run exactly these parameters."""
-        argv = ["simulate", "--physics", "--estop-time", repr(self.estop_time),
-                "--step-length", repr(self.step_length), "--step-time", repr(self.step_time),
-                "--step-width", repr(self.step_width),
-                "--push", *(repr(v) for v in (self.push_time, self.push_fx, self.push_fy, self.push_duration)),
-                "--mass-scale", repr(self.mass_scale), "--torso-mass-scale", repr(self.torso_mass_scale),
-                "--torso-com-offset", repr(self.torso_com_offset), "--friction", repr(self.friction),
+        """The ``simulate`` arguments (after ``drake-estop``) that run exactly these parameters.
+
+        Numbers are written in positional notation, shortest exact form
+        (argparse takes ``-5e-05`` for an option, ``-0.00005`` for a number).
+        """
+        f = _number
+        argv = ["simulate", "--physics", "--estop-time", f(self.estop_time),
+                "--step-length", f(self.step_length), "--step-time", f(self.step_time),
+                "--step-width", f(self.step_width),
+                "--push", *(f(v) for v in (self.push_time, self.push_fx, self.push_fy, self.push_duration)),
+                "--mass-scale", f(self.mass_scale), "--torso-mass-scale", f(self.torso_mass_scale),
+                "--torso-com-offset", f(self.torso_com_offset), "--friction", f(self.friction),
                 "--latency", str(self.latency), "--seed", str(self.seed)]
         return argv + (["--sensor-noise"] if self.sensor_noise else [])
 
