@@ -1,4 +1,4 @@
-"""Command line: ``drake-estop simulate`` (walk, latch the stop, log and summarise)."""
+"""Command line: ``drake-estop simulate`` (walk, latch the stop, log and summarise), ``sweep`` and ``campaign``."""
 
 from __future__ import annotations
 
@@ -353,10 +353,23 @@ def _add_sweep(sub, scenario: Scenario):
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
     o.add_argument("--controller", choices=("online", "offline-filter"), default=scenario.controller,
                    help="the physics controller of every run (default %(default)s; see simulate --help)")
+    _add_executor_options(p)
     p.set_defaults(func=_sweep, after_halt=2.5, scenario=scenario)
 
 
+def _add_executor_options(p):
+    """``--workers`` / ``--scheduler``: the Dask executor of ``sweep`` and ``campaign``."""
+    e = p.add_argument_group("execution (Dask)").add_mutually_exclusive_group()
+    e.add_argument("--workers", type=number(low=1, integer=True), default=None, metavar="K",
+                   help="worker processes of a local Dask cluster, one thread each (default: every core)")
+    e.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on an existing Dask cluster, e.g. tcp://host:8786 (exit 2 if unreachable in 3 s)")
+
+
 def _sweep(args) -> int:
+    import functools
+
+    from drake_estop.campaign.executor import map_tasks
     from drake_estop.physics.criteria import CRITERIA
     from drake_estop.physics.sweep import sweep, write_sweep
 
@@ -375,8 +388,10 @@ def _sweep(args) -> int:
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
         stop, run = controller_stop_parameters(stop), run_online
+    executor = functools.partial(map_tasks, workers=args.workers, scheduler=args.scheduler,
+                                 progress=not args.no_progress, desc="physics sweep")
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,
-                  progress=not args.no_progress, run=run)
+                  progress=not args.no_progress, run=run, executor=executor)
     write_sweep(table, args.csv, args.png)
     wins = sum(bool(row.get("success")) for row in table)
     failed = [row for row in table if not row.get("success")]
@@ -392,6 +407,49 @@ def _sweep(args) -> int:
     return 0
 
 
+def _add_campaign(sub):
+    p = sub.add_parser(
+        "campaign",
+        help="randomised physics stops (signal, gait, push, model error, friction, latency, noise) on Dask; "
+             "resumable; writes a report",
+        description="Run N physics stops with the online controller, each with parameters sampled from the "
+                    "config's ranges by its own seed, on a local Dask cluster or an existing one. Every "
+                    "finished run is written at once to DIR/results/; running the same command again resumes "
+                    "(skips the seeds already done). Writes DIR/report.html (push-recovery map, success against "
+                    "the signal phase and the model error, every failure with the simulate command that "
+                    "reproduces it). Exit status 0 once every run has a row (failed runs included), 2 on bad "
+                    "input (nothing written).",
+    )
+    p.add_argument("--runs", type=number(low=1, integer=True), required=True, metavar="N", help="number of runs")
+    p.add_argument("--seed", type=number(low=0, integer=True), default=0, metavar="S",
+                   help="campaign seed; run i's seed derives from (S, i) (default %(default)s)")
+    p.add_argument("--out", required=True, metavar="DIR", help="result folder (created; reused to resume)")
+    p.add_argument("--config", metavar="FILE.yaml",
+                   help="ranges overriding the shipped default (drake_estop/campaign/default.yaml) key by key")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_executor_options(p)
+    p.set_defaults(func=_campaign)
+
+
+def _campaign(args) -> int:
+    from drake_estop.campaign.config import load_config
+    from drake_estop.campaign.runner import CampaignInterrupted, run_campaign
+
+    config = load_config(args.config)
+    try:
+        table = run_campaign(runs=args.runs, seed=args.seed, out=args.out, config=config, workers=args.workers,
+                             scheduler=args.scheduler, progress=not args.no_progress)
+    except CampaignInterrupted as stop:
+        print(f"campaign {stop}; report {args.out}/report.html", file=sys.stderr)
+        return 130
+    outcomes = table.column("outcome").to_pylist()
+    wins = outcomes.count("success")
+    print(f"{wins}/{len(outcomes)} runs met every criterion ({100 * wins / len(outcomes):.1f} %); "
+          f"{outcomes.count('failure')} failed a criterion, {outcomes.count('error')} errors, "
+          f"{outcomes.count('timeout')} timeouts; report {args.out}/report.html")
+    return 0
+
+
 def build_parser(scenario: Scenario | None = None) -> argparse.ArgumentParser:
     """The ``drake-estop`` parser; option defaults from ``scenario`` (default: ``Scenario()``)."""
     scenario = scenario or Scenario()
@@ -402,6 +460,7 @@ def build_parser(scenario: Scenario | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub, scenario)
     _add_sweep(sub, scenario)
+    _add_campaign(sub)
     return parser
 
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from drake_estop.cli import main
+from drake_estop.physics import offline
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.online import (
     build_online_diagram,
@@ -14,7 +15,6 @@ from drake_estop.physics.online import (
     run_online,
 )
 from drake_estop.physics.perturbations import Perturbations, Push
-from drake_estop.physics import offline
 from drake_estop.planning.gait import NominalPattern
 
 

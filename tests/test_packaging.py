@@ -78,6 +78,8 @@ def test_wheel_contains_the_model(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"drake_estop/models/humanoid.urdf", "drake_estop/models/README.md"} <= names
     assert "drake_estop/model.py" in names
+    # the campaign subpackage and its default config (package data, read through importlib.resources)
+    assert {"drake_estop/campaign/runner.py", "drake_estop/campaign/default.yaml"} <= names
     urdf = zipfile.ZipFile(wheel).read("drake_estop/models/humanoid.urdf")
     assert urdf == MODEL_PATH.read_bytes()
 

@@ -8,6 +8,7 @@ and the stop map figure (matplotlib).
 from __future__ import annotations
 
 import csv
+import functools
 import math
 from pathlib import Path
 
@@ -42,35 +43,49 @@ def sweep_row(result: PhysicsResult) -> dict:
 def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None, *,
           every: float = 0.02, start: float | None = None, duration: float | None = None,
           progress: bool = True, physics: PhysicsParameters | None = None, after_halt: float = 2.5,
-          run=None):
+          run=None, executor=None):
     """:func:`run_physics` for stop signals every ``every`` s over one stride (default: the
     third step, :meth:`NominalPattern.stride`, single then double support).
 
-    Returns a list of :func:`sweep_row` dicts; a run that raises (e.g. an
-    infeasible plan) gives a row with ``success`` False and the ``error``.
-    ``run`` (default :func:`run_physics`, the offline-filter reference) is
-    called as ``run(gait_params, stop_params, t, after_halt=..., physics=...,
-    pattern=...)`` and returns a :class:`PhysicsResult`
-    (e.g. :func:`drake_estop.physics.online.run_online`).
+    Returns a list of :func:`sweep_row` dicts in signal order; a run that
+    raises (e.g. an infeasible plan) gives a row with ``success`` False and
+    the ``error``. ``run`` (default :func:`run_physics`, the offline-filter
+    reference) is called as ``run(gait_params, stop_params, t, after_halt=...,
+    physics=..., pattern=...)`` and returns a :class:`PhysicsResult`
+    (e.g. :func:`drake_estop.physics.online.run_online`). ``executor(function, jobs)``
+    (e.g. :func:`drake_estop.campaign.executor.map_tasks`, the campaign's Dask
+    executor) maps :func:`sweep_job` over the jobs in order; without it the
+    runs are serial in this process.
     """
-    run = run or run_physics
-    from tqdm import tqdm
     gait_params = gait_params or GaitParameters()
     stop_params = stop_params or StopParameters()
-    pattern = NominalPattern(gait_params)
+    pattern = _sweep_pattern(gait_params)
     duration = gait_params.step_time if duration is None else duration
     start = pattern.stride()[0] if start is None else start
     count = int(math.floor(duration / every + 1e-9))
-    times = start + every * np.arange(count)
-    table = []
-    for t in tqdm(times, desc="physics sweep", unit="run", disable=not progress):
-        try:
-            result = run(gait_params, stop_params, float(t), after_halt=after_halt, physics=physics,
-                         pattern=pattern)
-            table.append(sweep_row(result))
-        except Exception as error:  # noqa: BLE001 - recorded in the table
-            table.append({"signal_time": float(t), "success": False, "error": f"{type(error).__name__}: {error}"})
-    return table
+    jobs = [(gait_params, stop_params, float(t), after_halt, physics, run) for t in start + every * np.arange(count)]
+    if executor is not None:
+        return executor(sweep_job, jobs)
+    from tqdm import tqdm
+    return [sweep_job(job) for job in tqdm(jobs, desc="physics sweep", unit="run", disable=not progress)]
+
+
+@functools.lru_cache(maxsize=8)
+def _sweep_pattern(gait_params: GaitParameters) -> NominalPattern:
+    """The nominal pattern of ``gait_params``, built once per process."""
+    return NominalPattern(gait_params)
+
+
+def sweep_job(job) -> dict:
+    """One sweep run: ``job`` = (gait, stop, signal time [s], after_halt [s], physics, run); a :func:`sweep_row`."""
+    gait_params, stop_params, t, after_halt, physics, run = job
+    run = run or run_physics
+    try:
+        result = run(gait_params, stop_params, t, after_halt=after_halt, physics=physics,
+                     pattern=_sweep_pattern(gait_params))
+        return sweep_row(result)
+    except Exception as error:  # noqa: BLE001 - recorded in the table
+        return {"signal_time": t, "success": False, "error": f"{type(error).__name__}: {error}"}
 
 
 def write_sweep(table, csv_path, png_path=None):

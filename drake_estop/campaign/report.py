@@ -1,0 +1,244 @@
+"""The campaign report: ``report.html`` (self-contained, figures embedded) and its PNGs.
+
+* ``push_recovery_map.png``: success rate over push impulse and direction (polar; forward up, left left).
+* ``success_vs_phase.png``: success rate over the signal's phase in the stride.
+* ``success_vs_model_error.png``: success rate over each model error, the friction, latency and noise.
+
+Rates count every run: an error or timeout row is not a success. Error
+bars and the headline interval are 95 % Wilson score intervals.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from drake_estop.campaign.storage import CRITERIA, atomic_write
+
+FIGURES = ("push_recovery_map.png", "success_vs_phase.png", "success_vs_model_error.png")
+#: Share of the stride in single support (the gait's double_support_ratio is 0.2): lift-off to landing.
+SINGLE_SUPPORT_SHARE = 0.8
+
+
+def wilson(successes: int, total: int, z: float = 1.96) -> tuple:
+    """95 % Wilson score interval (low, high) of a success rate; (nan, nan) for no runs."""
+    if total == 0:
+        return (math.nan, math.nan)
+    p = successes / total
+    centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+    half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+    # exact at the ends (rounding put the bound of 0/11 at 1e-17 and of 6/6 under 1)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == total else min(1.0, centre + half)
+    return (low, high)
+
+
+def _columns(table) -> dict:
+    data = {}
+    for name in table.column_names:
+        values = table.column(name).to_pylist()
+        if name in ("outcome", "error", "case", "support", "command"):
+            data[name] = np.array(["" if v is None else v for v in values], dtype=object)
+        else:
+            data[name] = np.array([np.nan if v is None else float(v) for v in values])
+    data["success"] = data["success"] == 1.0
+    return data
+
+
+def _binned_rate(values, success, edges):
+    """Per bin of ``edges``: (centres, rate, low, high, counts)."""
+    index = np.clip(np.digitize(values, edges) - 1, 0, len(edges) - 2)
+    rows = []
+    for k in range(len(edges) - 1):
+        mask = index == k
+        n, s = int(mask.sum()), int(success[mask].sum())
+        low, high = wilson(s, n)
+        rows.append((0.5 * (edges[k] + edges[k + 1]), s / n if n else np.nan, low, high, n))
+    return [np.array(column) for column in zip(*rows)]
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _save(plt, fig, path):
+    """Save ``fig`` as a PNG at ``path`` (atomic) and close it."""
+    fig.tight_layout()
+    atomic_write(path, lambda handle: fig.savefig(handle, format="png", dpi=110))
+    plt.close(fig)
+
+
+def plot_push_map(data: dict, path, *, sectors: int = 12, impulse_step: float = 5.0):
+    """Polar map of the success rate per push direction sector and impulse ring; the runs as dots."""
+    plt = _plt()
+    impulse, direction, success = data["push_impulse"], np.radians(data["push_direction"]), data["success"]
+    top = max(impulse_step, impulse_step * math.ceil(np.nanmax(impulse) / impulse_step)) if len(impulse) else 1.0
+    r_edges = np.arange(0.0, top + 1e-9, impulse_step)
+    width = 2 * math.pi / sectors
+    theta_edges = np.arange(sectors + 1) * width - width / 2  # sector 0 centred on forward
+    rate = np.full((sectors, len(r_edges) - 1), np.nan)
+    sector = np.floor((direction + width / 2) / width).astype(int) % sectors
+    ring = np.clip(np.digitize(impulse, r_edges) - 1, 0, len(r_edges) - 2)
+    for i in range(sectors):
+        for j in range(len(r_edges) - 1):
+            mask = (sector == i) & (ring == j)
+            if mask.any():
+                rate[i, j] = success[mask].mean()
+    fig = plt.figure(figsize=(7, 6.2))
+    ax = fig.add_subplot(projection="polar")
+    ax.set_theta_zero_location("N")
+    mesh = ax.pcolormesh(theta_edges, r_edges, rate.T, cmap="RdYlGn", vmin=0, vmax=1, shading="flat")
+    ax.scatter(direction[success], impulse[success], s=6, c="k", marker="o", label="success", alpha=0.6)
+    ax.scatter(direction[~success], impulse[~success], s=10, c="k", marker="x", label="failure", alpha=0.6)
+    ax.set_xticks(np.radians([0, 90, 180, 270]), ["forward", "left", "backward", "right"])
+    ax.set_rlabel_position(112)
+    ax.set_title(f"Push recovery: success rate per {360 / sectors:g} deg sector and {impulse_step:g} N s ring\n"
+                 "(radius: push impulse [N s]; 17 N s = 0.3 m/s on the 58 kg robot)", fontsize=10)
+    fig.colorbar(mesh, ax=ax, shrink=0.7, pad=0.1, label="success rate")
+    ax.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+    _save(plt, fig, path)
+
+
+def _rate_axes(ax, values, success, edges, label, **style):
+    centres, rate, low, high, counts = _binned_rate(values, success, edges)
+    keep = counts > 0
+    # the Wilson bounds of a rate of 0 or 1 can sit 1e-17 inside it: clip the bar lengths at 0
+    below, above = np.maximum(rate[keep] - low[keep], 0.0), np.maximum(high[keep] - rate[keep], 0.0)
+    ax.errorbar(centres[keep], rate[keep], yerr=[below, above], capsize=3, marker="o", label=label, **style)
+    ax.set_ylim(-0.03, 1.03)
+
+
+def plot_phase(data: dict, path, *, bins: int = 10):
+    """Success rate per tenth of the stride at the signal: every run, and the runs pushed under 10 N s."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 4))
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    phase, success = data["signal_phase"], data["success"]
+    _rate_axes(ax, phase, success, edges, f"every run ({len(phase)})")
+    light = data["push_impulse"] < 10.0
+    _rate_axes(ax, phase[light], success[light], edges, f"push < 10 N s ({int(light.sum())})", linestyle="--")
+    ax.axvspan(SINGLE_SUPPORT_SHARE, 1.0, color="0.9", zorder=0, label="double support")
+    ax.set_xlabel("stop signal: share of the stride (lift-off, single support, double support)")
+    ax.set_ylabel("success rate")
+    ax.legend(fontsize=8)
+    ax.set_title("Success rate against the signal's phase in the stride (95 % Wilson intervals)", fontsize=10)
+    _save(plt, fig, path)
+
+
+#: (column, axis label) of the model-error panels; integer / boolean columns are plotted per value.
+MODEL_PANELS = (("mass_scale", "mass scale"), ("torso_mass_scale", "torso mass scale"),
+                ("torso_com_offset", "torso COM offset [m]"), ("friction", "foot-ground friction"),
+                ("latency", "sensor latency [ticks]"), ("sensor_noise", "sensor noise (0 off, 1 on)"))
+
+
+def plot_model_error(data: dict, path, *, bins: int = 5):
+    """Success rate against each model error (and friction, latency, noise), one panel each."""
+    plt = _plt()
+    fig, axes = plt.subplots(2, 3, figsize=(11, 6), sharey=True)
+    for ax, (name, label) in zip(axes.flat, MODEL_PANELS):
+        values = data[name]
+        levels = np.unique(values[np.isfinite(values)])
+        if name in ("latency", "sensor_noise") or len(levels) <= 1:
+            edges = np.concatenate([levels - 0.5, [levels[-1] + 0.5]]) if len(levels) else np.array([0.0, 1.0])
+        else:
+            edges = np.linspace(levels[0], levels[-1], bins + 1)
+        _rate_axes(ax, values, data["success"], edges, None)
+        ax.set_xlabel(label)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("success rate")
+    fig.suptitle("Success rate against the simulated robot's model error (the controller keeps the nominal "
+                 "model), 95 % Wilson intervals", fontsize=10)
+    _save(plt, fig, path)
+
+
+def _failed_criteria(table_row: dict) -> str:
+    if table_row["error"]:
+        return f"{table_row['outcome']}: {table_row['error']}"
+    return ", ".join(name for name in CRITERIA if table_row[name] is False)
+
+
+def _failure_rows(table) -> str:
+    rows = []
+    for row in table.to_pylist():
+        if row["success"]:
+            continue
+        rows.append("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
+            row["run"], row["seed"], f"{row['signal_phase']:.3f}", f"{row['push_impulse']:.1f}",
+            f"{row['push_direction']:.0f}", row["case"] or "", _failed_criteria(row)))
+            + f"<td><code>{html.escape(row['command'])}</code></td></tr>")
+    return "\n".join(rows)
+
+
+def _summary_lines(data: dict) -> list:
+    n, wins = len(data["success"]), int(data["success"].sum())
+    low, high = wilson(wins, n)
+    lines = [f"<b>{wins}/{n} runs met every criterion: {100 * wins / n:.1f} %</b> "
+             f"(95 % interval {100 * low:.1f}-{100 * high:.1f} %)" if n else "no runs"]
+    outcomes = {k: int(np.sum(data["outcome"] == k)) for k in ("success", "failure", "error", "timeout")}
+    lines.append("outcomes: " + ", ".join(f"{k} {v}" for k, v in outcomes.items()))
+    ran = data["outcome"] != "error"
+    ran &= data["outcome"] != "timeout"
+    lines.append("criteria missed (runs that completed): " + ", ".join(
+        f"{name} {int(np.sum(data[name][ran] == 0.0))}" for name in CRITERIA))
+    for push in ((0.0, 10.0), (10.0, 20.0), (20.0, math.inf)):
+        mask = (data["push_impulse"] >= push[0]) & (data["push_impulse"] < push[1])
+        k, m = int(data["success"][mask].sum()), int(mask.sum())
+        if m:
+            lines.append(f"push {push[0]:g}-{push[1]:g} N s: {k}/{m} ({100 * k / m:.0f} %)")
+    wall = data["wall_time"][np.isfinite(data["wall_time"])]
+    if len(wall):
+        lines.append(f"wall time per run: median {np.median(wall):.1f} s, max {np.max(wall):.1f} s")
+    return lines
+
+
+def _image(path: Path) -> str:
+    encoded = base64.b64encode(path.read_bytes()).decode()
+    return f'<p><img alt="{path.stem}" src="data:image/png;base64,{encoded}" style="max-width:100%"></p>'
+
+
+def write_report(table, folder, *, manifest: dict | None = None) -> Path:
+    """Write the three PNGs and ``report.html`` (figures embedded as base64) into ``folder``; its path."""
+    folder = Path(folder)
+    data = _columns(table)
+    paths = [folder / name for name in FIGURES]
+    if len(data["success"]):
+        plot_push_map(data, paths[0])
+        plot_phase(data, paths[1])
+        plot_model_error(data, paths[2])
+    sessions = (manifest or {}).get("sessions", [])
+    page = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>drake-estop robustness campaign</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}td,th{border:1px solid #ccc;"
+        "padding:2px 5px;font-size:12px;vertical-align:top}table{border-collapse:collapse}"
+        "code{font-size:11px}</style></head><body>",
+        "<h1>Robustness campaign: randomised emergency stops in physics</h1>",
+        "<p>Each run is one <code>drake-estop simulate --physics</code> command (online controller) with a "
+        "sampled signal phase, gait, push, model error, friction, latency and sensor noise; success is every "
+        "criterion of the physics check (no fall, no slip, comes to rest, rests at the midpoint, CoP in the "
+        "support polygon).</p>",
+        "<ul>" + "".join(f"<li>{line}</li>" for line in _summary_lines(data)) + "</ul>" if len(data["success"])
+        else "<p>No finished runs.</p>",
+        "<h2>Push recovery map</h2>", *(_image(p) for p in paths[:1] if p.exists()),
+        "<h2>Signal phase in the stride</h2>", *(_image(p) for p in paths[1:2] if p.exists()),
+        "<h2>Model error</h2>", *(_image(p) for p in paths[2:] if p.exists()),
+        "<h2>Failures and how to reproduce them</h2>",
+        "<table><tr><th>run</th><th>seed</th><th>phase</th><th>impulse [N s]</th><th>direction [deg]</th>"
+        "<th>case</th><th>missed</th><th>reproduce</th></tr>", _failure_rows(table), "</table>",
+        "<h2>Campaign</h2>",
+        f"<p>seed {html.escape(str((manifest or {}).get('seed')))}; sessions (start, runs asked, code, workers): "
+        + "; ".join(html.escape(f"{s['started']} {s['runs']} {s['code']} {s['workers']}") for s in sessions)
+        + "</p>",
+        "<pre>" + html.escape(json.dumps((manifest or {}).get("config"), indent=1)) + "</pre>",
+        "</body></html>",
+    ]
+    path = folder / "report.html"
+    atomic_write(path, lambda handle: handle.write("\n".join(page).encode()))
+    return path
