@@ -1,5 +1,8 @@
 """Planning from the measured state and re-planning (planner functions and StopPlannerSystem in isolation)."""
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
@@ -269,3 +272,36 @@ def test_plan_sequence_summary_keeps_the_landing_and_counts_the_replans(pattern,
     assert summary["phase_times"]["landing_end"] == first.landing_time  # not the re-plan's start
     assert summary["phase_times"]["halt_end"] == second.halt_end
     assert summary["first_plan"]["step_length"] == first.step_length
+
+
+def test_an_infeasible_stop_raises_instead_of_crashing_the_simulator():
+    """A state no stop can catch (here 3 m/s sideways at the signal) makes the planner raise
+    InfeasibleStop out of AdvanceTo. Returning EventStatus.Failed instead crashed the process
+    (pydrake formats the failure with the GIL released: SIGSEGV); run in a child process so that
+    such a crash fails this test instead of the suite."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from pydrake.systems.analysis import Simulator\n"
+        "from test_replan import _planner_diagram\n"
+        "from drake_estop.planning.gait import NominalPattern\n"
+        "from drake_estop.planning.planner import InfeasibleStop, StopParameters\n"
+        "pattern = NominalPattern(); t = 3.1\n"
+        "pos, vel, _, _ = pattern.com([t])\n"
+        "diagram, planner = _planner_diagram(pattern, StopParameters(), [1.0, t], [*pos[0], 0.8],\n"
+        "                                    [vel[0][0], 3.0, 0.0], filter_time_constant=1e-6)\n"
+        "simulator = Simulator(diagram)\n"
+        "simulator.get_mutable_context().SetTime(t)\n"
+        "try:\n"
+        "    simulator.AdvanceTo(t + 0.02)\n"
+        "except InfeasibleStop as error:\n"
+        "    print('raised:', error)\n"
+    )
+    tests = str(Path(__file__).parent)
+    path = os.pathsep.join([tests, str(Path(tests).parent)])
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=tests, env={**os.environ, "PYTHONPATH": path})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "raised: stop planning failed at t = 3.10" in done.stdout

@@ -398,10 +398,10 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
         if t < planned_by - 1e-9:
             return EventStatus.DidNothing()
         plan = current_plan(planner_context)
-        if plan is None:
-            return EventStatus.Failed(system, f"the planner did not plan a stop by t = {t:.3f} s")
-        if t >= end_of(plan) - 1e-9:
-            return EventStatus.ReachedTermination(system, "past the halt")
+        # no EventStatus.Failed from Python: formatting its message crashes pydrake (see
+        # StopPlannerSystem._update); the missing plan ends the run and raises below
+        if plan is None or t >= end_of(plan) - 1e-9:
+            return EventStatus.ReachedTermination(system, "past the halt" if plan else "no plan")
         return EventStatus.DidNothing()
 
     simulator.set_monitor(monitor)
@@ -411,7 +411,9 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
     finally:
         simulator.clear_monitor()
     plan = current_plan(planner_context)
-    if plan is None or context.get_time() < end_of(plan) - 1e-9:
+    if plan is None:
+        raise RuntimeError(f"the planner did not plan a stop by t = {context.get_time():.3f} s")
+    if context.get_time() < end_of(plan) - 1e-9:
         raise RuntimeError(f"the stop did not end by t = {context.get_time():.3f} s")
     return plan, time.perf_counter() - start
 

@@ -557,7 +557,10 @@ class StopPlannerSystem(_ReferenceSystem):
                 plan = plan_stop(self._pattern, now, self._params, measured=measured)
                 plan.signal_time = min(plan.signal_time, signal_time)
         except (InfeasibleStop, ValueError) as error:
-            return EventStatus.Failed(self, f"stop planning failed: {error}")
+            # raised, not returned as EventStatus.Failed: Drake formats a failed status's message by
+            # asking pydrake for this Python system's type name while AdvanceTo has released the GIL,
+            # which crashed the process (SIGSEGV, drake 1.51.1). The exception reaches AdvanceTo's caller.
+            raise InfeasibleStop(f"stop planning failed at t = {context.get_time():.3f} s: {error}") from error
         # a plan from the reference continues the command; one from the measured state is blended into
         handle = _PlanHandle(plan, time.perf_counter() - start,
                              blend=None if measured is None else self._blend_into(context, plan))
