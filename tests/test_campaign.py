@@ -378,3 +378,19 @@ def test_the_report_draws_bins_with_no_success_and_all_successes(tmp_path):
         store.write({**row, "success": False, "outcome": "failure"})
     path = write_report(store.read(), store.folder, manifest={"seed": 5, "config": {}, "sessions": []})
     assert path.read_text().count("data:image/png;base64,") == 3
+
+
+def test_a_campaign_runs_on_an_existing_scheduler_and_equals_a_local_one(tmp_path):
+    """``--scheduler ADDRESS``: the runs go to a cluster the campaign did not start (here a LocalCluster
+    the test owns, with the workers' threads pinned as the campaign's own cluster pins them)."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+                      env=pinned_environment()) as cluster:
+        before = cluster.scheduler.transition_counter
+        remote = run_campaign(runs=3, seed=5, out=tmp_path / "remote", scheduler=cluster.scheduler_address,
+                              runner=fake_run, progress=False)
+        assert cluster.scheduler.transition_counter >= before + 3 * 3  # the runs went through this scheduler
+        assert len(cluster.workers) == 1  # and the cluster outlives the campaign (it is not the campaign's)
+    local = run_campaign(runs=3, seed=5, out=tmp_path / "local", workers=1, runner=fake_run, progress=False)
+    assert remote.num_rows == 3 and _deterministic(remote) == _deterministic(local)
