@@ -37,25 +37,53 @@ class Sole:
     inner: float = 0.055
     outer: float = 0.081
 
-    def corners(self, ankle_xy, side: str) -> np.ndarray:
-        """Corners (4, 2) of the sole of the ``side`` ('left'/'right') foot."""
+    def corners(self, ankle_xy, side: str, yaw: float = 0.0) -> np.ndarray:
+        """Corners (4, 2) of the sole of the ``side`` ('left'/'right') foot, turned by ``yaw`` [rad]
+        about the ankle."""
         x, y = ankle_xy
         left_edge = self.outer if side == "left" else self.inner
         right_edge = self.inner if side == "left" else self.outer
-        return np.array(
-            [
-                [x + self.toe, y + left_edge],
-                [x - self.heel, y + left_edge],
-                [x - self.heel, y - right_edge],
-                [x + self.toe, y - right_edge],
-            ]
-        )
+        if yaw == 0.0:
+            return np.array(
+                [
+                    [x + self.toe, y + left_edge],
+                    [x - self.heel, y + left_edge],
+                    [x - self.heel, y - right_edge],
+                    [x + self.toe, y - right_edge],
+                ]
+            )
+        local = np.array([[self.toe, left_edge], [-self.heel, left_edge], [-self.heel, -right_edge],
+                          [self.toe, -right_edge]])
+        return np.array([x, y]) + local @ rotation(yaw).T
 
 
 def _positive(name: str, value: float) -> float:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)
+
+
+def rotation(yaw: float) -> np.ndarray:
+    """2x2 rotation by ``yaw`` [rad] about the vertical."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+MAX_TURN_DEG = 30.0  # [deg] heading change between consecutive footsteps (the hip yaw's reach)
+SIDES = ("left", "right")
+
+
+@dataclass(frozen=True)
+class Footstep:
+    """One footstep of a walk: the ``side`` foot lands with its ankle at (``x``, ``y``) [m] and its
+    heading ``yaw`` [rad]; ``duration`` [s] is the step (single + double support), NaN for the
+    gait's ``step_time``."""
+
+    side: str
+    x: float
+    y: float
+    yaw: float = 0.0
+    duration: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -86,11 +114,23 @@ class GaitParameters:
         Shoulder-pitch swing amplitude [rad].
     sole : Sole
         The sole rectangle [m].
+    turn : float
+        Heading change per step [deg], positive to the left: the walk follows an
+        arc (at most :data:`MAX_TURN_DEG`).
+    side_step : float
+        Lateral displacement of the walk per step [m], positive to the left;
+        with ``step_length`` 0 the robot side-steps.
+    footsteps : tuple of Footstep
+        An explicit footstep list (replaces ``step_length``, ``turn``,
+        ``side_step`` and ``num_steps``): the robot starts at the standing
+        stance (ankles at y = +-step_width / 2, heading 0) and lands these
+        steps in order, alternating feet (:func:`load_footsteps` reads a CSV).
 
     Raises
     ------
     ValueError
-        On a non-physical value; the message names the field.
+        On a non-physical value, or footsteps whose soles cross or overlap or
+        turn more than :data:`MAX_TURN_DEG` per step; the message names the field.
     """
 
     com_height: float = 0.814  # HRP-2 walking pattern COG height [m]
@@ -104,6 +144,9 @@ class GaitParameters:
     lift_height: float = 0.05  # swing-foot apex above the floor [m]
     arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
     sole: Sole = field(default_factory=Sole)
+    turn: float = 0.0  # heading change per step [deg], positive to the left
+    side_step: float = 0.0  # lateral displacement per step [m], positive to the left
+    footsteps: tuple = ()  # explicit Footstep list (replaces step_length / turn / side_step / num_steps)
 
     def __post_init__(self):
         for name in ("com_height", "step_time", "step_width", "initial_shift_time", "final_shift_time"):
@@ -120,6 +163,21 @@ class GaitParameters:
             raise ValueError(
                 f"step_width {self.step_width} m makes the soles overlap (inner edges {self.sole.inner} m)"
             )
+        for name in ("turn", "side_step"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+        if abs(self.turn) > MAX_TURN_DEG:
+            raise ValueError(f"turn {self.turn} deg per step is beyond the limit of {MAX_TURN_DEG} deg")
+        if self.footsteps:
+            object.__setattr__(self, "footsteps", tuple(_footstep(f, i) for i, f in enumerate(self.footsteps)))
+            if len(self.footsteps) < 2:
+                raise ValueError(f"footsteps: a walk needs at least 2 steps, got {len(self.footsteps)}")
+        check_footsteps(self)
+
+    @property
+    def walk_steps(self) -> int:
+        """Steps of the walk (``num_steps``, or the length of ``footsteps``)."""
+        return len(self.footsteps) if self.footsteps else int(self.num_steps)
 
     @property
     def single_support_time(self) -> float:
@@ -159,10 +217,14 @@ class PatternState:
     step_index: int  # index of the current step (0 = initial shift)
     upper_body: np.ndarray  # (len(ARM_JOINTS),)
     upper_body_rate: np.ndarray
+    feet_yaw: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # side -> heading [rad]
+    feet_yaw_rate: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # [rad/s]
+    next_landing_yaw: float = 0.0  # heading of the nominal landing [rad]
 
 
 class NominalPattern:
-    """A straight walk of ``num_steps`` steps from standing to standing.
+    """A walk from standing to standing: ``num_steps`` steps straight, on an arc (``turn``) or
+    sideways (``side_step``), or an explicit footstep list (``footsteps``).
 
     Time 0 is the start of the initial weight shift; the robot stands still
     before it and after :attr:`end_time`.
@@ -191,28 +253,31 @@ class NominalPattern:
     # -- footsteps --------------------------------------------------------
     def _build_footsteps(self):
         p = self.params
-        half = p.step_width / 2
-        feet = {"left": np.array([0.0, half]), "right": np.array([0.0, -half])}
+        feet = {side: np.array(xy) for side, xy in initial_stance(p).items()}
+        yaws = {side: 0.0 for side in SIDES}
         self.initial_feet = {k: v.copy() for k, v in feet.items()}
-        self.steps = []  # (swing side, from xy, to xy, support side, t_liftoff, t_touchdown)
+        self.initial_yaw = dict(yaws)
+        self.steps = []  # dicts: swing, support, start/end xy, start/end yaw, liftoff, touchdown, step_end
         t = p.initial_shift_time
-        swing = "right"
-        for k in range(1, p.num_steps + 1):
+        for footstep in footstep_list(p):
+            swing = footstep.side
             support = "left" if swing == "right" else "right"
-            target_x = min(k, p.num_steps - 1) * p.step_length
-            target = np.array([target_x, feet[swing][1]])
+            duration = p.step_time if math.isnan(footstep.duration) else footstep.duration
+            target = np.array([footstep.x, footstep.y])
+            single, double = duration * (1.0 - p.double_support_ratio), duration * p.double_support_ratio
             self.steps.append(
                 dict(swing=swing, support=support, start=feet[swing].copy(), end=target,
-                     liftoff=t, touchdown=t + p.single_support_time,
-                     step_end=t + p.step_time)
+                     start_yaw=yaws[swing], end_yaw=footstep.yaw, single=single, double=double,
+                     liftoff=t, touchdown=t + single, step_end=t + duration)
             )
-            feet[swing] = target
-            t += p.step_time
-            swing = support
+            feet[swing], yaws[swing] = target, footstep.yaw
+            t += duration
         self.final_feet = feet
+        self.final_yaw = yaws
         self.walk_start = p.initial_shift_time
         self.last_touchdown = self.steps[-1]["touchdown"]
         self.end_time = self.last_touchdown + p.final_shift_time
+        self.turning = any(step["end_yaw"] != 0.0 for step in self.steps)
 
     # -- ZMP and COG -------------------------------------------------------
     def _build_zmp_and_cog(self):
@@ -222,14 +287,14 @@ class NominalPattern:
         self.trajectories = []
         for axis in (0, 1):
             durations, coeffs = [], []
-            for i in range(len(self.steps)):
+            for i, step in enumerate(self.steps):
                 support_xy = self._support_xy(i)
-                durations.append(p.single_support_time)
+                durations.append(step["single"])
                 coeffs.append(np.array([support_xy[axis]]))
                 if i + 1 < len(self.steps):
                     nxt = self._support_xy(i + 1)
-                    durations.append(p.double_support_time)
-                    coeffs.append(lipm.transition_coeffs(support_xy[axis], nxt[axis], p.double_support_time))
+                    durations.append(step["double"])
+                    coeffs.append(lipm.transition_coeffs(support_xy[axis], nxt[axis], step["double"]))
             first = self._support_xy(0)[axis]
             dcm_needed = lipm.required_start_dcm(durations, coeffs, self._support_xy(len(self.steps) - 1)[axis], self.w)
             base = np.eye(6)[0] * mid0[axis] + (first - mid0[axis]) * lipm.SMOOTHSTEP
@@ -289,12 +354,32 @@ class NominalPattern:
                 pos[side] = np.array([*step["end"], 0.0])
             elif t > step["liftoff"]:
                 pos[side], vel[side], acc[side] = swing_foot(
-                    step["start"], step["end"], t - step["liftoff"], p.single_support_time, p.lift_height
+                    step["start"], step["end"], t - step["liftoff"], step["single"], p.lift_height
                 )
                 break
             else:
                 break
         return pos, vel, acc
+
+    def feet_yaw_at(self, t: float):
+        """Heading [rad] and its rate [rad/s] of each foot at ``t`` (the swing foot turns with a
+        quintic smoothstep over the single support)."""
+        yaw = dict(self.initial_yaw)
+        rate = {side: 0.0 for side in SIDES}
+        for step in self.steps:
+            side = step["swing"]
+            if t >= step["touchdown"]:
+                yaw[side] = step["end_yaw"]
+            elif t > step["liftoff"]:
+                duration = step["single"]
+                s = (t - step["liftoff"]) / duration
+                turn = step["end_yaw"] - step["start_yaw"]
+                yaw[side] = step["start_yaw"] + turn * float(lipm.poly_eval(lipm.SMOOTHSTEP, s))
+                rate[side] = turn * float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / duration
+                break
+            else:
+                break
+        return yaw, rate
 
     def upper_body(self, t):
         """Arm joint angles and rates (ARM_JOINTS order) at ``t``: arm swing against the legs."""
@@ -325,19 +410,22 @@ class NominalPattern:
         pos, vel, zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (0, 1, 3, 4, 5))
         support, index, side = self.support_at(t)
         feet, feet_vel, feet_acc = self.feet_at(t)
-        next_landing, rear = None, None
+        next_landing, rear, landing_yaw = None, None, 0.0
         if support == "single":
             next_landing = self.steps[index]["end"].copy()
+            landing_yaw = self.steps[index]["end_yaw"]
         elif support == "double" and 0 < index < len(self.steps):
             rear = self.steps[index - 1]["support"]
         elif support == "double" and index == 0:
             rear = None
         q, qd = self.upper_body(t)
+        yaw, yaw_rate = self.feet_yaw_at(t)
         return PatternState(
             time=float(t), support=support, support_foot=side if support == "single" else None,
             com=pos, com_vel=vel, zmp=zmp, zmp_rate=rate, zmp_accel=accel,
             feet=feet, feet_vel=feet_vel, feet_acc=feet_acc, next_landing=next_landing,
             rear_foot=rear, step_index=index, upper_body=q, upper_body_rate=qd,
+            feet_yaw=yaw, feet_yaw_rate=yaw_rate, next_landing_yaw=landing_yaw,
         )
 
 
@@ -368,3 +456,143 @@ def _window(t, rise_start, rise_end, fall_start, fall_end):
         s = (t - fall_start) / d
         return 1.0 - float(lipm.poly_eval(lipm.SMOOTHSTEP, s)), -float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / d
     return 1.0, 0.0
+
+
+# -- footstep lists -----------------------------------------------------------
+def initial_stance(params: GaitParameters) -> dict:
+    """Ankle (x, y) of each foot standing before the walk: heading 0, ``step_width`` apart."""
+    half = params.step_width / 2
+    return {"left": (0.0, half), "right": (0.0, -half)}
+
+
+def footstep_list(params: GaitParameters) -> tuple:
+    """The walk's footsteps: ``params.footsteps``, or the generated ones.
+
+    Generated: the body frame advances by (``step_length``, ``side_step``) per step in its
+    heading halfway through the step's ``turn`` (an arc's chord) and turns by ``turn``; the
+    swing foot lands ``step_width / 2`` beside it, heading with it. The last step closes the
+    feet (no advance). Without a turn the positions are ``k * step_length``, exactly the
+    straight walk's.
+    """
+    if params.footsteps:
+        return params.footsteps
+    half, turn, n = params.step_width / 2, math.radians(params.turn), int(params.num_steps)
+    x = y = heading = 0.0
+    steps, swing = [], "right"
+    for k in range(1, n + 1):
+        if k < n:
+            if turn == 0.0:
+                x, y = k * params.step_length, k * params.side_step
+            else:
+                chord = heading + 0.5 * turn
+                x += params.step_length * math.cos(chord) - params.side_step * math.sin(chord)
+                y += params.step_length * math.sin(chord) + params.side_step * math.cos(chord)
+                heading += turn
+        offset = half if swing == "left" else -half
+        foot_x = x - offset * math.sin(heading) if heading else x
+        foot_y = y + offset * math.cos(heading) if heading else y + offset
+        steps.append(Footstep(swing, foot_x, foot_y, heading))
+        swing = "left" if swing == "right" else "right"
+    return tuple(steps)
+
+
+def _footstep(value, index: int) -> Footstep:
+    """A :class:`Footstep` from a Footstep, a mapping or a (side, x, y[, yaw[, duration]]) sequence."""
+    if isinstance(value, Footstep):
+        fields = dict(side=value.side, x=value.x, y=value.y, yaw=value.yaw, duration=value.duration)
+    elif isinstance(value, dict):
+        fields = dict(value)
+    else:
+        fields = dict(zip(("side", "x", "y", "yaw", "duration"), value))
+    name = f"footsteps[{index}]"
+    if fields.get("side") not in SIDES:
+        raise ValueError(f"{name}.side must be 'left' or 'right', got {fields.get('side')!r}")
+    for key in ("x", "y", "yaw"):
+        try:
+            fields[key] = float(fields.get(key, 0.0 if key == "yaw" else math.nan))
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}.{key} must be a number, got {fields.get(key)!r}") from None
+        if not math.isfinite(fields[key]):
+            raise ValueError(f"{name}.{key} must be finite, got {fields[key]!r}")
+    duration = fields.get("duration", math.nan)
+    duration = math.nan if duration is None or duration == "" else float(duration)
+    if not math.isnan(duration) and not (math.isfinite(duration) and duration > 0):
+        raise ValueError(f"{name}.duration must be positive (or empty), got {duration!r}")
+    return Footstep(fields["side"], fields["x"], fields["y"], fields["yaw"], duration)
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _separated(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two convex polygons (corners in order) are apart (separating-axis test)."""
+    for poly in (a, b):
+        edges = np.roll(poly, -1, axis=0) - poly
+        for normal in np.stack([edges[:, 1], -edges[:, 0]], axis=1):
+            if (a @ normal).max() < (b @ normal).min() or (b @ normal).max() < (a @ normal).min():
+                return True
+    return False
+
+
+def check_footsteps(params: GaitParameters) -> None:
+    """Raise ValueError (naming the field) if the walk's footsteps alternate badly, turn more than
+    :data:`MAX_TURN_DEG` per step, or leave a stance whose soles cross or overlap."""
+    explicit = bool(params.footsteps)
+    field_name = "footsteps" if explicit else "step_width / side_step / turn"
+    feet = {side: np.array(xy) for side, xy in initial_stance(params).items()}
+    yaws = {side: 0.0 for side in SIDES}
+    previous = None
+    for i, step in enumerate(footstep_list(params)):
+        where = f"footsteps[{i}]" if explicit else f"step {i + 1}"
+        if explicit and previous == step.side:
+            raise ValueError(f"{where}.side: the feet must alternate ({step.side!r} twice in a row)")
+        support = "left" if step.side == "right" else "right"
+        turn = math.degrees(abs(_wrap(step.yaw - yaws[support])))
+        if turn > MAX_TURN_DEG + 1e-9:
+            raise ValueError(f"{where}: turns {turn:.1f} deg from the support foot, beyond the limit of "
+                             f"{MAX_TURN_DEG} deg ({'footsteps' if explicit else 'turn'})")
+        feet[step.side], yaws[step.side] = np.array([step.x, step.y]), step.yaw
+        corners = {side: params.sole.corners(feet[side], side, yaws[side]) for side in SIDES}
+        if not _separated(corners["left"], corners["right"]):
+            raise ValueError(f"{field_name}: the soles overlap at {where}")
+        heading = math.atan2(math.sin(yaws["left"]) + math.sin(yaws["right"]),
+                             math.cos(yaws["left"]) + math.cos(yaws["right"]))
+        lateral = float((feet["left"] - feet["right"]) @ np.array([-math.sin(heading), math.cos(heading)]))
+        if lateral <= 0.0:
+            raise ValueError(f"{field_name}: the feet cross at {where} (left ankle {-lateral:.3f} m right "
+                             f"of the right one)")
+        previous = step.side
+
+
+FOOTSTEP_COLUMNS = ("side", "x", "y", "yaw")  # required; "duration" is optional
+
+
+def load_footsteps(path) -> tuple:
+    """Footsteps from a CSV file with a header: ``side`` (left/right), ``x``, ``y`` [m], ``yaw``
+    [rad] and an optional ``duration`` [s] (empty: the gait's step time), one row per step.
+
+    Raises
+    ------
+    ValueError
+        On a missing column, a non-numeric or NaN value, or a bad side (names the row and column).
+    """
+    import csv
+
+    with open(path, newline="") as stream:
+        reader = csv.DictReader(stream)
+        header = [name.strip() for name in (reader.fieldnames or [])]
+        missing = [name for name in FOOTSTEP_COLUMNS if name not in header]
+        if missing:
+            raise ValueError(f"footsteps file {path}: missing column(s) {', '.join(missing)} "
+                             f"(needs {', '.join(FOOTSTEP_COLUMNS)}[, duration])")
+        rows = [{key.strip(): (value or "").strip() for key, value in row.items() if key} for row in reader]
+    if not rows:
+        raise ValueError(f"footsteps file {path}: no rows")
+    steps = []
+    for i, row in enumerate(rows):
+        try:
+            steps.append(_footstep(row, i))
+        except ValueError as error:
+            raise ValueError(f"footsteps file {path}, row {i + 1}: {error}") from None
+    return tuple(steps)

@@ -180,6 +180,22 @@ class LipmTrajectory:
             big_v[-1] = big_w[-1] = 0.0
         return cls(breaks, zmp, cog_poly, big_v, big_w, w)
 
+    @staticmethod
+    def rotated(x: LipmTrajectory, y: LipmTrajectory, yaw: float):
+        """The x and y trajectories of the same motion seen in axes turned by ``yaw`` [rad]:
+        ``(c x - s y, s x + c y)``. The LIPM is linear and the same in every horizontal direction
+        (eq. 4), so a rotated chain is a chain with rotated coefficients. The two axes must share
+        their breakpoints."""
+        if x.breaks.shape != y.breaks.shape or not np.array_equal(x.breaks, y.breaks) or x.w != y.w:
+            raise ValueError("rotated: the two axes must share breakpoints and w")
+        c, s = math.cos(yaw), math.sin(yaw)
+
+        def mix(a, b):
+            return LipmTrajectory(x.breaks.copy(), a * x.zmp + b * y.zmp, a * x.cog_poly + b * y.cog_poly,
+                                  a * x.cosh_coef + b * y.cosh_coef, a * x.sinh_coef + b * y.sinh_coef, x.w)
+
+        return mix(c, -s), mix(s, c)
+
     @property
     def start_time(self) -> float:
         return float(self.breaks[0])

@@ -180,6 +180,12 @@ class StopPlan:
         "left" or "right".
     final_feet : dict
         Side -> ankle (x, y) at rest [m].
+    final_yaw : dict
+        Side -> foot heading at rest [rad] (the landing foot keeps its nominal heading).
+    heading : float
+        Heading [rad] of the frame the phase parameters were solved in: the
+        landing foot's (single support) or the fore foot's (double support);
+        the step length and ZMP_max are measured along it.
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -220,6 +226,8 @@ class StopPlan:
     swing_start: dict = field(default_factory=dict)
     continuous_solution: tuple | None = None
     crouch_window: tuple | None = None  # (start, end): a re-plan keeps the crouch of the plan it replaces
+    final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
+    heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
 
     @property
     def steps_after_signal(self) -> int:
@@ -290,6 +298,25 @@ class StopPlan:
                 self.landing_time - self.start_time, self.pattern.params.lift_height)
         return feet
 
+    def feet_yaw(self, t: float):
+        """Heading [rad] and heading rate [rad/s] of each foot at ``t``: the landing foot turns
+        from its heading (and heading rate) at the plan start to ``final_yaw``, at rest, over the
+        landing phase."""
+        if t < self.start_time or self.x is None:
+            return self.pattern.feet_yaw_at(t)
+        yaw, rate = dict(self.final_yaw), {side: 0.0 for side in self.final_yaw}
+        if self.landing_foot is not None and t < self.landing_time:
+            # quintic Hermite from the swing foot's heading and heading rate at the start to rest
+            start = self.start_state.feet_yaw[self.landing_foot]
+            start_rate = self.start_state.feet_yaw_rate[self.landing_foot]
+            duration = self.landing_time - self.start_time
+            s = (t - self.start_time) / duration
+            shape = ((self.final_yaw[self.landing_foot] - start) * lipm.SMOOTHSTEP
+                     + start_rate * duration * lipm.HERMITE_D1)
+            yaw[self.landing_foot] = start + float(lipm.poly_eval(shape, s))
+            rate[self.landing_foot] = float(lipm.poly_eval(shape, s, 1)) / duration
+        return yaw, rate
+
     def upper_body(self, t: float):
         """Arm joints: cubic slowdown (eq. 32) to ``slowdown_end``, then quintic halt to neutral."""
         if t < self.start_time or self.x is None:
@@ -324,8 +351,10 @@ class StopPlan:
     def polygon(self, t: float) -> SupportPolygon:
         """Support polygon at ``t`` (soles on the ground)."""
         feet = self.feet(t)
+        yaw = self.feet_yaw(t)[0]
         return soles_polygon(self.pattern.params.sole,
-                             tuple((s, float(feet[s][0]), float(feet[s][1])) for s in self.support_sides(t, feet)))
+                             tuple((s, float(feet[s][0]), float(feet[s][1]), float(yaw[s]))
+                                   for s in self.support_sides(t, feet)))
 
     def summary(self) -> dict:
         sole = self.pattern.params.sole
@@ -345,7 +374,7 @@ class StopPlan:
             "zmp_max": self.zmp_max,
             "landing_foot": self.landing_foot,
             "landing_position": None if self.landing_position is None else list(map(float, self.landing_position)),
-            "final_feet": {k: [float(v[0]), float(v[1])] for k, v in self.final_feet.items()},
+            "final_feet": {k: [float(v[0]), float(v[1]), float(self.final_yaw[k])] for k, v in self.final_feet.items()},
             "sole": {"toe": sole.toe, "heel": sole.heel, "inner": sole.inner, "outer": sole.outer},
             "newton_iterations": self.newton_iterations,
             "plan_compute_time_s": self.compute_time,
@@ -360,9 +389,10 @@ class StopPlan:
 
 @functools.lru_cache(maxsize=512)
 def soles_polygon(sole, feet: tuple) -> SupportPolygon:
-    """Support polygon of the soles ``feet`` = ((side, ankle x, ankle y), ...); cached, since
-    the same footholds recur from plan to plan."""
-    return SupportPolygon(np.vstack([sole.corners((x, y), side) for side, x, y in feet]))
+    """Support polygon of the soles ``feet`` = ((side, ankle x, ankle y[, yaw]), ...) [m, rad];
+    cached, since the same footholds recur from plan to plan."""
+    return SupportPolygon(np.vstack([sole.corners(foot[1:3], foot[0], foot[3] if len(foot) > 3 else 0.0)
+                                     for foot in feet]))
 
 
 class InfeasibleStop(Exception):

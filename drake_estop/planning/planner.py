@@ -44,6 +44,7 @@ from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.halt import choose_halt
+from drake_estop.planning.heading import solve_turned
 from drake_estop.planning.plan import (
     PHASES,
     InfeasibleStop,
@@ -248,6 +249,14 @@ _MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into
 
 def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
                zmp_region: str = "fore"):
+    """The stop from ``state``, solved in the heading frame of the foot that carries it
+    (:mod:`drake_estop.planning.heading`; the world frame on a straight walk)."""
+    return solve_turned(lambda view, local: _plan_local(view, local, params, signal_time, case, zmp_region),
+                        pattern, state)
+
+
+def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
+                zmp_region: str = "fore"):
     w = pattern.w
     sole = pattern.params.sole
     t_solve = time.perf_counter()
@@ -262,6 +271,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
         step_length = problem.step_length(solution.target)
         landing_xy = np.array([state.zmp[0] + step_length, state.next_landing[1]])
         final_feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
+        final_yaw = {support: float(state.feet_yaw[support]), swing: float(state.next_landing_yaw)}
         fore_xy, fore_side = landing_xy, swing
         landing_foot = swing
     else:
@@ -269,6 +279,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
         fore_xy = state.feet[fore_side][:2].copy()
         step_length = None
         final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
+        final_yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
         landing_xy, landing_foot = None, None
     solve_time = time.perf_counter() - t_solve
 
@@ -278,7 +289,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
     slowdown_end = transition_end + solution.slowdown
     midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
     sagittal_target = state.zmp[0] + solution.target
-    polygon = soles_polygon(sole, tuple((s, float(final_feet[s][0]), float(final_feet[s][1]))
+    polygon = soles_polygon(sole, tuple((s, float(final_feet[s][0]), float(final_feet[s][1]), final_yaw[s])
                                         for s in ("left", "right")))
     # A transition that starts with the walk's ZMP rate and acceleration (double support) can overshoot its
     # lateral target: aim further inside until the whole plan keeps zmp_margin (or the start's own margin,
@@ -313,7 +324,7 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
             landing_foot=landing_foot, landing_position=landing_xy, final_feet=final_feet,
             x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
             newton_iterations=solution.iterations, solve_time=solve_time, cost=solution.cost,
-            continuous_solution=solution.continuous,
+            continuous_solution=solution.continuous, final_yaw=final_yaw,
         )
         if landing_foot is not None:
             plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
@@ -359,7 +370,7 @@ def _support_polygon(plan: StopPlan) -> SupportPolygon:
         return plan.polygon(plan.start_time)
     side = next(s for s in plan.final_feet if s != plan.landing_foot)
     xy = plan.final_feet[side]
-    return soles_polygon(plan.pattern.params.sole, ((side, float(xy[0]), float(xy[1])),))
+    return soles_polygon(plan.pattern.params.sole, ((side, float(xy[0]), float(xy[1]), plan.final_yaw[side]),))
 
 
 def _zmp_at(traj: lipm.LipmTrajectory, times: np.ndarray) -> np.ndarray:
@@ -378,6 +389,7 @@ def _trivial_plan(pattern, state, params, signal_time, case):
     """Standing still: hold the current state. Final shift: the nominal walk already stops."""
     end = state.time if case == "standing" else pattern.end_time
     feet = pattern.feet_at(end)[0]
+    yaw = pattern.feet_yaw_at(end)[0]
     axes = (None, None)
     if case == "standing":
         axes = tuple(lipm.LipmTrajectory.from_zmp(end, [1.0], [lipm.pad([state.com[a]])], state.com[a], 0.0,
@@ -387,7 +399,7 @@ def _trivial_plan(pattern, state, params, signal_time, case):
         start_support="standing", landing_time=end, transition_end=end, slowdown_end=end, halt_end=end,
         step_length=None, zmp_max=None, landing_foot=None, landing_position=None,
         final_feet={k: v[:2].copy() for k, v in feet.items()}, x=axes[0], y=axes[1], pattern=pattern,
-        params=params, start_state=state, cost=0.0,
+        params=params, start_state=state, cost=0.0, final_yaw=dict(yaw),
     )
 
 
@@ -520,7 +532,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
     feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
     upper, upper_rate = plan.upper_body(t)
-    changes = dict(time=float(t), com=np.asarray(com_xy, float)[:2].copy(),
+    yaw, yaw_rate = plan.feet_yaw(t)
+    changes = dict(time=float(t), feet_yaw=yaw, feet_yaw_rate=yaw_rate, com=np.asarray(com_xy, float)[:2].copy(),
                    com_vel=np.asarray(com_vel_xy, float)[:2].copy(), zmp=zmp, zmp_rate=rate, zmp_accel=accel,
                    feet=now, feet_vel=feet_vel, feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
     if double:
