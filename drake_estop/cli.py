@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
-from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPattern, load_footsteps
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
@@ -80,6 +80,16 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
                    help="COG height of the LIPM [m] (default %(default)s, HRP-2's walking pattern)")
     g.add_argument("--num-steps", type=number(low=2, integer=True), default=_GAIT.num_steps,
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
+    g.add_argument("--turn", type=number(low=-MAX_TURN_DEG, high=MAX_TURN_DEG, unit=" deg"), default=_GAIT.turn,
+                   metavar="DEG", help=f"heading change per step [deg], positive to the left: walk on an arc "
+                                       f"(|DEG| <= {MAX_TURN_DEG:g}; default %(default)s)")
+    g.add_argument("--side-step", type=finite_float, default=_GAIT.side_step, metavar="M",
+                   help="lateral displacement per step [m], positive to the left, combined with --step-length "
+                        "(pure side-stepping: --step-length 0; default %(default)s)")
+    g.add_argument("--footsteps", metavar="FILE.csv", default=None,
+                   help="explicit footsteps: CSV with columns side, x, y [m], yaw [rad] and an optional "
+                        "duration [s], one row per step from the standing stance (replaces --step-length, "
+                        "--turn, --side-step and --num-steps)")
     s = p.add_argument_group("stop")
     if estop:
         s.add_argument("--estop-time", type=non_negative_float, default=scenario.estop_time,
@@ -174,6 +184,11 @@ def _parameters(args):
     gait = replace(args.scenario.gait, **{name: getattr(args, name) for name, _ in _scalar_fields(GaitParameters)})
     stop = replace(args.scenario.stop, crouch=not args.no_crouch,
                    **{name: getattr(args, name) for name, _ in _scalar_fields(StopParameters) if name != "crouch"})
+    if getattr(args, "footsteps", None):
+        try:
+            gait = replace(gait, footsteps=load_footsteps(args.footsteps))
+        except OSError as error:
+            raise ValueError(f"footsteps: cannot read {args.footsteps} ({error.strerror})") from None
     if gait.step_length > stop.max_step_length:
         raise ValueError(f"step_length {gait.step_length} m exceeds max_step_length {stop.max_step_length} m")
     if gait.step_length < 0:

@@ -32,7 +32,7 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.plant import MultibodyPlantConfig
 
 from drake_estop.physics.perturbations import Perturbations, Push
-from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.gait import Footstep, GaitParameters
 from drake_estop.planning.planner import StopParameters
 
 SIMULATIONS = ("kinematic", "diagram", "physics")
@@ -102,7 +102,7 @@ class Scenario:
 # -- schema twins for yaml_load_typed --------------------------------------------------------
 
 #: tuple fields whose default is empty: their element type
-_TUPLE_ELEMENTS = {(Perturbations, "pushes"): Push}
+_TUPLE_ELEMENTS = {(Perturbations, "pushes"): Push, (GaitParameters, "footsteps"): Footstep}
 
 
 def _element_type(cls, f):
@@ -222,4 +222,4 @@ def dump_scenario(scenario: Scenario) -> str:
     return yaml_dump_typed(_to_schema(scenario, Scenario))
 
 
-_register(Push, Perturbations, GaitParameters, StopParameters, Scenario)
+_register(Push, Perturbations, Footstep, GaitParameters, StopParameters, Scenario)

@@ -269,7 +269,9 @@ def test_summary_fields_have_their_values(tmp_path):
         after = t >= plan.signal_time - 1e-9
         travel = np.sum(np.linalg.norm(np.diff(com[after], axis=0), axis=1))
         assert metrics["cog_travel_after_signal_m"] == pytest.approx(travel, rel=1e-6)  # log rounding
-        mid = 0.5 * (np.array(data["final_feet"]["left"]) + np.array(data["final_feet"]["right"]))
+        # final_feet: [x, y, yaw] of each foot (level soles heading along x on this walk)
+        assert data["final_feet"]["left"][2] == data["final_feet"]["right"][2] == 0.0
+        mid = 0.5 * (np.array(data["final_feet"]["left"][:2]) + np.array(data["final_feet"]["right"][:2]))
         assert metrics["final_cog_offset_from_midpoint_m"] == pytest.approx(np.linalg.norm(com[-1] - mid), abs=1e-8)
         assert metrics["final_cog_speed_mps"] < 1e-6
         # eq. 5: x ZMP error of the crouch, (ax (z0 zdd - dz g)) / (g (zdd + g)), zdd by differences

@@ -20,7 +20,8 @@ from drake_estop.planning.lipm import GRAVITY
 from drake_estop.planning.planner import StopPlan
 
 LOG_COLUMNS = ("t", "com_x", "com_y", "com_z", "com_vx", "com_vy", "com_vz", "com_ax", "com_ay",
-               "zmp_x", "zmp_y", "phase", "left_x", "left_y", "left_z", "right_x", "right_y", "right_z")
+               "zmp_x", "zmp_y", "phase", "left_x", "left_y", "left_z", "right_x", "right_y", "right_z",
+               "left_yaw", "right_yaw")
 
 
 @dataclass
@@ -35,8 +36,10 @@ class Rollout:
     phases: list
     feet: dict  # side -> (n, 3) ankle x, y, lift
     upper_body: np.ndarray  # (n, len(ARM_JOINTS))
+    feet_yaw: dict | None = None  # side -> (n,) heading [rad]; None: level soles heading along x
 
     def rows(self):
+        yaw = self.feet_yaw or {side: np.zeros(len(self.times)) for side in ("left", "right")}
         for i, t in enumerate(self.times):
             yield {
                 "t": round(float(t), 9),
@@ -47,6 +50,7 @@ class Rollout:
                 "left_x": self.feet["left"][i, 0], "left_y": self.feet["left"][i, 1],
                 "left_z": self.feet["left"][i, 2], "right_x": self.feet["right"][i, 0],
                 "right_y": self.feet["right"][i, 1], "right_z": self.feet["right"][i, 2],
+                "left_yaw": yaw["left"][i], "right_yaw": yaw["right"][i],
                 **{f"qref_{name}": self.upper_body[i, k] for k, name in enumerate(ARM_JOINTS)},
             }
 
@@ -69,15 +73,18 @@ def rollout(plan: StopPlan, *, after_halt: float = 1.0, start: float = 0.0) -> R
     pos, vel, acc, zmp = plan.com(times)
     z, zd, zdd = plan.com_height(times)
     feet = {side: np.zeros((len(times), 3)) for side in ("left", "right")}
+    yaw = {side: np.zeros(len(times)) for side in ("left", "right")}
     upper = np.zeros((len(times), len(ARM_JOINTS)))
     phases = []
     for i, t in enumerate(times):
         for side, value in plan.feet(t).items():
             feet[side][i] = value
+        for side, value in plan.feet_yaw(t)[0].items():
+            yaw[side][i] = value
         upper[i] = plan.upper_body(t)[0]
         phases.append(plan.phase(t))
     return Rollout(times, np.column_stack([pos, z]), np.column_stack([vel, zd]),
-                   np.column_stack([acc, zdd]), zmp, phases, feet, upper)
+                   np.column_stack([acc, zdd]), zmp, phases, feet, upper, yaw)
 
 
 def write_log(path, data: Rollout, extra_columns: dict | None = None):

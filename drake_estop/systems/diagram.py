@@ -354,7 +354,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     Meshcat without a replay file (so a person can press the button), else
     as fast as possible.
     """
-    from drake_estop.systems.visualization import add_floor, make_meshcat, start_recording, write_replay
+    from drake_estop.systems.visualization import add_floor_under, make_meshcat, start_recording, write_replay
 
     if html is not None and meshcat is None:
         meshcat = make_meshcat()
@@ -363,7 +363,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     handles = build_diagram(gait_params=gait_params, stop_params=stop_params,
                             estop_time=estop_time, meshcat=meshcat)
     if meshcat is not None:
-        add_floor(meshcat, length=handles.pattern.final_feet["left"][0] + 1.5)  # the camera: StopVisualizer
+        add_floor_under(meshcat, handles.pattern)  # the camera: StopVisualizer
     if html is not None:
         start_recording(meshcat)
     simulator, wall = run(handles, after_halt=after_halt, realtime_rate=realtime_rate)

@@ -47,7 +47,7 @@ for _name, _size in REFERENCE_LAYOUT:
     _start += _size
 REFERENCE_SIZE = _start
 _ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
-LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # the soles stay level (straight walk)
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # a level sole heading along x
 _WALKING = float(PHASES.index("walking"))
 
 
@@ -58,9 +58,12 @@ def upper_body_vector(arm_q):
     return out
 
 
-def sole_pose(ankle):
-    """Sole pose 7-vector from an ankle ``(x, y, lift)``: the sole is at z = lift."""
-    return np.concatenate([np.asarray(ankle, float)[:3], LEVEL])
+def sole_pose(ankle, yaw: float = 0.0):
+    """Sole pose 7-vector ``[x, y, z, qw, qx, qy, qz]`` from an ankle ``(x, y, lift)`` and the foot's
+    heading ``yaw`` [rad]: the sole is level at z = lift, turned about the vertical."""
+    if yaw == 0.0:
+        return np.concatenate([np.asarray(ankle, float)[:3], LEVEL])
+    return np.concatenate([np.asarray(ankle, float)[:3], [math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)]])
 
 
 def reference_vector(t, *, pattern, plan=None):
@@ -75,15 +78,17 @@ def reference_vector(t, *, pattern, plan=None):
     if plan is not None:
         z, zd, _ = plan.com_height([t])
         feet = plan.feet(t)
+        yaw = plan.feet_yaw(t)[0]
         phase = float(PHASES.index(plan.phase(t)))
     else:
         z, zd = [pattern.params.com_height], [0.0]
         feet = pattern.feet_at(t)[0]
+        yaw = pattern.feet_yaw_at(t)[0]
         phase = _WALKING
     arm_q = source.upper_body(t)[0]
     return np.concatenate([
-        pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"]),
-        sole_pose(feet["right"]), upper_body_vector(arm_q), arm_q, [phase]])
+        pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"], yaw["left"]),
+        sole_pose(feet["right"], yaw["right"]), upper_body_vector(arm_q), arm_q, [phase]])
 
 
 class _ReferenceSystem(LeafSystem):

@@ -167,9 +167,9 @@ def _loop(vertices_xy, z=_TRACE_Z):
     return _line(np.vstack([pts, pts[:1]]), z)
 
 
-def _sole_loop(sole, ankle_xy, side):
-    """Outline of a sole rectangle (gait.Sole corners, side 'left'/'right')."""
-    return _loop(sole.corners(ankle_xy, side), 0.003)
+def _sole_loop(sole, ankle_xy, side, yaw=0.0):
+    """Outline of a sole rectangle (gait.Sole corners, side 'left'/'right', heading ``yaw`` [rad])."""
+    return _loop(sole.corners(ankle_xy, side, yaw), 0.003)
 
 
 def _phase_plate(directory, phase):
@@ -206,9 +206,10 @@ def pattern_polygon(pattern, t):
 
     sole = pattern.params.sole
     feet = pattern.feet_at(t)[0]
+    yaw = pattern.feet_yaw_at(t)[0]
     support, _, side = pattern.support_at(t)
     sides = [side] if support == "single" else ["left", "right"]
-    corners = np.vstack([sole.corners(feet[s][:2], s) for s in sides])
+    corners = np.vstack([sole.corners(feet[s][:2], s, yaw[s]) for s in sides])
     return SupportPolygon(corners).vertices
 
 
@@ -272,6 +273,8 @@ class StopVisualizer(LeafSystem):
         self._meshcat = meshcat
         self._follow = tuple(follow)
         self._pattern = pattern
+        ends = np.array([step["end"][1] for step in pattern.steps])
+        self._pattern_lateral = bool(np.ptp(ends) > pattern.params.step_width + 0.1)
         self._period = publish_period
         self._prefix = prefix
         self.com_port = self.DeclareVectorInputPort("com", 3)
@@ -297,7 +300,7 @@ class StopVisualizer(LeafSystem):
             m.SetLine(f"{p}/nominal/feet/initial_{side}", _sole_loop(sole, xy, side),
                       1.5, _NOMINAL_FOOT_RGBA)
         for k, step in enumerate(pattern.steps):
-            m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"]),
+            m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"], step["end_yaw"]),
                       1.5, _NOMINAL_FOOT_RGBA)
         if self._follow:
             set_follow_camera(m, pattern)
@@ -319,7 +322,7 @@ class StopVisualizer(LeafSystem):
         m.SetLine(f"{p}/zmp", _line(zmp, 0.004), 3.0, _PLAN_ZMP_RGBA)
         sole = self._pattern.params.sole
         for side, xy in plan.final_feet.items():
-            m.SetLine(f"{p}/feet/{side}", _sole_loop(sole, xy, side), 3.0, _TAKEN_FOOT_RGBA)
+            m.SetLine(f"{p}/feet/{side}", _sole_loop(sole, xy, side, plan.final_yaw[side]), 3.0, _TAKEN_FOOT_RGBA)
         m.SetProperty(p, "visible", False, 0.0)
         m.SetProperty(p, "visible", True, plan.signal_time)
 
@@ -348,7 +351,9 @@ class StopVisualizer(LeafSystem):
         plate = [com[0] - 0.55, -0.3, 1.3] if self._follow else [com[0], -0.35, 1.75]  # in the camera's view
         m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
         if self._follow:
-            shift = RigidTransform([self._pattern.com([0.0])[0][0, 0] - com[0], 0.0, 0.0])
+            start = self._pattern.com([0.0])[0][0]
+            lateral = start[1] - com[1] if self._pattern_lateral else 0.0  # turning / side-stepping walks
+            shift = RigidTransform([start[0] - com[0], lateral, 0.0])
             for path in self._follow:
                 m.SetTransform(path, shift, t)
 
@@ -392,10 +397,19 @@ def set_follow_camera(meshcat, pattern):
     meshcat.SetCameraPose(np.array([x0 + 0.6, -1.3, 1.05]), np.array([x0, 0.0, 0.74]))
 
 
-def add_floor(meshcat, length=4.0, prefix=PREFIX):
-    """A thin floor plate under the walk (for contrast in replays)."""
-    meshcat.SetObject(f"{prefix}/floor", Box(length, 1.5, 0.01), Rgba(0.93, 0.93, 0.9, 1.0))
-    meshcat.SetTransform(f"{prefix}/floor", RigidTransform([length / 2 - 0.5, 0.0, -0.006]))
+def add_floor(meshcat, length=4.0, prefix=PREFIX, *, width=1.5, center_y=0.0):
+    """A thin floor plate under the walk (for contrast in replays): from x = -0.5 m, ``length``
+    long and ``width`` wide around ``center_y`` [m]."""
+    meshcat.SetObject(f"{prefix}/floor", Box(length, width, 0.01), Rgba(0.93, 0.93, 0.9, 1.0))
+    meshcat.SetTransform(f"{prefix}/floor", RigidTransform([length / 2 - 0.5, center_y, -0.006]))
+
+
+def add_floor_under(meshcat, pattern, prefix=PREFIX):
+    """:func:`add_floor` sized to cover every footstep of ``pattern`` (turning walks included)."""
+    ends = np.array([step["end"] for step in pattern.steps] + list(pattern.initial_feet.values()))
+    low, high = ends.min(axis=0), ends.max(axis=0)
+    add_floor(meshcat, length=high[0] + 1.5 - min(low[0], 0.0), prefix=prefix,
+              width=max(1.5, high[1] - low[1] + 1.0), center_y=0.5 * (low[1] + high[1]))
 
 
 # --------------------------------------------------------------------------
