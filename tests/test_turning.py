@@ -129,7 +129,7 @@ def test_one_step_wherever_a_generic_solver_finds_one(gait_plans):
     problem in the stop's heading frame, finds no one-step parameters either."""
     name, pattern, plans = gait_plans
     fallbacks = [plan for plan in plans if plan.case != "one-step"]
-    assert len(fallbacks) <= len(plans) // 3, name
+    assert len(fallbacks) <= 0.4 * len(plans), name  # measured 56 of 160 at +15 deg (outer foot), 51 at -15
     for plan in fallbacks[::3]:
         state = pattern.state(plan.signal_time)
         frame = HeadingFrame(stop_heading(state))
@@ -138,8 +138,8 @@ def test_one_step_wherever_a_generic_solver_finds_one(gait_plans):
 
 
 def test_turning_stops_keep_the_straight_walks_one_step_share():
-    """Measured: 113 and 109 of 160 ticks one-step at +-15 deg (straight: 128); the fallbacks are
-    the outer foot's longer swing (max_swing_speed) and the landing reach."""
+    """Measured: 104 and 109 of 160 ticks one-step at +15 / -15 deg (straight: 128); the fallbacks are
+    the outer foot's longer swing (max_swing_speed) and its shorter reach (_lateral_reach)."""
     for turn in (15.0, -15.0):
         pattern = NominalPattern(GaitParameters(turn=turn))
         plans = [plan_stop(pattern, t, PARAMS) for t in stride_ticks(pattern, PARAMS)[::4]]
@@ -366,6 +366,18 @@ def test_the_whole_body_ik_follows_the_turned_feet():
     result = simulate_diagram(gait_params=GaitParameters(turn=15.0), stop_params=PARAMS, estop_time=3.6)
     assert result.ik_failures == {"com": 0, "foot_position": 0, "foot_rotation": 0}
     assert result.ik_foot_rot_err.max() < 1e-3  # [rad]
+    assert result.velocity_limit_violations.sum() == 0
     # a double-support stop: both feet stay where they are, turned by 30 and 45 deg
     assert result.plan.support == "double"
     assert result.plan.final_yaw == pytest.approx({"left": math.radians(30.0), "right": math.radians(45.0)})
+
+
+def test_the_outer_foot_lands_with_a_bent_knee():
+    """A single-support stop of a +15 deg/step walk lands the outer (right) foot: with the straight
+    walk's fore reach its knee reached 14 rad/s in the IK (limit 6, 28 ticks over); the planner
+    shortens the reach by the extra lateral offset (planner._lateral_reach)."""
+    from drake_estop.systems.diagram import simulate_diagram
+
+    result = simulate_diagram(gait_params=GaitParameters(turn=15.0), stop_params=PARAMS, estop_time=3.175)
+    assert result.plan.case == "one-step" and result.plan.landing_foot == "right"
+    assert result.velocity_limit_violations.sum() == 0

@@ -222,6 +222,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
     if kind == "single":
         support = state.support_foot
         swing = "right" if support == "left" else "left"
+        params = _lateral_reach(pattern, state, params)
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
         touchdown = pattern.steps[state.step_index]["touchdown"]
@@ -242,6 +243,28 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         raise ValueError(f"zmp_region must be 'fore' or 'polygon', got {zmp_region!r}")
     rear_ankle = state.feet[rear][0] - state.zmp[0]
     return DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
+
+
+LATERAL_REACH_ALLOWANCE = 0.03  # [m] lateral COG-to-landing-ankle offset beyond step_width / 2 that
+# max_fore_reach already covers: on the straight walk the COG passes 0.113-0.115 m beside the landing
+# ankle at touchdown (step width 0.19 m), where max_fore_reach was measured
+
+
+def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> StopParameters:
+    """``params`` with ``max_fore_reach`` shortened where the landing ankle lies further to the side of
+    the COG at the nominal touchdown than on the straight walk (the outer foot of a turn, a side-step,
+    a slow gait's wider sway): the horizontal COG-to-ankle distance ``hypot(dx, dy)`` then stays within
+    the straight walk's ``hypot(max_fore_reach, step_width / 2 + LATERAL_REACH_ALLOWANCE)``, which keeps
+    the landing knee bent (at +15 deg per step the outer knee otherwise reached 14 rad/s, limit 6).
+    Measured on the walk's nominal footstep and COG: a capture-point landing (planning/capture.py)
+    moves the foot by the COG's own deviation, which leaves their lateral offset as it was."""
+    step = pattern.steps[state.step_index]  # the walk's own footstep: a capture-point shift follows the COG
+    lateral = abs(float(step["end"][1]) - float(pattern.com([step["touchdown"]])[0][0][1]))
+    allowed = 0.5 * pattern.params.step_width + LATERAL_REACH_ALLOWANCE
+    if lateral <= allowed:
+        return params
+    reach = math.sqrt(max(params.max_fore_reach**2 + allowed**2 - lateral**2, 0.25 * params.max_fore_reach**2))
+    return replace(params, max_fore_reach=reach)
 
 
 _MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into the zmp_margin band
