@@ -381,3 +381,16 @@ def test_the_outer_foot_lands_with_a_bent_knee():
     result = simulate_diagram(gait_params=GaitParameters(turn=15.0), stop_params=PARAMS, estop_time=3.175)
     assert result.plan.case == "one-step" and result.plan.landing_foot == "right"
     assert result.velocity_limit_violations.sum() == 0
+
+
+def test_the_online_controller_stops_a_turning_walk_in_physics():
+    """Physics (SAP plant, contact) under the online controller on a +10 deg/step walk, stopped in
+    single support: every success criterion, CoP inside the *turned* planned soles included, and no
+    joint over its velocity limit."""
+    from drake_estop.physics.online import run_online
+
+    gait = GaitParameters(turn=10.0)
+    result = run_online(gait_params=gait, estop_time=3.3, pattern=NominalPattern(gait), after_halt=2.5)
+    assert result.plan.heading != 0.0 and result.plan.landing_foot is not None
+    assert result.success, result.criteria
+    assert result.online["joint_velocity_violations"] == 0

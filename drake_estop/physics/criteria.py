@@ -136,9 +136,7 @@ class PhysicsResult:
 
 def _sole_polygon_corners(sole, xy, yaw, side):
     """Sole rectangle corners (4, 2) at ankle ``xy`` rotated by ``yaw``."""
-    local = sole.corners((0.0, 0.0), side)
-    c, s = math.cos(yaw), math.sin(yaw)
-    return local @ np.array([[c, s], [-s, c]]) + np.asarray(xy)[:2]
+    return sole.corners(np.asarray(xy)[:2], side, float(yaw))
 
 
 def _planned_support(plan: StopPlan, t: float):
@@ -189,6 +187,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
     com_plan = np.column_stack([pos, z_plan])
     planned_feet = [plan.feet(float(t)) for t in times]
     feet_plan = {side: np.array([f[side] for f in planned_feet]) for side in SIDES}
+    planned_yaw = [plan.feet_yaw(float(t))[0] for t in times]
     weight = plant.CalcTotalMass(scratch) * GRAVITY
     in_contact = {side: foot_forces[side] > physics.contact_force_fraction * weight for side in SIDES}
     # slip: sole travel (xy) over each planned stance interval, from its first tick in contact
@@ -212,7 +211,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         # contact (a swing foot touching down a few ms early stands on its planned landing spot)
         standing = [s for s in SIDES if s in touching or s in planned_support[i]]
         margin_plan[i] = SupportPolygon(np.vstack([
-            sole.corners(feet_plan[s][i, :2], s) for s in standing])).margin(cop[i])[0]
+            sole.corners(feet_plan[s][i, :2], s, planned_yaw[i][s]) for s in standing])).margin(cop[i])[0]
         if touching:
             corners = np.vstack([_sole_polygon_corners(sole, feet_meas[s][i], feet_yaw[s][i], s)
                                  for s in touching])

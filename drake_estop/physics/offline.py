@@ -45,7 +45,6 @@ from drake_estop.model import (
 )
 from drake_estop.physics.criteria import JointReference, PhysicsResult, analyse, multibody_zmp
 from drake_estop.physics.plant import (
-    LEVEL,
     SIDES,
     SOLE_FRAMES,
     CopEstimator,
@@ -58,20 +57,26 @@ from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.planning.rollout import Rollout, rollout
 from drake_estop.systems.ik import WholeBodyIkSolver, converged_posture, shared_ik
+from drake_estop.systems.stop_controller import sole_pose
+
+
+def _sole(ro: Rollout, side: str, i: int):
+    """Sole pose 7-vector of ``side`` at tick ``i`` of ``ro`` (turned by its heading)."""
+    return sole_pose(ro.feet[side][i], 0.0 if ro.feet_yaw is None else float(ro.feet_yaw[side][i]))
 
 
 def initial_configuration(plant, ro: Rollout, *, solver=None):
     """Converged IK posture at the first tick of ``ro`` (feet ``step_width`` apart)."""
     upper = dict.fromkeys(UPPER_BODY_JOINTS, 0.0)
     upper.update(zip(ARM_JOINTS, ro.upper_body[0]))
-    left, right = (np.concatenate([ro.feet[side][0], LEVEL]) for side in SIDES)
+    left, right = (_sole(ro, side, 0) for side in SIDES)
     return converged_posture(plant, ro.com[0], left, right, upper, solver=solver)
 
 
 def _solve_tick(solver, q, ro: Rollout, i):
     upper = dict.fromkeys(UPPER_BODY_JOINTS, 0.0)
     upper.update(zip(ARM_JOINTS, ro.upper_body[i]))
-    feet = [np.concatenate([ro.feet[side][i], LEVEL]) for side in SIDES]
+    feet = [_sole(ro, side, i) for side in SIDES]
     return solver.solve(q, ro.com[i], feet[0], feet[1], None, upper)
 
 
@@ -99,15 +104,18 @@ def nominal_rollout(pattern: NominalPattern, end: float, servo_period: float) ->
     pos, vel, acc, zmp = pattern.com(times)
     n = len(times)
     feet = {side: np.zeros((n, 3)) for side in SIDES}
+    yaw = {side: np.zeros(n) for side in SIDES}
     upper = np.zeros((n, len(ARM_JOINTS)))
     for i, t in enumerate(times):
         for side, value in pattern.feet_at(float(t))[0].items():
             feet[side][i] = value
+        for side, value in pattern.feet_yaw_at(float(t))[0].items():
+            yaw[side][i] = value
         upper[i] = pattern.upper_body(float(t))[0]
     z = np.full(n, pattern.params.com_height)
     zeros = np.zeros(n)
     return Rollout(times, np.column_stack([pos, z]), np.column_stack([vel, zeros]),
-                   np.column_stack([acc, zeros]), zmp, ["walking"] * n, feet, upper)
+                   np.column_stack([acc, zeros]), zmp, ["walking"] * n, feet, upper, yaw)
 
 
 class ZmpPreviewFilter:

@@ -60,10 +60,6 @@ SIDES = ("left", "right")
 
 SOLE_FRAMES = {"left": LEFT_SOLE, "right": RIGHT_SOLE}
 
-
-LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
-
-
 #: The point-contact corner spheres sit 5 mm inside the sole rectangle (models/humanoid.urdf).
 SOLE_CONTACT_INSET = 0.005
 
