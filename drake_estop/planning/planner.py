@@ -60,8 +60,8 @@ from drake_estop.planning.stop_condition import StopStart, slowdown_time, target
 
 __all__ = [  # the planner's interface, including the names other modules import from here
     "COMPILED", "PHASES", "InfeasibleStop", "PhaseSolution", "StopParameters", "StopPlan", "descent_time",
-    "landing_swing", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon", "solve_continuous",
-    "solve_phases", "stop_problem", "warm_up",
+    "landing_swing", "one_step_feasible", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon",
+    "solve_continuous", "solve_phases", "stop_problem", "warm_up",
 ]
 
 
@@ -438,6 +438,27 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     ValueError
         If ``signal_time`` or ``measured`` is not finite.
     """
+    return _search(pattern, signal_time, params, measured, first_only=False)
+
+
+def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
+                      measured=None) -> bool:
+    """Whether a stop signal at ``signal_time`` stops within one step: ``plan_stop(pattern,
+    signal_time, params, measured=measured).case == "one-step"``.
+
+    Runs :func:`plan_stop`'s own search and ends it at its first attempt (the
+    signal tick's support phase: III.A or III.B), so the answer agrees with
+    the planner by construction; it costs that first attempt (a failed one
+    skips the marginal case's later tries, III.C). False for "next-step",
+    "standing", "already-stopping" and for no stop at all. Raises what
+    :func:`plan_stop` raises for invalid input (ValueError).
+    """
+    plan = _search(pattern, signal_time, params, measured, first_only=True)
+    return plan is not None and plan.case == "one-step"
+
+
+def _search(pattern, signal_time, params, measured, first_only):
+    """:func:`plan_stop`; with ``first_only``, None instead of trying past the first failed attempt."""
     params = params or StopParameters()
     if measured is not None:
         measured = tuple(np.asarray(m, float)[:2] for m in measured)
@@ -468,6 +489,8 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
         try:
             return _finish(_plan_from(pattern, state, params, t0, case), wall)
         except InfeasibleStop as error:
+            if first_only:
+                return None
             reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
