@@ -443,15 +443,37 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
 
 def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
                       measured=None) -> bool:
-    """Whether a stop signal at ``signal_time`` stops within one step: ``plan_stop(pattern,
-    signal_time, params, measured=measured).case == "one-step"``.
+    """Whether a stop signal at ``signal_time`` would stop within one step.
 
-    Runs :func:`plan_stop`'s own search and ends it at its first attempt (the
-    signal tick's support phase: III.A or III.B), so the answer agrees with
-    the planner by construction; it costs that first attempt (a failed one
-    skips the marginal case's later tries, III.C). False for "next-step",
-    "standing", "already-stopping" and for no stop at all. Raises what
-    :func:`plan_stop` raises for invalid input (ValueError).
+    The answer is ``plan_stop(pattern, signal_time, params,
+    measured=measured).case == "one-step"``: this runs :func:`plan_stop`'s own
+    search and ends it at its first attempt (the signal tick's support phase,
+    III.A or III.B), so it agrees with the planner by construction and costs
+    that one attempt (a failed attempt skips the marginal case's later tries,
+    III.C).
+
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk the stop would interrupt.
+    signal_time : float
+        Time of the stop signal [s] on the pattern's clock (snapped to the next
+        servo tick, as by :func:`plan_stop`).
+    params : StopParameters, optional
+        Weights and limits (default: the paper's).
+    measured : tuple of array_like, optional
+        ``(com_xy [m], com_vel_xy [m/s])`` to plan from, as for :func:`plan_stop`.
+
+    Returns
+    -------
+    bool
+        True for a "one-step" stop; False for "next-step" (III.C),
+        "standing", "already-stopping" and where no stop exists at all.
+
+    Raises
+    ------
+    ValueError
+        If ``signal_time`` or ``measured`` is not finite (as :func:`plan_stop`).
     """
     plan = _search(pattern, signal_time, params, measured, first_only=True)
     return plan is not None and plan.case == "one-step"
