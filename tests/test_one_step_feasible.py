@@ -246,7 +246,7 @@ def test_meshcat_indicator_shows_the_port_value(paper_pattern):
     # the sphere sits over the robot: above the COG's floor point
     frame = msgpack.unpackb(meshcat._GetPackedTransform("/estop/one_step"))["matrix"][12:15]
     sphere = msgpack.unpackb(meshcat._GetPackedTransform(f"{amber}/sphere"))["matrix"][12:15]
-    np.testing.assert_allclose(np.add(frame, sphere), [0.4, 0.0, 1.7], atol=1e-9)
+    np.testing.assert_allclose(np.add(frame, sphere), [0.4, 0.0, 1.62], atol=1e-9)
 
 
 def test_meshcat_without_the_input_draws_no_indicator(paper_pattern):

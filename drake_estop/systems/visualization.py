@@ -59,8 +59,8 @@ _PHASE_COLOURS = {"walking": "#00838f", "landing": "#e08a00", "transition": "#c2
 _TRACE_Z = 0.002  # lines slightly above the floor
 #: one-step indicator: value of the ``one_step_feasible`` input -> (name, plate text, colour)
 ONE_STEP_INDICATOR = {True: ("one_step", "stop now: one step", "#2e7d32"),
-                      False: ("next_step", "stop now: next step", "#f0a000")}
-_INDICATOR_HEIGHT = 1.7  # [m] the sphere's height, above the head (HRP-2 class: 1.54 m tall)
+                      False: ("next_step", "stop now: next step", "#cc7a00")}
+_INDICATOR_HEIGHT = 1.62  # [m] the sphere's height, over the head (HRP-2 class: 1.54 m tall)
 
 
 # --------------------------------------------------------------------------
@@ -330,8 +330,8 @@ class StopVisualizer(LeafSystem):
         if self.one_step_feasible_port.HasValue(context):
             for name, text, colour in ONE_STEP_INDICATOR.values():
                 path = f"{p}/one_step/{name}"
-                m.SetObject(f"{path}/plate", Mesh(str(_text_plate(self._plates, name, text, colour, 30))))
-                m.SetObject(f"{path}/sphere", Sphere(0.05), Rgba(*_rgb(colour), 1.0))
+                m.SetObject(f"{path}/plate", Mesh(str(_text_plate(self._plates, name, text, colour, 24))))
+                m.SetObject(f"{path}/sphere", Sphere(0.04), Rgba(*_rgb(colour), 1.0))
                 m.SetProperty(path, "visible", False, 0.0)
         return EventStatus.Succeeded()
 
