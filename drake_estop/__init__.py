@@ -14,7 +14,8 @@ Building blocks (Drake LeafSystems): `WalkingPatternSource`, `EStopTrigger`,
 `StopPlannerSystem`, `WholeBodyIK`; parameters: `GaitParameters`,
 `StopParameters`, `Sole`, `PhysicsParameters`, `Perturbations`, `Push`;
 the planner itself: `plan_stop` returning a `StopPlan` (or raising
-`InfeasibleStop`). World frame x forward, y left, z up; SI units throughout
+`InfeasibleStop`), and `one_step_feasible`, whether a signal now would stop
+within one step. World frame x forward, y left, z up; SI units throughout
 (m, s, rad, N).
 
 Names are imported on first use (PEP 562), so ``import drake_estop`` stays
@@ -45,6 +46,7 @@ _EXPORTS = {
     "InfeasibleStop": "drake_estop.planning.plan",
     "PHASES": "drake_estop.planning.plan",
     "plan_stop": "drake_estop.planning.planner",
+    "one_step_feasible": "drake_estop.planning.planner",
     "PhysicsParameters": "drake_estop.physics.plant",
     "Perturbations": "drake_estop.physics.perturbations",
     "Push": "drake_estop.physics.perturbations",

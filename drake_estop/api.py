@@ -26,7 +26,7 @@ from drake_estop.systems.ik import WholeBodyIK
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
 #: Outputs logged once per servo tick by :func:`AddEmergencyStop` (``log=True``).
-LOGGED_PLANNER_OUTPUTS = ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase")
+LOGGED_PLANNER_OUTPUTS = ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "one_step_feasible")
 LOGGED_IK_OUTPUTS = ("q", "ik_com_error", "ik_foot_error")
 
 
@@ -55,6 +55,12 @@ class EmergencyStopLog:
         (the floating base first: quaternion, then position).
     ik_com_error, ik_foot_error : numpy.ndarray
         The IK's COG and worst sole-position error per tick, shape (n,) [m].
+    one_step_feasible : numpy.ndarray
+        1.0 where a stop signal at ``times[k]`` would stop within one step
+        (the planner's ``one_step_feasible`` output of that tick; after the
+        latch, whether the latched stop is one-step), else 0.0; shape (n,),
+        dimensionless. NaN on the last row when that tick's update has not
+        run yet (the output is logged one tick after its update).
     """
 
     times: np.ndarray
@@ -67,6 +73,7 @@ class EmergencyStopLog:
     q: np.ndarray
     ik_com_error: np.ndarray
     ik_foot_error: np.ndarray
+    one_step_feasible: np.ndarray
 
 
 @dataclass
@@ -101,6 +108,10 @@ class EmergencyStop:
     com, zmp, phase, plan_port : pydrake.systems.framework.OutputPort
         The planner's COG target (3) [m], ZMP (2) [m], phase index into
         ``PHASES`` (1) and the stored stop plan (abstract; None before the latch).
+    one_step_feasible : pydrake.systems.framework.OutputPort
+        The planner's ``one_step_feasible`` (1, dimensionless): 1.0 if a stop
+        signal at the last servo tick would stop within one step, 0.0 if it
+        would take the next step; after the latch, the latched stop's case.
     loggers : dict
         Name -> ``VectorLogSink`` for every logged output (empty with ``log=False``).
     stop_visualizer : StopVisualizer or None
@@ -122,6 +133,7 @@ class EmergencyStop:
     loggers: dict = field(default_factory=dict)
     visualizer: object = None
     stop_visualizer: object = None
+    one_step_feasible: object = None
 
     def plan(self, context):
         """The stop plan in force, or None before the stop latched.
@@ -212,11 +224,16 @@ class EmergencyStop:
         logs = {name: logger.FindLog(context) for name, logger in self.loggers.items()}
         n = min(entry.sample_times().size for entry in logs.values())
         data = {name: entry.data()[:, :n].T for name, entry in logs.items()}
+        # the planner's update of tick k sets one_step_feasible; the logger publishes it at tick k + 1
+        feasible = np.full(n, np.nan)
+        later = logs["one_step_feasible"].data()[0, 1:n + 1]
+        feasible[:len(later)] = later
         return EmergencyStopLog(
             times=logs["com"].sample_times()[:n].copy(), com=data["com"], com_vel=data["com_vel"],
             zmp=data["zmp"], phase=[PHASES[int(round(p))] for p in data["phase"][:, 0]],
             left_foot=data["left_foot"][:, :3], right_foot=data["right_foot"][:, :3], q=data["q"],
-            ik_com_error=data["ik_com_error"][:, 0], ik_foot_error=data["ik_foot_error"][:, 0])
+            ik_com_error=data["ik_com_error"][:, 0], ik_foot_error=data["ik_foot_error"][:, 0],
+            one_step_feasible=feasible)
 
     def _latched_plan(self, context):
         plan = self.plan(context)
@@ -280,7 +297,7 @@ def _add_meshcat(builder, meshcat, scene_graph, planner, pattern, publish_period
         publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
     stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
         meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths()))
-    for name in ("com", "zmp", "phase", "plan"):
+    for name in ("com", "zmp", "phase", "plan", "one_step_feasible"):
         builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
     return visualizer, stop_visualizer
 
@@ -316,8 +333,10 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
         Time of the stop signal [s], latched at the next servo tick. None:
         only ``stop_request`` or the Meshcat button stop the walk.
     meshcat : pydrake.geometry.Meshcat, optional
-        Draws the robot, the COG/ZMP traces, the support polygon and the phase,
-        adds the "Emergency stop" button and a camera that follows the robot.
+        Draws the robot, the COG/ZMP traces, the support polygon, the phase and
+        the one-step indicator (green: a stop now stops in one step; amber: it
+        takes the next step), adds the "Emergency stop" button and a camera
+        that follows the robot.
     log : bool, optional
         Log the planner's outputs and the IK's at every servo tick (default
         True), read with :meth:`EmergencyStop.log`.
@@ -374,4 +393,4 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
                          com=planner.GetOutputPort("com"), zmp=planner.GetOutputPort("zmp"),
                          phase=planner.GetOutputPort("phase"),
                          plan_port=planner.plan_port, loggers=loggers, visualizer=visualizer,
-                         stop_visualizer=stop_visualizer)
+                         stop_visualizer=stop_visualizer, one_step_feasible=planner.one_step_feasible_port)

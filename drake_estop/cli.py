@@ -304,7 +304,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]
-        columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2]})
+        columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2],
+                        "one_step_feasible": result.online["one_step_feasible"]})
     else:
         from drake_estop.physics.offline import run_physics
 

@@ -7,7 +7,7 @@ import re
 from drake_estop.systems.visualization import html_mentions
 
 ROBOT_LINKS = ("pelvis", "torso", "l_thigh", "r_thigh", "l_shank", "r_shank", "l_foot", "r_foot")
-TRACES = ("estop/nominal/cog", "estop/plan/zmp", "estop/markers/cog", "estop/support")
+TRACES = ("estop/nominal/cog", "estop/plan/zmp", "estop/markers/cog", "estop/support", "estop/one_step")
 PHASE_LABEL = "estop/phase/stopped"
 ANIMATION = "set_animation"
 

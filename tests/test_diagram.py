@@ -15,7 +15,7 @@ from html_checks import ROBOT_LINKS, external_fetches, missing_from_replay
 
 from drake_estop.model import ALL_JOINTS
 from drake_estop.planning.gait import GaitParameters
-from drake_estop.planning.planner import StopParameters
+from drake_estop.planning.planner import StopParameters, plan_stop
 from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND, IK_FOOT_ROT_BOUND, simulate_diagram
 from drake_estop.systems.visualization import html_mentions, make_meshcat
 
@@ -135,6 +135,21 @@ def test_logged_planner_outputs_match_ik_targets(result):
     diff = np.linalg.norm(logged - result.com, axis=1)
     assert np.sum(diff > 1e-12) <= 1
     assert diff.max() < 1e-4
+
+
+def test_one_step_feasible_logged_at_every_tick(result):
+    """Row k of the log column: the planner's answer for a stop signal at tick k (computed in its
+    update of tick k, logged at k + 1), equal to plan_stop's case there; from the latch on, the
+    latched stop's case."""
+    plan = result.plan
+    column = result.columns()["one_step_feasible"]
+    assert column.shape == result.times.shape and set(np.unique(column)) == {0.0, 1.0}
+    before = result.times <= plan.signal_time + 1e-9  # the latch reaches the planner one tick later
+    assert np.all(column[~before] == float(plan.case == "one-step"))
+    pattern = plan.pattern
+    expected = [plan_stop(pattern, t, plan.params).case == "one-step" for t in result.times[before]]
+    np.testing.assert_array_equal(column[before], np.array(expected, float))
+    assert 0 < sum(expected) < len(expected)  # the walk before the signal has both answers
 
 
 def test_replay_html_contains_robot_and_overlays(result):

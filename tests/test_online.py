@@ -57,6 +57,19 @@ def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
     assert online["joint_velocity_violations"] == 0
 
 
+def test_one_step_feasible_logged_every_tick_online(paper_stop):
+    """The planner's one_step_feasible per servo tick from 0 (row k: a signal at tick k); it plans
+    from the estimated state where that has left the reference, so only the latch is checked exactly."""
+    column = paper_stop.online["one_step_feasible"]
+    plan = paper_stop.plan
+    dt = plan.params.servo_period
+    assert len(column) >= round(paper_stop.times[-1] / dt) - 1
+    assert set(np.unique(column)) == {0.0, 1.0}  # the walk before 3.4 s has next-step ticks (e.g. 3.2 s)
+    latched = int(round(plan.signal_time / dt)) + 1
+    first = getattr(plan, "plans", (plan,))[0]
+    assert np.all(column[latched:] == float(first.case == "one-step"))
+
+
 def test_joint_velocity_violations_counts_ticks_over_the_model_limit(paper_stop):
     from pydrake.multibody.plant import MultibodyPlant
 
@@ -172,5 +185,6 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
     assert data["perturbations"]["mass_scale"] == 1.1
     header = open(log).readline().strip().split(",")
-    for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x"):
+    for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
+                   "one_step_feasible"):
         assert column in header

@@ -14,7 +14,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from scipy.spatial import ConvexHull
 
-from drake_estop import AddEmergencyStop, GaitParameters, StopParameters
+from drake_estop import AddEmergencyStop, GaitParameters, StopParameters, one_step_feasible, plan_stop
 
 GRAVITY = 9.8  # [m/s^2]; the package sets the plant's gravity to this value
 
@@ -86,3 +86,17 @@ def test_the_posed_robot_comes_to_rest_over_its_feet(stopped):
     midpoint = 0.5 * (np.array(feet["left"][:2]) + np.array(feet["right"][:2]))
     assert np.linalg.norm(com[-1, :2] - midpoint) < 5e-3  # [m]
     assert max(log.ik_foot_error) < 1e-3 and max(log.ik_com_error) < 1e-3  # [m]
+
+
+def test_the_log_says_at_every_tick_whether_a_stop_then_would_take_one_step(stopped):
+    """Before the signal, row k of ``one_step_feasible`` is whether a stop signal at that tick would
+    stop within one step (what ``plan_stop`` then does); from the latch on, the latched stop's case."""
+    estop, _, log, summary, _ = stopped
+    column = log.one_step_feasible
+    assert column.shape == log.times.shape and np.all(np.isin(column[:-1], (0.0, 1.0)))
+    before = log.times <= summary["estop_time"] + 1e-9
+    expected = [plan_stop(estop.pattern, t).case == "one-step" for t in log.times[before]]
+    np.testing.assert_array_equal(column[before], np.array(expected, float))
+    assert 0 < sum(expected) < len(expected)
+    assert np.all(column[~before][:-1] == 1.0)  # the 3.4 s stop is one-step
+    assert all(one_step_feasible(estop.pattern, t) == e for t, e in zip(log.times[before][-200:], expected[-200:]))

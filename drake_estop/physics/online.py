@@ -152,11 +152,22 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         **add_online_loggers(builder, plant, cop, ik, period),
         "com_est": LogVectorOutput(estimator.com_port, builder, period),
         "com_vel_est": LogVectorOutput(estimator.com_vel_port, builder, period),
+        # every servo tick, whatever log_period: its update of tick k is published at tick k + 1
+        "one_step_feasible": LogVectorOutput(planner.one_step_feasible_port, builder, dt),
     }
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
                          push, q0, timer, physics)
+
+
+def _per_tick(log, servo_period: float) -> np.ndarray:
+    """Row k: the value a planner update of tick ``k * servo_period`` set, published at the next tick."""
+    ticks = np.rint(log.sample_times() / servo_period).astype(int)
+    out = np.full(int(ticks.max()) if len(ticks) else 0, np.nan)
+    later = ticks >= 1
+    out[ticks[later] - 1] = log.data()[0, later]
+    return out
 
 
 def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
@@ -191,7 +202,11 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     with ``online`` added: ``tick_compute`` (median / p99 / max seconds of the
     controller's own work per servo tick after the signal), ``replans``,
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
-    over its velocity limit, measured) and the estimator's COG log.
+    over its velocity limit, measured), the estimator's COG log and
+    ``one_step_feasible`` (per servo tick ``k * servo_period`` from 0: 1.0 if
+    a stop signal at that tick would stop in one step, from the planner's
+    output, the state it planned from included; after the latch the latched
+    stop's case; NaN for a tick whose update had not run).
     """
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
@@ -229,6 +244,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
                                                    .FindLog(context).sample_times()),
         "com_est": handles.loggers["com_est"].FindLog(context).data().T,
+        "one_step_feasible": _per_tick(handles.loggers["one_step_feasible"].FindLog(context), stop_params.servo_period),
         # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
         # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
         "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),

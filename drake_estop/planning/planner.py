@@ -61,8 +61,8 @@ from drake_estop.planning.stop_condition import StopStart, slowdown_time, target
 
 __all__ = [  # the planner's interface, including the names other modules import from here
     "COMPILED", "PHASES", "InfeasibleStop", "PhaseSolution", "StopParameters", "StopPlan", "descent_time",
-    "landing_swing", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon", "solve_continuous",
-    "solve_phases", "stop_problem", "warm_up",
+    "landing_swing", "one_step_feasible", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon",
+    "solve_continuous", "solve_phases", "stop_problem", "warm_up",
 ]
 
 
@@ -473,6 +473,49 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     ValueError
         If ``signal_time`` or ``measured`` is not finite.
     """
+    return _search(pattern, signal_time, params, measured, first_only=False)
+
+
+def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
+                      measured=None) -> bool:
+    """Whether a stop signal at ``signal_time`` would stop within one step.
+
+    The answer is ``plan_stop(pattern, signal_time, params,
+    measured=measured).case == "one-step"``: this runs :func:`plan_stop`'s own
+    search and ends it at its first attempt (the signal tick's support phase,
+    III.A or III.B), so it agrees with the planner by construction and costs
+    that one attempt (a failed attempt skips the marginal case's later tries,
+    III.C).
+
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk the stop would interrupt.
+    signal_time : float
+        Time of the stop signal [s] on the pattern's clock (snapped to the next
+        servo tick, as by :func:`plan_stop`).
+    params : StopParameters, optional
+        Weights and limits (default: the paper's).
+    measured : tuple of array_like, optional
+        ``(com_xy [m], com_vel_xy [m/s])`` to plan from, as for :func:`plan_stop`.
+
+    Returns
+    -------
+    bool
+        True for a "one-step" stop; False for "next-step" (III.C),
+        "standing", "already-stopping" and where no stop exists at all.
+
+    Raises
+    ------
+    ValueError
+        If ``signal_time`` or ``measured`` is not finite (as :func:`plan_stop`).
+    """
+    plan = _search(pattern, signal_time, params, measured, first_only=True)
+    return plan is not None and plan.case == "one-step"
+
+
+def _search(pattern, signal_time, params, measured, first_only):
+    """:func:`plan_stop`; with ``first_only``, None instead of trying past the first failed attempt."""
     params = params or StopParameters()
     if measured is not None:
         measured = tuple(np.asarray(m, float)[:2] for m in measured)
@@ -503,6 +546,8 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
         try:
             return _finish(_plan_from(pattern, state, params, t0, case), wall)
         except InfeasibleStop as error:
+            if first_only:
+                return None
             reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"

@@ -4,8 +4,8 @@
 
     EStopTrigger --stop--> StopPlannerSystem --com, feet, upper_body--> WholeBodyIK
         WholeBodyIK --q--> MultibodyPositionToGeometryPose --> SceneGraph --> MeshcatVisualizer
-        StopPlannerSystem --com, zmp, phase, plan--> StopVisualizer (Meshcat traces)
-        loggers: planner com / com_vel / zmp / feet / phase, IK q and IK errors
+        StopPlannerSystem --com, zmp, phase, plan, one_step_feasible--> StopVisualizer (Meshcat traces)
+        loggers: planner com / com_vel / zmp / feet / phase / one_step_feasible, IK q and IK errors
 
 The humanoid is kinematic: the plant is registered with the SceneGraph for
 its geometry only and posed by the IK's positions (no dynamics, no contact).
@@ -99,7 +99,7 @@ def _add_plant(builder):
 def _add_loggers(builder, planner, ik, period):
     """Vector loggers of the planner outputs and the IK outputs, one per tick."""
     ports = {name: planner.GetOutputPort(name) for name in
-             ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "arm_joints")}
+             ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "arm_joints", "one_step_feasible")}
     ports.update(q=ik.q_port, ik_com_error=ik.com_error_port,
                  ik_foot_error=ik.foot_error_port,
                  velocity_limit_violations=ik.violations_port)
@@ -147,7 +147,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
                 publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
         stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
             meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths()))
-        for name in ("com", "zmp", "phase", "plan"):
+        for name in ("com", "zmp", "phase", "plan", "one_step_feasible"):
             builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
     diagram = builder.Build()
     diagram.set_name("estop_diagram")
@@ -184,6 +184,8 @@ class DiagramResult:
     html: object = None
     ik_failures: dict = field(default_factory=dict)
     logged_reference: dict = field(default_factory=dict)  # planner outputs as logged
+    #: (n,) 1.0 if a stop signal at the tick would stop in one step (after the latch: the latched plan's case)
+    one_step_feasible: np.ndarray = None
 
     @property
     def sim_time(self):
@@ -199,7 +201,8 @@ class DiagramResult:
         cols = dict(self.q)
         cols.update(ik_com_err=self.ik_com_err, ik_foot_err=self.ik_foot_err,
                     ik_foot_rot_err=self.ik_foot_rot_err,
-                    velocity_limit_violations=self.velocity_limit_violations)
+                    velocity_limit_violations=self.velocity_limit_violations,
+                    one_step_feasible=self.one_step_feasible)
         return cols
 
     def error_summary(self):
@@ -253,6 +256,8 @@ def _align_ticks(handles, context):
     at t_k saw the reference at t_k of the plan stored by then; the plan
     evaluates to the nominal pattern before its start, so the reference of
     the final plan at t_k is exactly what the IK was given at every tick.
+    The planner's ``one_step_feasible`` (discrete state set by its update of
+    tick k) is likewise logged at t_(k+1).
     """
     times, data = _logged(handles, context)
     plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
@@ -260,7 +265,7 @@ def _align_ticks(handles, context):
                         for t in times[:-1]])
     ref = {name: targets[:, sl] for name, sl in REFERENCE_SLICES.items()}
     solved = {name: data[name][1:] for name in
-              ("q", "ik_com_error", "ik_foot_error", "velocity_limit_violations")}
+              ("q", "ik_com_error", "ik_foot_error", "velocity_limit_violations", "one_step_feasible")}
     return times[:-1], ref, solved, data, plan
 
 
@@ -291,7 +296,7 @@ def collect_result(handles, context, *, wall_time, html=None):
         velocity_limit_violations=solved["velocity_limit_violations"][:, 0],
         joint_limit_violations=limit_viol, plan=plan, wall_time=wall_time,
         plan_wall_time=handles.planner.plan_wall_time(planner_context), html=html,
-        ik_failures=failures,
+        ik_failures=failures, one_step_feasible=solved["one_step_feasible"][:, 0],
         logged_reference={name: logged[name][:n] for name in
                           ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase")})
     _warn_failures(result)

@@ -23,6 +23,7 @@ targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -32,7 +33,16 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
-from drake_estop.planning.planner import PHASES, InfeasibleStop, StopParameters, plan_stop, replan_stop, warm_up
+from drake_estop.planning.planner import (
+    PHASES,
+    InfeasibleStop,
+    StopParameters,
+    one_step_feasible,
+    plan_stop,
+    replan_stop,
+    snap_to_tick,
+    warm_up,
+)
 from drake_estop.timing import timed
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
@@ -89,6 +99,33 @@ def reference_vector(t, *, pattern, plan=None):
     return np.concatenate([
         pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"], yaw["left"]),
         sole_pose(feet["right"], yaw["right"]), upper_body_vector(arm_q), arm_q, [phase]])
+
+
+def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> np.ndarray:
+    """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
+    the end of the walk (bool array): the nominal walk's answer, computed before the run.
+
+    Without a measured state the answer depends on the tick alone, so the
+    stop-planner system looks it up instead of solving on the tick. Cached per
+    (gait, stop parameters) in the process (a :class:`NominalPattern` is a
+    function of its parameters); about 1.3 s for the default 8.5 s walk.
+    """
+    if type(pattern) is NominalPattern:
+        return _cached_table(pattern.params, params)
+    return _table(pattern, params)
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_table(gait_params, params):
+    table = _table(NominalPattern(gait_params), params)
+    table.flags.writeable = False  # shared between systems
+    return table
+
+
+def _table(pattern, params):
+    dt = params.servo_period
+    ticks = math.ceil(pattern.end_time / dt - 1e-9) + 1  # past the end: "standing"
+    return np.array([one_step_feasible(pattern, k * dt, params) for k in range(ticks)], dtype=bool)
 
 
 class _ReferenceSystem(LeafSystem):
@@ -388,6 +425,7 @@ class StopPlannerSystem(_ReferenceSystem):
         - arm_joints
         - phase
         - plan
+        - one_step_feasible
 
     ``measured_com`` / ``measured_com_vel`` (3 each, optional: a state
     estimate). When connected, the planner low-passes them
@@ -405,6 +443,20 @@ class StopPlannerSystem(_ReferenceSystem):
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
     update fails and the Simulator raises with the planner's message.
+
+    ``one_step_feasible`` (1): before the latch, 1.0 if a stop signal at this
+    tick would stop within one step (the plan's ``case`` would be
+    "one-step"), 0.0 if not ("next-step", the marginal case III.C, or
+    "standing" / "already-stopping"). Each update computes it for a signal
+    at its own tick, from the inputs the latch would plan from at that tick
+    (:meth:`_plan_request`): the nominal walk's answer, looked up in
+    :func:`nominal_one_step_table` (computed at construction), or, when the
+    measured DCM has left the reference by more than ``replan_threshold``,
+    :func:`drake_estop.planning.planner.one_step_feasible` from the measured
+    state, solved on the tick. From the latch on it holds whether the
+    latched stop (the first plan) is one-step; re-plans leave it.  It is
+    discrete state set by the update, so the value published at tick ``t``
+    (e.g. by a logger) is the previous tick's.
 
     Parameters
     ----------
@@ -434,7 +486,8 @@ class StopPlannerSystem(_ReferenceSystem):
     -----
     Output ports: the same reference layout as :class:`WalkingPatternSource`
     (``com`` [m], ``com_vel`` [m/s], ``zmp`` [m], sole poses [m], joint
-    targets [rad], ``phase``) plus the abstract ``plan``. Input ``stop``
+    targets [rad], ``phase``) plus the abstract ``plan`` and
+    ``one_step_feasible`` (1, 0.0 or 1.0). Input ``stop``
     (2) is :class:`EStopTrigger`'s output; ``measured_com`` (3) [m] and
     ``measured_com_vel`` (3) [m/s] are optional.
 
@@ -475,10 +528,14 @@ class StopPlannerSystem(_ReferenceSystem):
         self._bias_state = self.DeclareDiscreteState(4)
         self._filtered_state = self.DeclareDiscreteState(4)
         self._filter_started = self.DeclareDiscreteState(1)
+        # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
+        self._one_step_table = nominal_one_step_table(pattern, params)
+        self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
+        self.one_step_feasible_port = self.DeclareStateOutputPort("one_step_feasible", self._feasible_state)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, timed(self._update, timer))
 
     @property
@@ -523,7 +580,8 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def _filter(self, context, state, track_bias):
         """Low-pass the measured COG (into ``state``); while walking, also the tracking bias against the
-        pattern. Returns this tick's bias-corrected ``(com_xy, com_vel_xy)``, or None without a measurement."""
+        pattern. Returns this tick's filtered COG less the bias learnt up to the previous tick (what a
+        latch on this tick plans from) as ``(com_xy, com_vel_xy)``, or None without a measurement."""
         raw = self._raw_measured(context)
         bias = context.get_discrete_state(self._bias_state).value()
         if raw is None:
@@ -533,16 +591,17 @@ class StopPlannerSystem(_ReferenceSystem):
         filtered = filtered + self._filter_alpha * (raw - filtered) if started else raw
         state.get_mutable_discrete_state(self._filtered_state).set_value(filtered)
         state.get_mutable_discrete_state(self._filter_started).set_value([1.0])
+        corrected = filtered - bias
         if track_bias:
             pos, vel, _, _ = self._pattern.com([context.get_time()])
             bias = bias + self._bias_alpha * (filtered - np.concatenate([pos[0], vel[0]]) - bias)
             state.get_mutable_discrete_state(self._bias_state).set_value(bias)
-        corrected = filtered - bias
         return corrected[:2], corrected[2:]
 
     def _update(self, context, state):
         """Plan on the first tick that sees the latched stop; then re-plan (at most once a tick)
-        while the measured DCM leaves the plan's by more than ``replan_threshold``."""
+        while the measured DCM leaves the plan's by more than ``replan_threshold``. Before the
+        latch, decide whether a signal at this tick would stop in one step."""
         handle = self._handle(context)
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
         measured = self._filter(context, state, track_bias=not latched)
@@ -550,16 +609,17 @@ class StopPlannerSystem(_ReferenceSystem):
             self._maybe_replan(context, state, handle, measured)
             return EventStatus.Succeeded()
         if not latched:
+            t = context.get_time()
+            feasible = self._one_step_feasible(*self._plan_request(t, t, measured))
+            state.get_mutable_discrete_state(self._feasible_state).set_value([float(feasible)])
             return EventStatus.Succeeded()
-        now = max(signal_time, context.get_time())
-        if measured is not None and self._deviation(self._pattern, now, measured) <= self._replan_threshold:
-            measured = None  # the robot follows the reference: plan from it, continuous with the command
+        planned_time, measured = self._plan_request(signal_time, max(signal_time, context.get_time()), measured)
         start = time.perf_counter()
         try:
             if measured is None:
-                plan = plan_stop(self._pattern, signal_time, self._params)
+                plan = plan_stop(self._pattern, planned_time, self._params)
             else:  # from the state measured now (this tick, at or after the signal's)
-                plan = plan_stop(self._pattern, now, self._params, measured=measured)
+                plan = plan_stop(self._pattern, planned_time, self._params, measured=measured)
                 plan.signal_time = min(plan.signal_time, signal_time)
         except (InfeasibleStop, ValueError) as error:
             # raised, not returned as EventStatus.Failed: Drake formats a failed status's message by
@@ -570,7 +630,33 @@ class StopPlannerSystem(_ReferenceSystem):
         handle = _PlanHandle(plan, time.perf_counter() - start,
                              blend=None if measured is None else self._blend_into(context, plan))
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
+        state.get_mutable_discrete_state(self._feasible_state).set_value([float(plan.case == "one-step")])
         return EventStatus.Succeeded()
+
+    def _plan_request(self, signal_time, now, measured):
+        """What a latch at tick ``now`` of a signal at ``signal_time`` plans from: ``(time, measured)``.
+
+        The signal's tick and the reference (``measured`` None) while the
+        measured DCM ``x + v / omega`` stays within ``replan_threshold`` of
+        the reference's (the robot follows it: the plan is continuous with the
+        command); else tick ``now`` and the measured ``(com_xy, com_vel_xy)``.
+        Used by the latch and by the one-step feasibility of every tick.
+        """
+        if measured is not None and self._deviation(self._pattern, now, measured) <= self._replan_threshold:
+            measured = None
+        return (signal_time, None) if measured is None else (now, measured)
+
+    def _one_step_feasible(self, t, measured):
+        """``one_step_feasible(pattern, t, params, measured=measured)``: looked up for the nominal walk."""
+        if measured is None:
+            k = int(round(snap_to_tick(t, self._params.servo_period) / self._params.servo_period))
+            if 0 <= k < len(self._one_step_table):
+                return bool(self._one_step_table[k])
+        return one_step_feasible(self._pattern, t, self._params, measured=measured)
+
+    def one_step_feasible(self, context) -> bool:
+        """The ``one_step_feasible`` output in ``context`` as a bool."""
+        return bool(context.get_discrete_state(self._feasible_state).value()[0] > 0.5)
 
     @staticmethod
     def _deviation(reference, t, measured):

@@ -15,7 +15,12 @@ all geometry once and animates it with transforms and visibility:
 * spheres for the current COG (and its floor projection) and ZMP, moved every
   publish;
 * the current phase as a text plate (a textured quad per phase, generated
-  with matplotlib), only the current one visible.
+  with matplotlib), only the current one visible;
+* the one-step indicator (input ``one_step_feasible``): a sphere above the
+  robot's head and a plate under the phase plate, green "stop now: one step"
+  when a stop signal at this tick would stop within one step, amber "stop
+  now: next step" when it would finish the step first (III.C); after the
+  latch, the latched stop's case.
 
 :func:`make_meshcat` opens a Meshcat server with a clear error when the port
 is taken; :func:`write_replay` writes a self-contained HTML replay.
@@ -52,6 +57,10 @@ _POLYGON_RGBA = Rgba(0.85, 0.1, 0.85, 1.0)
 _PHASE_COLOURS = {"walking": "#00838f", "landing": "#e08a00", "transition": "#c2185b",
                   "slowdown": "#d32f2f", "halt": "#6a1b9a", "stopped": "#2e7d32"}
 _TRACE_Z = 0.002  # lines slightly above the floor
+#: one-step indicator: value of the ``one_step_feasible`` input -> (name, plate text, colour)
+ONE_STEP_INDICATOR = {True: ("one_step", "stop now: one step", "#2e7d32"),
+                      False: ("next_step", "stop now: next step", "#cc7a00")}
+_INDICATOR_HEIGHT = 1.62  # [m] the sphere's height, over the head (HRP-2 class: 1.54 m tall)
 
 
 # --------------------------------------------------------------------------
@@ -173,7 +182,12 @@ def _sole_loop(sole, ankle_xy, side, yaw=0.0):
 
 
 def _phase_plate(directory, phase):
-    """OBJ file of a quad textured with the phase name (matplotlib PNG).
+    """OBJ file of a quad textured with the phase name (matplotlib PNG)."""
+    return _text_plate(directory, phase, phase, _PHASE_COLOURS[phase], 44)
+
+
+def _text_plate(directory, name, text, colour, fontsize):
+    """OBJ file ``name.obj`` of a quad textured with ``text`` (matplotlib PNG).
 
     Draws on a bare ``Figure`` (Agg canvas): no pyplot, so the user's
     matplotlib backend (e.g. a notebook's inline one) is left alone.
@@ -181,19 +195,18 @@ def _phase_plate(directory, phase):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    png = Path(directory) / f"{phase}.png"
+    png = Path(directory) / f"{name}.png"
     fig = Figure(figsize=(4, 1), dpi=100)
     FigureCanvasAgg(fig)
     fig.patch.set_facecolor("white")
-    fig.text(0.5, 0.5, phase, ha="center", va="center", fontsize=44,
-             color=_PHASE_COLOURS[phase], weight="bold")
+    fig.text(0.5, 0.5, text, ha="center", va="center", fontsize=fontsize, color=colour, weight="bold")
     fig.savefig(png, facecolor="white")
-    (Path(directory) / f"{phase}.mtl").write_text(
+    (Path(directory) / f"{name}.mtl").write_text(
         f"newmtl plate\nKa 1 1 1\nKd 1 1 1\nmap_Kd {png.name}\n")
-    obj = Path(directory) / f"{phase}.obj"
+    obj = Path(directory) / f"{name}.obj"
     # 0.6 m x 0.15 m plate in the x-z plane facing -y (the side camera).
     obj.write_text(
-        f"mtllib {phase}.mtl\n"
+        f"mtllib {name}.mtl\n"
         "v -0.3 0 0\nv 0.3 0 0\nv 0.3 0 0.15\nv -0.3 0 0.15\n"
         "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 -1 0\nusemtl plate\n"
         "f 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
@@ -240,8 +253,11 @@ class StopVisualizer(LeafSystem):
         - zmp
         - phase
         - plan
+        - one_step_feasible
 
-    ``plan`` is the StopPlannerSystem's abstract ``plan`` output.  Publishes
+    ``plan`` is the StopPlannerSystem's abstract ``plan`` output;
+    ``one_step_feasible`` its output of that name (optional: unconnected, no
+    one-step indicator is drawn).  Publishes
     every ``publish_period`` with the context time as the recording time.
     Everything it needs to remember lives in the Meshcat scene (paths that
     exist), never in Python attributes.
@@ -265,7 +281,9 @@ class StopVisualizer(LeafSystem):
     Notes
     -----
     Inputs: ``com`` (3) [m], ``zmp`` (2) [m], ``phase`` (1) index into
-    ``PHASES``, ``plan`` (abstract).
+    ``PHASES``, ``plan`` (abstract), ``one_step_feasible`` (1, > 0.5: a stop
+    now stops in one step). The indicator lives under ``<prefix>/one_step``:
+    ``one_step`` (green) or ``next_step`` (amber) visible, the other hidden.
     """
 
     def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
@@ -281,6 +299,7 @@ class StopVisualizer(LeafSystem):
         self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
         self.phase_port = self.DeclareVectorInputPort("phase", 1)
         self.plan_port = self.DeclareAbstractInputPort("plan", AbstractValue.Make(None))
+        self.one_step_feasible_port = self.DeclareVectorInputPort("one_step_feasible", 1)
         self._plates = tempfile.mkdtemp(prefix="estop_phase_")
         self.DeclareInitializationPublishEvent(self._initialize)
         self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
@@ -311,6 +330,12 @@ class StopVisualizer(LeafSystem):
             path = f"{p}/phase/{phase}"
             m.SetObject(path, Mesh(str(_phase_plate(self._plates, phase))))
             m.SetProperty(path, "visible", False, 0.0)
+        if self.one_step_feasible_port.HasValue(context):
+            for name, text, colour in ONE_STEP_INDICATOR.values():
+                path = f"{p}/one_step/{name}"
+                m.SetObject(f"{path}/plate", Mesh(str(_text_plate(self._plates, name, text, colour, 24))))
+                m.SetObject(f"{path}/sphere", Sphere(0.04), Rgba(*_rgb(colour), 1.0))
+                m.SetProperty(path, "visible", False, 0.0)
         return EventStatus.Succeeded()
 
     def _draw_plan(self, plan):
@@ -339,6 +364,7 @@ class StopVisualizer(LeafSystem):
         self._move_markers(context, t)
         self._switch_polygon(plan, t)
         self._switch_phase(context, plan, t)
+        self._show_one_step(context, t)
         return EventStatus.Succeeded()
 
     def _move_markers(self, context, t):
@@ -350,6 +376,11 @@ class StopVisualizer(LeafSystem):
         m.SetTransform(f"{p}/zmp", RigidTransform([zmp[0], zmp[1], 0.01]), t)
         plate = [com[0] - 0.55, -0.3, 1.3] if self._follow else [com[0], -0.35, 1.75]  # in the camera's view
         m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
+        if self.one_step_feasible_port.HasValue(context):  # plate under the phase plate, sphere over the head
+            m.SetTransform(f"{self._prefix}/one_step", RigidTransform([plate[0], plate[1], plate[2] - 0.17]), t)
+            sphere = RigidTransform([com[0] - plate[0], com[1] - plate[1], _INDICATOR_HEIGHT - plate[2] + 0.17])
+            for name, _, _ in ONE_STEP_INDICATOR.values():
+                m.SetTransform(f"{self._prefix}/one_step/{name}/sphere", sphere, t)
         if self._follow:
             start = self._pattern.com([0.0])[0][0]
             lateral = start[1] - com[1] if self._pattern_lateral else 0.0  # turning / side-stepping walks
@@ -372,6 +403,14 @@ class StopVisualizer(LeafSystem):
                 m.SetProperty(old, "visible", False, t)
         m.SetProperty(path, "visible", True, t)
 
+    def _show_one_step(self, context, t):
+        """Show the indicator of the ``one_step_feasible`` input, hide the other."""
+        if not self.one_step_feasible_port.HasValue(context):
+            return
+        feasible = bool(self.one_step_feasible_port.Eval(context)[0] > 0.5)
+        for value, (name, _, _) in ONE_STEP_INDICATOR.items():
+            self._meshcat.SetProperty(f"{self._prefix}/one_step/{name}", "visible", value == feasible, t)
+
     def _switch_phase(self, context, plan, t):
         phase = PHASES[int(round(self.phase_port.Eval(context)[0]))]
         previous = plan.phase(t - self._period) if plan is not None and t > 0 else "walking"
@@ -379,6 +418,11 @@ class StopVisualizer(LeafSystem):
         if previous != phase:
             m.SetProperty(f"{p}/{previous}", "visible", False, t)
         m.SetProperty(f"{p}/{phase}", "visible", True, t)
+
+
+def _rgb(colour):
+    """(r, g, b) in [0, 1] of a "#rrggbb" colour."""
+    return tuple(int(colour[i:i + 2], 16) / 255.0 for i in (1, 3, 5))
 
 
 def set_side_camera(meshcat, x_center=1.2):
