@@ -28,7 +28,7 @@ from drake_estop.planning.gait import (
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.heading import FramedPattern, HeadingFrame, stop_heading
 from drake_estop.planning.lipm import LipmTrajectory
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop, stop_problem
 from drake_estop.planning.rollout import rollout, stride_ticks
 
 GAITS = {
@@ -135,6 +135,13 @@ def test_one_step_wherever_a_generic_solver_finds_one(gait_plans):
         frame = HeadingFrame(stop_heading(state))
         problem, kind, _ = stop_problem(FramedPattern(pattern, frame), frame.state(state), PARAMS)
         assert reference_solve(problem, kind, margin=0.005) is None, (name, plan.signal_time)
+
+
+def test_one_step_feasible_agrees_with_the_planner_on_turning_walks(gait_plans):
+    name, pattern, plans = gait_plans
+    for plan in plans:
+        feasible = one_step_feasible(pattern, plan.signal_time, PARAMS)
+        assert feasible == (plan.case == "one-step"), (name, plan.signal_time)
 
 
 def test_turning_stops_keep_the_straight_walks_one_step_share():
