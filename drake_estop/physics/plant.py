@@ -53,6 +53,7 @@ from drake_estop.model import (
     RIGHT_SOLE,
     load_humanoid,
 )
+from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import snap_to_tick
 
 SIDES = ("left", "right")
@@ -403,7 +404,7 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
     simulator.set_monitor(monitor)
     start = time.perf_counter()
     try:
-        simulator.AdvanceTo(planned_by + _LONGEST_STOP + after_halt)  # the monitor ends it first
+        simulator.AdvanceTo(planned_by + LONGEST_STOP + after_halt)  # the monitor ends it first
     finally:
         simulator.clear_monitor()
     plan = current_plan(planner_context)
@@ -413,9 +414,6 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
         raise RuntimeError(f"the stop did not end by t = {context.get_time():.3f} s")
     return plan, time.perf_counter() - start
 
-
-#: [s] an upper bound on signal-to-halt-end of any stop, re-plans included
-_LONGEST_STOP = 10.0
 
 
 class DesiredStateInterpolator(LeafSystem):

@@ -19,6 +19,10 @@ from drake_estop.planning import lipm
 from drake_estop.planning.gait import ARM_NEUTRAL, NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
 
+#: [s] an upper bound on signal-to-halt-end of any stop (two steps and the longest halt, re-plans
+#: included): the simulations advance at most this far past the walk's end or the planned halt
+LONGEST_STOP = 10.0
+
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 """Phase labels; the planner's ``phase`` output port is an index into this tuple."""
 

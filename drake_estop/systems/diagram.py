@@ -36,6 +36,7 @@ from drake_estop.model import (
     load_humanoid,
 )
 from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import PHASES, StopParameters
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.stop_controller import (
@@ -341,13 +342,10 @@ def run(handles, *, after_halt=1.0, realtime_rate=0.0):
     start = time.perf_counter()
     simulator.Initialize()
     # the bound is never reached: the walk's end (where the latest stop ends) plus the longest stop
-    simulator.AdvanceTo(_end_time(handles, context, after_halt) + _LONGEST_STOP)
+    simulator.AdvanceTo(_end_time(handles, context, after_halt) + LONGEST_STOP)
     simulator.clear_monitor()
     return simulator, time.perf_counter() - start
 
-
-#: [s] an upper bound on signal-to-halt-end of any stop (two steps and the longest halt)
-_LONGEST_STOP = 10.0
 
 
 def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html=None,
