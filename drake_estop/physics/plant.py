@@ -226,18 +226,24 @@ class CopEstimator(LeafSystem):
         moment, force = np.zeros(3), np.zeros(3)
         per_body = np.zeros(len(self._bodies))
         count = 0
+        points, forces = [], []
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
             sign, body = self._robot_side(int(info.bodyA_index()), int(info.bodyB_index()))
             if sign == 0.0:
                 continue
             f = sign * info.contact_force()
-            p = info.contact_point()
-            force += f
-            moment += np.cross(p, f)
+            points.append(info.contact_point())
+            forces.append(f)
             count += 1
             if body in self._bodies:
                 per_body[self._bodies.index(body)] += f[2]
+        if forces:  # one vectorised sum of p x f (a per-contact np.cross cost ~10 % of the physics loop)
+            p, f = np.array(points), np.array(forces)
+            force += f.sum(axis=0)
+            moment += np.array([np.dot(p[:, 1], f[:, 2]) - np.dot(p[:, 2], f[:, 1]),
+                                np.dot(p[:, 2], f[:, 0]) - np.dot(p[:, 0], f[:, 2]),
+                                np.dot(p[:, 0], f[:, 1]) - np.dot(p[:, 1], f[:, 0])])
         for i in range(results.num_hydroelastic_contacts()):
             info = results.hydroelastic_contact_info(i)
             surface = info.contact_surface()
