@@ -40,6 +40,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
+from drake_estop.planning.brake import held_brake, shortest_stop, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
@@ -260,6 +261,10 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
     w = pattern.w
     sole = pattern.params.sole
     t_solve = time.perf_counter()
+    if params.objective == "time":  # the soonest rest (planning/brake.py); else the paper's landing below
+        plan = _time_plan(pattern, state, params, signal_time, case, t_solve)
+        if plan is not None:
+            return plan
     problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
         landing_y = capture_landing_y(pattern, state, solution.landing)
@@ -281,6 +286,10 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
         final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
         final_yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
         landing_xy, landing_foot = None, None
+    if params.objective == "time" and kind == "single":  # the paper's landing, then the brake
+        plan = _time_plan(pattern, state, params, signal_time, case, t_solve, (step_length, solution.landing))
+        if plan is not None:
+            return plan
     solve_time = time.perf_counter() - t_solve
 
     t0 = state.time
@@ -343,6 +352,96 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
         lateral_margin += deficit + 5e-4
     raise InfeasibleStop(f"zmp_margin: the planned ZMP comes {plan.min_zmp_margin * 1e3:.1f} mm from the support "
                          f"polygon's edge (zmp_margin {params.zmp_margin * 1e3:.1f} mm)")
+
+
+def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing=None):
+    """The time objective's plan (:mod:`drake_estop.planning.brake`): the soonest rest at the feet's
+    midpoint with the ZMP ``zmp_margin`` inside the support polygon. Double support: from ``state``.
+    Single support: over the landing choices, or at the paper's ``paper_landing`` = ``(step length,
+    touchdown from the start)`` if given. None where no brake fits (the caller falls back)."""
+    w = pattern.w
+    sole = pattern.params.sole
+    zmp = np.asarray(state.zmp[:2], float)
+    single = state.support == "single"
+    if not single:
+        feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
+        yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
+        polygon = soles_polygon(sole, tuple((s, float(feet[s][0]), float(feet[s][1]), yaw[s]) for s in feet))
+        required = min(params.zmp_margin, float(polygon.margin(zmp)[0]))  # or the walk's own margin at the start
+        found = stop_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel,
+                           [0.5 * (feet["left"] + feet["right"])], [polygon], params, w, required)
+        return None if found is None else _brake_plan(pattern, state, params, signal_time, case, t_solve,
+                                                      found[1], feet, yaw, None, polygon, required)
+    support = state.support_foot
+    swing = "right" if support == "left" else "left"
+    yaw = {support: float(state.feet_yaw[support]), swing: float(state.next_landing_yaw)}
+    ankle = (support, float(state.feet[support][0]), float(state.feet[support][1]), yaw[support])
+    support_polygon = soles_polygon(sole, (ankle,))
+
+    def polygon_for(landing_xy):
+        landed = (swing, float(landing_xy[0]), float(landing_xy[1]), yaw[swing])
+        return soles_polygon(sole, (ankle, landed) if support == "left" else (landed, ankle))
+
+    required = min(params.zmp_margin, float(support_polygon.margin(zmp)[0]))
+    landing_y = float(state.next_landing[1])
+    if paper_landing is not None:  # (the paper's solve moved next_landing already if the capture point asked)
+        landing = np.array([float(zmp[0]) + paper_landing[0], landing_y])
+        brake = held_brake(state.com, state.com_vel, zmp, landing, paper_landing[1], polygon_for(landing), params,
+                           w, required)
+    else:
+        def search(y):
+            return swing_brake(state.com, state.com_vel, zmp, state.feet[swing][:2], y,
+                               descent_time(float(state.feet[swing][2]), params), support_polygon, polygon_for,
+                               params, w, required)
+
+        brake = search(landing_y)
+        if brake is not None:  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
+            shifted = capture_landing_y(pattern, state, brake.ends[0])
+            if shifted is not None and abs(shifted - landing_y) > 1e-9:
+                landing_y, brake = shifted, search(shifted)
+    if brake is None:
+        return None
+    landing_xy = np.array([brake.landing_x, landing_y])
+    feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
+    return _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, feet, yaw, swing,
+                       polygon_for(landing_xy), required)
+
+
+def _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, final_feet, final_yaw, landing_foot,
+                polygon, required):
+    """The :class:`StopPlan` of a :class:`~drake_estop.planning.brake.Brake` from ``state``."""
+    w = pattern.w
+    t0 = state.time
+    solve_time = time.perf_counter() - t_solve
+    midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
+    x_traj, y_traj = (
+        lipm.LipmTrajectory.from_zmp(t0, brake.durations + [1.0], brake.coeffs[a] + [lipm.pad([midpoint[a]])],
+                                     state.com[a], state.com_vel[a], w, rest_tail=True)  # at rest: eq. 27-28
+        for a in (0, 1))
+    landing, transition, slowdown, halt = (t0 + e for e in brake.ends)
+    single = landing_foot is not None
+    plan = StopPlan(
+        signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
+        start_support=state.support, landing_time=landing, transition_end=transition, slowdown_end=slowdown,
+        halt_end=halt, step_length=brake.landing_x - float(state.zmp[0]) if single else None,
+        zmp_max=None,
+        landing_foot=landing_foot, landing_position=final_feet[landing_foot] if single else None,
+        final_feet=final_feet, x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
+        solve_time=solve_time, cost=brake.duration,  # the time objective: time to rest from the plan start
+        final_yaw=final_yaw,
+    )
+    if single:
+        plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
+                            "acc": state.feet_acc[landing_foot]}
+    plan.upper_body_peak = state.upper_body + state.upper_body_rate * (slowdown - t0) / 3.0  # eq. 33
+    if not single:  # ZMP_max: the largest sagittal ZMP displacement from the start (eq. 29's role)
+        ticks = t0 + params.servo_period * np.arange(int(round((halt - t0) / params.servo_period)) + 1)
+        plan.zmp_max = float(np.max(_zmp_at(x_traj, ticks))) - float(state.zmp[0])
+    plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
+    if not plan.min_zmp_margin >= required - 1e-9:  # NaN too: never hand out such a plan
+        raise InfeasibleStop(f"zmp_margin: the brake's ZMP comes {plan.min_zmp_margin * 1e3:.1f} mm from the "
+                             f"support polygon's edge (zmp_margin {params.zmp_margin * 1e3:.1f} mm)")
+    return plan
 
 
 def _verify_zmp(plan: StopPlan, final_polygon: SupportPolygon | None = None) -> float:
@@ -478,13 +577,40 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             t = max(snap_to_tick(pattern.steps[index]["touchdown"], dt), t + dt)
             continue
         try:
-            return _finish(_plan_from(pattern, state, params, t0, case), wall)
+            plan = _plan_from(pattern, state, params, t0, case)
+            if params.objective == "time" and support == "single" and case == "one-step":
+                plan = _sooner_by_finishing_the_step(pattern, plan, params, t0, measured, index)
+            return _finish(plan, wall)
         except InfeasibleStop as error:
             reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     detail = f"; at the signal: {reasons[0]}; last try: {reasons[-1]}" if reasons else ""
     raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s{detail}")
+
+
+def _sooner_by_finishing_the_step(pattern, plan, params, t0, measured, index):
+    """Time objective, single support: finishing the nominal step and stopping from its touchdown
+    (III.C's stop) lands sooner than ``plan`` (the nominal touchdown is closer than the shortest
+    re-planned landing allows), so it may also rest sooner; take it then, unless the paper's
+    objective stops in one step from the signal (a plan is then one-step wherever the paper's is)."""
+    touchdown = max(snap_to_tick(pattern.steps[index]["touchdown"], params.servo_period), t0 + params.servo_period)
+    if touchdown >= plan.landing_time - 1e-9 or touchdown + shortest_stop(params) >= plan.halt_end - 1e-9:
+        return plan
+    state = pattern.state(touchdown)
+    if measured is not None:
+        state = _with_deviation(state, pattern, t0, measured)
+    try:
+        finished = _plan_from(pattern, state, params, t0, "next-step")
+    except InfeasibleStop:
+        return plan
+    if finished.halt_end >= plan.halt_end - 1e-9:
+        return plan
+    try:
+        _plan_from(pattern, plan.start_state, replace(params, objective="paper"), t0, "one-step")
+    except InfeasibleStop:
+        return finished
+    return plan
 
 
 def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, measured) -> PatternState:
