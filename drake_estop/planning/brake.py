@@ -165,6 +165,12 @@ def _stop_table(w, dt, ramps, catches, returns, hold_min, hold_max):
             "decay": np.exp(-w * total)}
 
 
+def moving_zmp(rate, accel) -> bool:
+    """Whether a ZMP rate [m/s] and acceleration [m/s^2] ((2,) each) are more than rounding noise."""
+    rate, accel = (np.abs(np.asarray(v, float)[:2]) for v in (rate, accel))
+    return bool(np.any(rate > 1e-9) or np.any(accel > 1e-7))
+
+
 def shortest_stop(params) -> float:
     """The shortest chain :func:`stop_brake` considers [s] (a lower bound on its time to rest)."""
     dt = params.servo_period
@@ -201,7 +207,7 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
                     float(min(params.max_slowdown_time, STOP_HOLD_MAX)))
     planes = stack_halfplanes(polygons)
     start_margin = stacked_margin(planes, np.broadcast_to(zmp, (rows, 1, 2)))[:, 0]
-    curved = bool(np.any(rate != 0.0) or np.any(accel != 0.0))
+    curved = moving_zmp(rate, accel)
     best = None
     for low in range(0, len(t["total"]), CHUNK):
         if best is not None and float(lead.min() + t["total"][low]) >= best[0] - 1e-9:
@@ -255,30 +261,32 @@ def _segment_margin(coeffs, j, duration, polygon, dt):
     return float(polygon.margin(points).min())
 
 
-def _landings(zmp, swing_xy, landing_y, min_landing, params):
+def _landings(ankle, swing_xy, landing_y, min_landing, params):
     """Step lengths on the grid within the step-length and rear-reach limits (the COG rests at the
-    midpoint, half a step ahead of the support ankle ``zmp``), their landing ankles and the earliest
+    midpoint, half a step ahead of the support ``ankle``), their landing ankles and the earliest
     touchdown on the servo grid each allows (``min_landing_time``, ``min_landing``, the mean swing
     speed from ``swing_xy``), at most ``max_landing_time``."""
     dt = params.servo_period
     steps = np.arange(params.min_step_length, params.max_step_length + 1e-9, STEP_GRID)
     steps = steps[0.5 * steps <= params.max_rear_reach]
-    landing = np.stack([zmp[0] + steps, np.full_like(steps, landing_y)], axis=1)
+    landing = np.stack([ankle[0] + steps, np.full_like(steps, landing_y)], axis=1)
     swing = np.hypot(*(landing - swing_xy).T) / params.max_swing_speed
     t1 = np.ceil(np.maximum(swing, max(params.min_landing_time, min_landing)) / dt - 1e-9) * dt
     keep = t1 <= params.max_landing_time + 1e-9
     return steps[keep], landing[keep], t1[keep]
 
 
-def held_brake(com, com_vel, zmp, landing, touchdown, polygon, params, w: float, required: float) -> Brake | None:
+def held_brake(com, com_vel, zmp, ankle, landing, touchdown, polygon, params, w: float,
+               required: float) -> Brake | None:
     """Single support with a given landing (the paper's: ``landing`` (2,) the landing ankle [m] at
-    ``touchdown`` [s] from the start): the ZMP held at the support ankle ``zmp`` until the touchdown
-    (eq. 19), then :func:`stop_brake` to rest at the midpoint with the ZMP ``required`` [m] inside
-    ``polygon`` (both soles'). ``com, com_vel`` (2,): the COG at the start. None if no candidate fits."""
-    com, com_vel, zmp, landing = (np.asarray(v, float)[:2] for v in (com, com_vel, zmp, landing))
+    ``touchdown`` [s] from the start): the ZMP held where it is, ``zmp``, until the touchdown
+    (eq. 19), then :func:`stop_brake` to rest at the midpoint between the support ``ankle`` and the
+    landing with the ZMP ``required`` [m] inside ``polygon`` (both soles'). ``com, com_vel`` (2,):
+    the COG at the start. None if no candidate fits."""
+    com, com_vel, zmp, ankle, landing = (np.asarray(v, float)[:2] for v in (com, com_vel, zmp, ankle, landing))
     ch, sh = math.cosh(w * touchdown), math.sinh(w * touchdown)  # the COG at the touchdown (eq. 6, 9)
     found = stop_brake(zmp + (com - zmp) * ch + com_vel / w * sh, (com - zmp) * w * sh + com_vel * ch, zmp,
-                       np.zeros(2), np.zeros(2), [0.5 * (landing + zmp)], [polygon], params, w, required)
+                       np.zeros(2), np.zeros(2), [0.5 * (landing + ankle)], [polygon], params, w, required)
     if found is None:
         return None
     brake = found[1]
@@ -306,33 +314,43 @@ def _swing_table(w, dt, ramps, returns, hold_min, hold_max):
     return {"r1": r1, "h": h, "r3": r3, "total": total, "fwd": fwd, "bwd": bwd, "decay": np.exp(-w * total)}
 
 
-def swing_brake(com, com_vel, zmp, swing_xy, landing_y, min_landing, support_polygon, polygon_for, params,
-                w: float, required: float) -> Brake | None:
+def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
+                polygon_for, params, w: float, required: float) -> Brake | None:
     """Single support: the soonest rest over the landing choices (step lengths on a grid, the earliest
-    touchdown each allows) with the ZMP chain ``ankle -> a (held) -> touchdown -> c (held) -> m``.
+    touchdown each allows) with the ZMP chain ``ZMP -> a (held) -> touchdown -> c (held) -> m``.
 
-    ``com, com_vel, zmp`` (2,): the COG and the ZMP (the support ankle, at rest: eq. 19's phase) at
-    the plan start; ``swing_xy``: the swing ankle; ``landing_y``: the landing ankle's y [m];
-    ``min_landing`` [s]: the shortest touchdown the swing foot's height allows; ``support_polygon``:
-    the support sole's; ``polygon_for(landing_xy)``: both soles' with the swing foot landed there.
-    Limits: ``min/max_step_length`` (from the support ankle), ``min/max_landing_time``,
-    ``max_swing_speed``, ``max_fore_reach`` (landing ankle ahead of the COG at touchdown),
-    ``max_rear_reach`` (the COG at rest at the midpoint ahead of the support ankle),
+    ``com, com_vel, zmp, zmp_rate, zmp_accel`` (2,): the COG and the ZMP at the plan start (the ZMP
+    on the support sole: at the ankle and at rest where the walk is interrupted, eq. 19);
+    ``ankle``: the support ankle; ``swing_xy``: the swing ankle; ``landing_y``: the landing ankle's
+    y [m]; ``min_landing`` [s]: the shortest touchdown the swing foot's height allows;
+    ``support_polygon``: the support sole's; ``polygon_for(landing_xy)``: both soles' with the swing
+    foot landed there. Limits: ``min/max_step_length`` (from the support ankle),
+    ``min/max_landing_time``, ``max_swing_speed``, ``max_fore_reach`` (landing ankle ahead of the COG
+    at touchdown), ``max_rear_reach`` (the COG at rest at the midpoint ahead of the support ankle),
     ``min_transition_time`` (every transition). Returns None where no candidate keeps ``required`` [m]."""
-    com, com_vel, zmp, swing_xy = (np.asarray(v, float)[:2] for v in (com, com_vel, zmp, swing_xy))
+    com, com_vel, zmp, rate, accel, ankle, swing_xy = (np.asarray(v, float)[:2] for v in (
+        com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy))
     dt = params.servo_period
     ramp = _ticks(params, (1.0,))[0]  # the ZMP's transition on the support sole
-    steps, landing, t1 = _landings(zmp, swing_xy, landing_y, max(min_landing, ramp + dt), params)
+    steps, landing, t1 = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params)
     if not len(steps):
         return None
     t = _swing_table(float(w), float(dt), _ticks(params, RAMP_FACTORS), _ticks(params, RETURN_FACTORS[:1]),
                      float(params.min_slowdown_time), float(min(params.max_slowdown_time, SWING_HOLD_MAX)))
     start_margin = float(np.min(support_polygon._offsets - support_polygon._normals @ zmp))
+    ramp_fwd, ramp_bwd = _ramp_moments(float(w), float(ramp))
+    # the start ZMP's rate and acceleration ride on the first transition (eq. 12-14): per axis, their
+    # part of the forward and backward integrals (the backward one to be scaled by exp(-w hold))
+    carried = rate * ramp, accel * ramp * ramp
+    carried_fwd = carried[0] * ramp_fwd[RATE] + carried[1] * ramp_fwd[ACCEL]
+    carried_bwd = carried[0] * ramp_bwd[RATE] + carried[1] * ramp_bwd[ACCEL]
+    curved = moving_zmp(rate, accel)
+    support_planes = support_polygon._normals, support_polygon._offsets
 
     def search(rows):
         """The soonest candidate of the step lengths ``rows`` (a Brake) or None."""
-        land, xy, mid = t1[rows], landing[rows], 0.5 * (landing[rows] + zmp)  # the ZMP starts at the support ankle
-        # before the touchdown: the ramp to a over `ramp`, a held for `hold` (moments of its shapes)
+        land, xy, mid = t1[rows], landing[rows], 0.5 * (landing[rows] + ankle)
+        # before the touchdown: the transition to a over `ramp`, a held for `hold` (moments of its shapes)
         hold = land - ramp
         grow, decay_hold, decay_t1 = np.exp(w * land), np.exp(-w * hold), np.exp(-w * land)
         pre_a_fwd = ramp_fwd[SIGMA] + math.exp(-w * ramp) * (1.0 - decay_hold)
@@ -345,16 +363,19 @@ def swing_brake(com, com_vel, zmp, swing_xy, landing_y, min_landing, support_pol
         # both axes at once: (axis, step length, candidate), relative to the midpoint
         m = mid.T[:, :, None]
         q0 = zmp[:, None, None] - m
-        rhs_f = (com + com_vel / w)[:, None, None] - m - q0 * (ramp_fwd[ONE] - ramp_fwd[SIGMA])
+        rhs_f = (com + com_vel / w - carried_fwd)[:, None, None] - m - q0 * (ramp_fwd[ONE] - ramp_fwd[SIGMA])
         rhs_b = (-((com - com_vel / w)[:, None, None] - m) * decay_t1[None, :, None]
-                 - q0 * (decay_hold * (ramp_bwd[ONE] - ramp_bwd[SIGMA]))[None, :, None]) * decay
+                 - (q0 * (ramp_bwd[ONE] - ramp_bwd[SIGMA]) + carried_bwd[:, None, None])
+                 * decay_hold[None, :, None]) * decay
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             qa, qc = _solve2(a11, a12, a21, bc[None, :], rhs_f, rhs_b)
         a, c = m + qa, m + qc
         # fore reach: the COG at the touchdown (eq. 6; from rest, the response to the ZMP q is
-        # -w int sinh(w (t1 - s)) q(s) ds) at most max_fore_reach behind the landing ankle
-        free = zmp[0] + (com[0] - zmp[0]) * np.cosh(w * land) + com_vel[0] / w * np.sinh(w * land)
-        gain = -0.5 * (grow * pre_a_fwd - pre_a_bwd)  # the COG at the touchdown per metre of a ahead of the ankle
+        # -w int sinh(w (t1 - s)) q(s) ds = -(exp(w t1) F - B) / 2, F and B its forward and
+        # backward integrals) at most max_fore_reach behind the landing ankle
+        free = (zmp[0] + (com[0] - zmp[0]) * np.cosh(w * land) + com_vel[0] / w * np.sinh(w * land)
+                - 0.5 * (grow * carried_fwd[0] - decay_hold * carried_bwd[0]))
+        gain = -0.5 * (grow * pre_a_fwd - pre_a_bwd)  # the COG at the touchdown per metre of a ahead of the ZMP
         cog = free[:, None] + gain[:, None] * (a[0] - zmp[0])
         normals, offsets = support_planes
         margin = np.minimum(np.min(offsets[:, None, None] - normals[:, 0, None, None] * a[0]
@@ -373,26 +394,18 @@ def swing_brake(com, com_vel, zmp, swing_xy, landing_y, min_landing, support_pol
             inside = np.min(offsets[i[n]] - np.einsum("dn,ned->ne", c[:, i[n], k[n]], normals[i[n]]), axis=1)
             both = np.minimum(margin[i[n], k[n]], inside)
             fits = np.nonzero(both >= required)[0]
-            if len(fits):  # among the soonest, the largest margin
-                soonest = min(float(total[low + fits[0]]), best[0] if best is not None else math.inf)
-                fits = fits[total[low + fits] <= soonest + 1e-9]
-                if len(fits):
-                    j = fits[np.argmax(both[fits])]
-                    if best is None or both[j] > best[1]:
-                        best = (soonest, float(both[j]), i[low + j], k[low + j])
-        if best is None:
-            return None
-        _, worst, i, k = best
-        r1, h, r3 = float(t["r1"][k]), float(t["h"][k]), float(t["r3"][k])
-        durations = [ramp, float(hold[i]), r1, h, r3]
-        chain = [zmp, a[:, i, k], a[:, i, k], c[:, i, k], c[:, i, k], mid[i]]
-        coeffs = [[_ramp(chain[j][x], chain[j + 1][x], durations[j]) for j in range(5)] for x in range(2)]  # eq. 12-14
-        touchdown = float(land[i])
-        return Brake(durations, coeffs, (touchdown, touchdown + r1, touchdown + r1 + h, touchdown + r1 + h + r3),
-                     float(xy[i, 0]), worst)
+            for j in fits[np.lexsort((-both[fits], total[low + fits]))]:  # soonest, then the largest margin
+                if best is not None and (total[low + j] > best[0] + 1e-9 or both[j] <= best[1]):
+                    break
+                brake = _swing_chain(t, ramp, i[low + j], k[low + j], land, hold, xy, mid, zmp, rate, accel, a, c,
+                                     float(both[j]))
+                if curved:  # the first transition carries the ZMP's rate and acceleration: check its ticks
+                    brake.margin = min(brake.margin, _segment_margin(brake.coeffs, 0, ramp, support_polygon, dt))
+                if brake.margin >= required:
+                    best = (float(total[low + j]), float(both[j]), brake)
+                    break
+        return None if best is None else best[2]
 
-    ramp_fwd, ramp_bwd = _ramp_moments(float(w), float(ramp))
-    support_planes = support_polygon._normals, support_polygon._offsets
     # the step lengths with the earliest touchdowns first; the later ones only if they can still be sooner
     order = np.argsort(t1, kind="stable")
     first = order[t1[order] <= t1[order[0]] + SWING_FIRST + 1e-9]
@@ -405,3 +418,15 @@ def swing_brake(com, com_vel, zmp, swing_xy, landing_y, min_landing, support_pol
         if other is not None and (best is None or other.duration < best.duration - 1e-9):
             best = other
     return best
+
+
+def _swing_chain(t, ramp, i, k, land, hold, xy, mid, zmp, rate, accel, a, c, margin) -> Brake:
+    """The :class:`Brake` of :func:`swing_brake`'s candidate ``k`` for step length ``i``."""
+    r1, h, r3 = float(t["r1"][k]), float(t["h"][k]), float(t["r3"][k])
+    durations = [ramp, float(hold[i]), r1, h, r3]
+    chain = [zmp, a[:, i, k], a[:, i, k], c[:, i, k], c[:, i, k], mid[i]]
+    coeffs = [[_ramp(chain[j][x], chain[j + 1][x], durations[j], rate[x] if j == 0 else 0.0,  # eq. 12-14
+                     accel[x] if j == 0 else 0.0) for j in range(5)] for x in range(2)]
+    touchdown = float(land[i])
+    return Brake(durations, coeffs, (touchdown, touchdown + r1, touchdown + r1 + h, touchdown + r1 + h + r3),
+                 float(xy[i, 0]), margin)

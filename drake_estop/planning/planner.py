@@ -40,7 +40,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
-from drake_estop.planning.brake import held_brake, shortest_stop, stop_brake, swing_brake
+from drake_estop.planning.brake import held_brake, moving_zmp, shortest_stop, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
@@ -265,6 +265,9 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
         plan = _time_plan(pattern, state, params, signal_time, case, t_solve)
         if plan is not None:
             return plan
+        if state.support == "single" and moving_zmp(state.zmp_rate, state.zmp_accel):
+            # a re-plan while the ZMP moves on the support sole: the paper's landing holds it (eq. 19)
+            raise InfeasibleStop("objective time: no stop from the ZMP moving on the support sole")
     problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
         landing_y = capture_landing_y(pattern, state, solution.landing)
@@ -385,14 +388,16 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
     required = min(params.zmp_margin, float(support_polygon.margin(zmp)[0]))
     landing_y = float(state.next_landing[1])
     if paper_landing is not None:  # (the paper's solve moved next_landing already if the capture point asked)
+        if moving_zmp(state.zmp_rate, state.zmp_accel):
+            return None  # the paper's landing phase holds the ZMP (eq. 19): not from a moving one
         landing = np.array([float(zmp[0]) + paper_landing[0], landing_y])
-        brake = held_brake(state.com, state.com_vel, zmp, landing, paper_landing[1], polygon_for(landing), params,
-                           w, required)
+        brake = held_brake(state.com, state.com_vel, zmp, state.feet[support][:2], landing, paper_landing[1],
+                           polygon_for(landing), params, w, required)
     else:
         def search(y):
-            return swing_brake(state.com, state.com_vel, zmp, state.feet[swing][:2], y,
-                               descent_time(float(state.feet[swing][2]), params), support_polygon, polygon_for,
-                               params, w, required)
+            return swing_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel, state.feet[support][:2],
+                               state.feet[swing][:2], y, descent_time(float(state.feet[swing][2]), params),
+                               support_polygon, polygon_for, params, w, required)
 
         brake = search(landing_y)
         if brake is not None:  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
