@@ -208,3 +208,15 @@ def test_paper_objective_is_the_default(stride_plans):
     assert StopParameters().objective == "paper"
     assert all(plan.params.objective == "paper" for plan in stride_plans)
     assert math.isfinite(stride_plans[0].cost) and stride_plans[0].newton_iterations > 0
+
+
+@pytest.mark.parametrize("margin", [-0.02, math.nan])
+def test_a_plan_failing_the_zmp_verification_is_never_handed_out(pattern, monkeypatch, margin):
+    """The planner's own tick-by-tick ZMP check (_verify_zmp) stands behind the brake's: a plan it
+    rejects (outside the margin, or NaN) raises InfeasibleStop instead of being returned."""
+    from drake_estop.planning import planner
+
+    monkeypatch.setattr(planner, "_verify_zmp", lambda plan, final_polygon=None: margin)
+    for signal in (3.1, 3.55):
+        with pytest.raises(InfeasibleStop):
+            plan_stop(pattern, signal, TIME)

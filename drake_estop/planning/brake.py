@@ -171,13 +171,6 @@ def moving_zmp(rate, accel) -> bool:
     return bool(np.any(rate > 1e-9) or np.any(accel > 1e-7))
 
 
-def shortest_stop(params) -> float:
-    """The shortest chain :func:`stop_brake` considers [s] (a lower bound on its time to rest)."""
-    dt = params.servo_period
-    return (_ticks(params, RAMP_FACTORS)[0] + _grid(dt, params.min_slowdown_time, params.max_slowdown_time)[0]
-            + _ticks(params, CATCH_FACTORS)[0] + _ticks(params, RETURN_FACTORS)[0])
-
-
 def _solve2(a11, a12, a21, a22, b1, b2):
     """``[[a11, a12], [a21, a22]] [u, v] = [b1, b2]`` elementwise (inf / nan where singular)."""
     det = a11 * a22 - a12 * a21

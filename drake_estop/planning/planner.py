@@ -40,7 +40,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
-from drake_estop.planning.brake import held_brake, moving_zmp, shortest_stop, stop_brake, swing_brake
+from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
@@ -582,40 +582,13 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
             t = max(snap_to_tick(pattern.steps[index]["touchdown"], dt), t + dt)
             continue
         try:
-            plan = _plan_from(pattern, state, params, t0, case)
-            if params.objective == "time" and support == "single" and case == "one-step":
-                plan = _sooner_by_finishing_the_step(pattern, plan, params, t0, measured, index)
-            return _finish(plan, wall)
+            return _finish(_plan_from(pattern, state, params, t0, case), wall)
         except InfeasibleStop as error:
             reasons.append(str(error))
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     detail = f"; at the signal: {reasons[0]}; last try: {reasons[-1]}" if reasons else ""
     raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s{detail}")
-
-
-def _sooner_by_finishing_the_step(pattern, plan, params, t0, measured, index):
-    """Time objective, single support: finishing the nominal step and stopping from its touchdown
-    (III.C's stop) lands sooner than ``plan`` (the nominal touchdown is closer than the shortest
-    re-planned landing allows), so it may also rest sooner; take it then, unless the paper's
-    objective stops in one step from the signal (a plan is then one-step wherever the paper's is)."""
-    touchdown = max(snap_to_tick(pattern.steps[index]["touchdown"], params.servo_period), t0 + params.servo_period)
-    if touchdown >= plan.landing_time - 1e-9 or touchdown + shortest_stop(params) >= plan.halt_end - 1e-9:
-        return plan
-    state = pattern.state(touchdown)
-    if measured is not None:
-        state = _with_deviation(state, pattern, t0, measured)
-    try:
-        finished = _plan_from(pattern, state, params, t0, "next-step")
-    except InfeasibleStop:
-        return plan
-    if finished.halt_end >= plan.halt_end - 1e-9:
-        return plan
-    try:
-        _plan_from(pattern, plan.start_state, replace(params, objective="paper"), t0, "one-step")
-    except InfeasibleStop:
-        return finished
-    return plan
 
 
 def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, measured) -> PatternState:
