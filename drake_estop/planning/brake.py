@@ -83,13 +83,15 @@ class Brake:
     ``durations`` [s] and ``coeffs`` (per axis, per segment: ZMP coefficients, eq. 1) of its
     segments; ``ends`` [s]: the ends of the landing, transition, slowdown and halt phases from
     the plan start; ``landing_x`` [m]: the landing ankle's x (single support) or None;
-    ``margin`` [m]: the smallest ZMP margin of the chain inside its polygons."""
+    ``margin`` [m]: the smallest ZMP margin of the chain inside its polygons; ``peak`` [m]: the
+    largest x of its ZMP (:func:`stop_brake`, at the servo ticks; NaN where not computed)."""
 
     durations: list
     coeffs: list
     ends: tuple
     landing_x: float | None
     margin: float
+    peak: float = math.nan
 
     @property
     def duration(self) -> float:
@@ -106,6 +108,15 @@ def _ramp(start, end, duration, rate=0.0, accel=0.0):
     if rate != 0.0 or accel != 0.0:
         unit = unit + rate * duration * lipm.HERMITE_D1 + accel * duration**2 * lipm.HERMITE_D2
     return unit / duration**_POWERS
+
+
+def _ramps(levels, durations, rate, accel):
+    """:func:`_ramp` from each of ``levels`` (n + 1, 2) to the next over ``durations`` (n,), the first
+    carrying the ZMP ``rate`` and ``accel`` (2,): coefficients per axis, per segment."""
+    unit = (levels[:-1, :, None] * _E0 + (levels[1:] - levels[:-1])[:, :, None] * lipm.SMOOTHSTEP)  # (n, axis, 6)
+    unit[0] += (rate[:, None] * durations[0] * lipm.HERMITE_D1 + accel[:, None] * durations[0] ** 2 * lipm.HERMITE_D2)
+    coeffs = unit / (durations[:, None] ** _POWERS)[:, None, :]
+    return [list(coeffs[:, axis]) for axis in range(2)]
 
 
 @functools.lru_cache(maxsize=64)
@@ -177,7 +188,7 @@ def _solve2(a11, a12, a21, a22, b1, b2):
     return (b1 * a22 - a12 * b2) / det, (a11 * b2 - a21 * b1) / det
 
 
-CHUNK = 512  # candidates evaluated at once, shortest first
+CHUNK = 1024  # candidates evaluated at once, shortest first
 LAZY = 64  # swing_brake: candidates whose polygon margin is evaluated at once, soonest first
 
 
@@ -219,7 +230,10 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
                 levels.append((m + c, m + d))
         c = np.stack([levels[0][0], levels[1][0]], axis=-1)  # (rows, candidates, 2)
         d = np.stack([levels[0][1], levels[1][1]], axis=-1)
-        margin = np.minimum(np.minimum(stacked_margin(planes, c), stacked_margin(planes, d)), start_margin[:, None])
+        margin = np.minimum(stacked_margin(planes, c), start_margin[:, None])
+        for i in np.nonzero(np.any(margin >= required, axis=1))[0]:  # d only where c fits
+            fits = margin[i] >= required
+            margin[i, fits] = np.minimum(margin[i, fits], polygons[i].margin(d[i, fits]))
         total = lead[:, None] + t["total"][k][None, :]
         for i, j in _shortest(margin, total, required):
             if best is not None and total[i, j] >= best[0] - 1e-9:
@@ -229,13 +243,14 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
             coeffs = [[_ramp(chain[n][a], chain[n + 1][a], durations[n],  # eq. 12-14
                              rate[a] if n == 0 else 0.0, accel[a] if n == 0 else 0.0)
                        for n in range(4)] for a in range(2)]
-            worst = float(margin[i, j])
+            worst, peak = float(margin[i, j]), max(zmp[0], c[i, j, 0], d[i, j, 0])
             if curved:  # the first transition carries the walk's ZMP rate and acceleration: check its ticks
-                worst = min(worst, _segment_margin(coeffs, 0, durations[0], polygons[i], params.servo_period))
+                points = _segment_points(coeffs, 0, durations[0], params.servo_period)
+                worst, peak = min(worst, float(polygons[i].margin(points).min())), max(peak, points[:, 0].max())
             if worst >= required:
                 r1, h, r2, r3 = durations
                 best = (float(total[i, j]), i, Brake(durations, coeffs, (0.0, r1, r1 + h + r2, r1 + h + r2 + r3),
-                                                     None, worst))
+                                                     None, worst, float(peak)))
                 break
     return None if best is None else best[1:]
 
@@ -248,10 +263,10 @@ def _shortest(margin, total, required):
     return zip(rows[order], cols[order])
 
 
-def _segment_margin(coeffs, j, duration, polygon, dt):
+def _segment_points(coeffs, j, duration, dt):
+    """The ZMP (n, 2) of segment ``j`` of a chain at its servo ticks."""
     tau = dt * np.arange(int(round(duration / dt)) + 1)
-    points = np.stack([lipm.poly_eval(coeffs[a][j], tau) for a in range(2)], axis=1)
-    return float(polygon.margin(points).min())
+    return (tau[:, None] ** _POWERS) @ np.stack([coeffs[0][j], coeffs[1][j]], axis=1)
 
 
 def _landings(ankle, swing_xy, landing_y, min_landing, params):
@@ -368,23 +383,25 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
         # backward integrals) at most max_fore_reach behind the landing ankle
         free = (zmp[0] + (com[0] - zmp[0]) * np.cosh(w * land) + com_vel[0] / w * np.sinh(w * land)
                 - 0.5 * (grow * carried_fwd[0] - decay_hold * carried_bwd[0]))
-        gain = -0.5 * (grow * pre_a_fwd - pre_a_bwd)  # the COG at the touchdown per metre of a ahead of the ZMP
-        cog = free[:, None] + gain[:, None] * (a[0] - zmp[0])
+        gain = -0.5 * (grow * pre_a_fwd - pre_a_bwd)  # the COG at the touchdown per metre of a ahead of the ZMP (< 0)
+        # landing x - (free + gain (a_x - ZMP x)) <= max_fore_reach: a_x at most this far ahead (per step length)
+        farthest = zmp[0] + (xy[:, 0] - params.max_fore_reach - free) / gain
         normals, offsets = support_planes
         margin = np.minimum(np.min(offsets[:, None, None] - normals[:, 0, None, None] * a[0]
                                    - normals[:, 1, None, None] * a[1], axis=0), start_margin)
-        i, k = np.nonzero((margin >= required) & (xy[:, 0][:, None] - cog <= params.max_fore_reach))
+        i, k = np.nonzero((margin >= required) & (a[0] <= farthest[:, None]))
         # c inside both soles' polygon: checked lazily, soonest first (the polygon differs per step length)
         total = land[i] + t["total"][k]
         order = np.argsort(total, kind="stable")
         i, k, total = i[order], k[order], total[order]
-        normals, offsets = stack_halfplanes([polygon_for(p) for p in xy])
         best = None
         for low in range(0, len(i), LAZY):
             if best is not None and total[low] > best[0] + 1e-9:
                 break
             n = slice(low, low + LAZY)
-            inside = np.min(offsets[i[n]] - np.einsum("dn,ned->ne", c[:, i[n], k[n]], normals[i[n]]), axis=1)
+            rows_n, index = np.unique(i[n], return_inverse=True)
+            normals, offsets = stack_halfplanes([polygon_for(xy[r]) for r in rows_n])
+            inside = np.min(offsets[index] - np.einsum("dn,ned->ne", c[:, i[n], k[n]], normals[index]), axis=1)
             both = np.minimum(margin[i[n], k[n]], inside)
             fits = np.nonzero(both >= required)[0]
             for j in fits[np.lexsort((-both[fits], total[low + fits]))]:  # soonest, then the largest margin
@@ -393,7 +410,8 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
                 brake = _swing_chain(t, ramp, i[low + j], k[low + j], land, hold, xy, mid, zmp, rate, accel, a, c,
                                      float(both[j]))
                 if curved:  # the first transition carries the ZMP's rate and acceleration: check its ticks
-                    brake.margin = min(brake.margin, _segment_margin(brake.coeffs, 0, ramp, support_polygon, dt))
+                    points = _segment_points(brake.coeffs, 0, ramp, dt)
+                    brake.margin = min(brake.margin, float(support_polygon.margin(points).min()))
                 if brake.margin >= required:
                     best = (float(total[low + j]), float(both[j]), brake)
                     break
@@ -417,9 +435,8 @@ def _swing_chain(t, ramp, i, k, land, hold, xy, mid, zmp, rate, accel, a, c, mar
     """The :class:`Brake` of :func:`swing_brake`'s candidate ``k`` for step length ``i``."""
     r1, h, r3 = float(t["r1"][k]), float(t["h"][k]), float(t["r3"][k])
     durations = [ramp, float(hold[i]), r1, h, r3]
-    chain = [zmp, a[:, i, k], a[:, i, k], c[:, i, k], c[:, i, k], mid[i]]
-    coeffs = [[_ramp(chain[j][x], chain[j + 1][x], durations[j], rate[x] if j == 0 else 0.0,  # eq. 12-14
-                     accel[x] if j == 0 else 0.0) for j in range(5)] for x in range(2)]
+    chain = np.stack([zmp, a[:, i, k], a[:, i, k], c[:, i, k], c[:, i, k], mid[i]])  # (levels, axis)
+    coeffs = _ramps(chain, np.array(durations), rate, accel)
     touchdown = float(land[i])
     return Brake(durations, coeffs, (touchdown, touchdown + r1, touchdown + r1 + h, touchdown + r1 + h + r3),
                  float(xy[i, 0]), margin)

@@ -64,4 +64,4 @@ def stacked_margin(halfplanes, points) -> np.ndarray:
     """:meth:`SupportPolygon.margin` of ``points[i]`` ((k, n, 2)) in the i-th of k polygons at once,
     given as :func:`stack_halfplanes`; (k, n), NaN for non-finite points."""
     normals, offsets = halfplanes
-    return np.min(offsets[:, None, :] - np.einsum("knd,ked->kne", points, normals), axis=2)
+    return np.min(offsets[:, None, :] - np.matmul(points, normals.transpose(0, 2, 1)), axis=2)

@@ -440,8 +440,7 @@ def _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, final
                             "acc": state.feet_acc[landing_foot]}
     plan.upper_body_peak = state.upper_body + state.upper_body_rate * (slowdown - t0) / 3.0  # eq. 33
     if not single:  # ZMP_max: the largest sagittal ZMP displacement from the start (eq. 29's role)
-        ticks = t0 + params.servo_period * np.arange(int(round((halt - t0) / params.servo_period)) + 1)
-        plan.zmp_max = float(np.max(_zmp_at(x_traj, ticks))) - float(state.zmp[0])
+        plan.zmp_max = brake.peak - float(state.zmp[0])
     plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
     if not plan.min_zmp_margin >= required - 1e-9:  # NaN too: never hand out such a plan
         raise InfeasibleStop(f"zmp_margin: the brake's ZMP comes {plan.min_zmp_margin * 1e3:.1f} mm from the "
