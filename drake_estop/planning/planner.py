@@ -510,14 +510,18 @@ def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> fl
     """Plan once (single and double support) so the compiled solver is loaded before the
     robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
     compile after an install or an edit of the solver), which must not land on the servo
-    tick of a real stop. Returns the seconds it took."""
+    tick of a real stop. The time objective (planning/brake.py) falls back to the compiled
+    solver where its own search finds no stop, so it is warmed up too. Returns the seconds it
+    took."""
     wall = time.perf_counter()
     start, end = pattern.stride()
-    for fraction in (0.3, 0.9):
-        try:
-            plan_stop(pattern, start + fraction * (end - start), params)
-        except InfeasibleStop:
-            pass
+    params = params or StopParameters()
+    for variant in (params, replace(params, objective="paper")) if params.objective != "paper" else (params,):
+        for fraction in (0.3, 0.9):
+            try:
+                plan_stop(pattern, start + fraction * (end - start), variant)
+            except InfeasibleStop:
+                pass
     return time.perf_counter() - wall
 
 
