@@ -290,7 +290,8 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
         final_yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
         landing_xy, landing_foot = None, None
     if params.objective == "time" and kind == "single":  # the paper's landing, then the brake
-        plan = _time_plan(pattern, state, params, signal_time, case, t_solve, (step_length, solution.landing))
+        plan = _time_plan(pattern, state, params, signal_time, case, t_solve,
+                          (step_length, solution.landing, solution.iterations, solution.continuous))
         if plan is not None:
             return plan
     solve_time = time.perf_counter() - t_solve
@@ -361,7 +362,8 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
     """The time objective's plan (:mod:`drake_estop.planning.brake`): the soonest rest at the feet's
     midpoint with the ZMP ``zmp_margin`` inside the support polygon. Double support: from ``state``.
     Single support: over the landing choices, or at the paper's ``paper_landing`` = ``(step length,
-    touchdown from the start)`` if given. None where no brake fits (the caller falls back)."""
+    touchdown from the start, Newton iterations, continuous solution)`` if given. None where no
+    brake fits (the caller falls back)."""
     w = pattern.w
     sole = pattern.params.sole
     zmp = np.asarray(state.zmp[:2], float)
@@ -408,8 +410,11 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
         return None
     landing_xy = np.array([brake.landing_x, landing_y])
     feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
-    return _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, feet, yaw, swing,
+    plan = _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, feet, yaw, swing,
                        polygon_for(landing_xy), required)
+    if paper_landing is not None:  # the landing came from the paper's solve (III.A)
+        plan.newton_iterations, plan.continuous_solution = paper_landing[2], paper_landing[3]
+    return plan
 
 
 def _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, final_feet, final_yaw, landing_foot,
