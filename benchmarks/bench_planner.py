@@ -3,9 +3,11 @@
 Prints, measured in this one run: plan compute time (median, max), parameter
 solve time, Newton iterations, the generic-solver (scipy SLSQP) time on the
 same problems and the ratio, the share of next-step fallbacks, and the
-quantisation residual with and without re-solving the ZMP value.
+quantisation residual with and without re-solving the ZMP value
+(``--objective time``: the plan times, fallbacks and times to rest of the time
+objective).
 
-    python benchmarks/bench_planner.py [--repeats 3]
+    python benchmarks/bench_planner.py [--repeats 3] [--objective paper|time]
 
 Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
 no path set-up.
@@ -66,9 +68,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scipy-every", type=int, default=8, help="compare with scipy at every k-th tick")
+    parser.add_argument("--objective", choices=("paper", "time"), default="paper",
+                        help="StopParameters.objective of the plans timed")
     args = parser.parse_args()
     pattern = NominalPattern()
-    params = StopParameters()
+    params = StopParameters(objective=args.objective)
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
     from drake_estop.planning import backend
     print("solver backend: " + (f"compiled (numba {backend.numba.__version__}, planning.solver)" if backend.COMPILED
@@ -89,6 +93,10 @@ def main():
     rest = np.array([np.linalg.norm(p.com([p.halt_end])[1]) for p in plans])
     print(f"COG speed at halt end: max {rest.max():.2e} m/s;"
           f" min ZMP margin {min(p.min_zmp_margin for p in plans):.4f} m")
+    to_rest = np.array([p.halt_end - p.signal_time for p in plans])
+    print(f"time to rest        median {np.median(to_rest):.3f} s   max {to_rest.max():.3f} s")
+    if args.objective == "time":  # the rest is about the paper's phase-parameter solve
+        return
     rounded = StopParameters(quantisation="round")
     residual = []
     for t in times[::4]:

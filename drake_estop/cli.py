@@ -12,6 +12,7 @@ from pathlib import Path
 
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
 from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPattern, load_footsteps
+from drake_estop.planning.plan import OBJECTIVES
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
@@ -112,6 +113,9 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
     s.add_argument("--quantisation", choices=("resolve", "round"), default=_STOP.quantisation,
                    help="'resolve' re-solves the ZMP after snapping phase times to ticks (default); "
                         "'round' only rounds the times, as in the paper")
+    s.add_argument("--objective", choices=OBJECTIVES, default=_STOP.objective,
+                   help="'paper': J_ss / J_ds (eq. 24, 30), slowdown and halt (default); 'time': the soonest "
+                        "rest at the feet's midpoint within the same limits (drake_estop.planning.brake)")
     _add_field_options(p, scenario)
 
 

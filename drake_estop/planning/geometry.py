@@ -45,3 +45,23 @@ class SupportPolygon:
 
     def contains(self, points, margin: float = 0.0) -> np.ndarray:
         return self.margin(points) >= margin
+
+
+
+def stack_halfplanes(polygons):
+    """The edges of ``polygons`` as stacked half-planes ``(normals (k, e, 2), offsets (k, e))`` for
+    :func:`stacked_margin` (padded with half-planes that never bind)."""
+    edges = max(len(polygon._offsets) for polygon in polygons)
+    normals = np.zeros((len(polygons), edges, 2))
+    offsets = np.full((len(polygons), edges), np.inf)
+    for i, polygon in enumerate(polygons):
+        normals[i, :len(polygon._offsets)] = polygon._normals
+        offsets[i, :len(polygon._offsets)] = polygon._offsets
+    return normals, offsets
+
+
+def stacked_margin(halfplanes, points) -> np.ndarray:
+    """:meth:`SupportPolygon.margin` of ``points[i]`` ((k, n, 2)) in the i-th of k polygons at once,
+    given as :func:`stack_halfplanes`; (k, n), NaN for non-finite points."""
+    normals, offsets = halfplanes
+    return np.min(offsets[:, None, :] - np.matmul(points, normals.transpose(0, 2, 1)), axis=2)

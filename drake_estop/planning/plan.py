@@ -23,6 +23,9 @@ from drake_estop.planning.geometry import SupportPolygon
 #: included): the simulations advance at most this far past the walk's end or the planned halt
 LONGEST_STOP = 10.0
 
+OBJECTIVES = ("paper", "time")
+"""Values of :attr:`StopParameters.objective`."""
+
 PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
 """Phase labels; the planner's ``phase`` output port is an index into this tuple."""
 
@@ -66,6 +69,10 @@ class StopParameters:
         or "round" (the paper's rounding).
     landing : str
         "replan" or "nominal" (keep the nominal footstep).
+    objective : str
+        "paper": J_ss / J_ds (eq. 24, 30), then the halt (eq. 27-28). "time": the
+        paper's landing, then the shortest ZMP profile that brings the COG to rest
+        at the feet's midpoint (:mod:`drake_estop.planning.brake`).
     landing_zmp_offset : float
         Single support: slowdown ZMP ahead of the landing ankle [m].
     max_fore_reach, max_rear_reach : float
@@ -108,6 +115,9 @@ class StopParameters:
     halt_durations: tuple = (0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.2, 1.5)  # settle-segment candidates [s]
     quantisation: str = "resolve"  # or "round": snap times, keep the continuous ZMP value
     landing: str = "replan"  # or "nominal": keep the nominal footstep ("finish the step" baseline)
+    # "paper": J_ss / J_ds (eq. 24, 30), slowdown and halt; "time": the paper's landing, then the shortest
+    # brake to rest at the feet's midpoint (planning/brake.py)
+    objective: str = "paper"
     # single support: slowdown ZMP ahead of the landing ankle [m]; 0 is the paper's eq. 20, up to
     # toe - zmp_margin lets the ZMP use the fore sole as the double-support stop does (III.B)
     landing_zmp_offset: float = 0.0
@@ -143,6 +153,8 @@ class StopParameters:
             raise ValueError(f"quantisation must be 'resolve' or 'round', got {self.quantisation!r}")
         if self.landing not in ("replan", "nominal"):
             raise ValueError(f"landing must be 'replan' or 'nominal', got {self.landing!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be 'paper' or 'time', got {self.objective!r}")
         if not self.halt_durations or min(self.halt_durations) <= 0:
             raise ValueError("halt_durations must be positive")
 
@@ -175,7 +187,12 @@ class StopPlan:
     support : str
         Support at the signal: "single", "double" or "standing".
     landing_time, transition_end, slowdown_end, halt_end : float
-        Ends of the four phases [s].
+        Ends of the four phases [s]. With ``objective="time"`` the last three
+        are the joints of the brake (:mod:`drake_estop.planning.brake`): the ZMP
+        moves from the rear foot (or the walk's ZMP) to the first brake point
+        (transition), brakes the COG between the two brake points (slowdown,
+        the COG still moves at its end) and returns to the midpoint as the COG
+        arrives there at rest (halt).
     step_length : float or None
         Single-support stops: the landing step from the support ankle [m].
     zmp_max : float or None

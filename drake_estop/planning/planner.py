@@ -40,6 +40,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
+from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
@@ -283,6 +284,13 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
     w = pattern.w
     sole = pattern.params.sole
     t_solve = time.perf_counter()
+    if params.objective == "time":  # the soonest rest (planning/brake.py); else the paper's landing below
+        plan = _time_plan(pattern, state, params, signal_time, case, t_solve)
+        if plan is not None:
+            return plan
+        if state.support == "single" and moving_zmp(state.zmp_rate, state.zmp_accel):
+            # a re-plan while the ZMP moves on the support sole: the paper's landing holds it (eq. 19)
+            raise InfeasibleStop("objective time: no stop from the ZMP moving on the support sole")
     problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
         landing_y = capture_landing_y(pattern, state, solution.landing)
@@ -304,6 +312,11 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
         final_feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
         final_yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
         landing_xy, landing_foot = None, None
+    if params.objective == "time" and kind == "single":  # the paper's landing, then the brake
+        plan = _time_plan(pattern, state, params, signal_time, case, t_solve,
+                          (step_length, solution.landing, solution.iterations, solution.continuous))
+        if plan is not None:
+            return plan
     solve_time = time.perf_counter() - t_solve
 
     t0 = state.time
@@ -368,6 +381,101 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
                          f"polygon's edge (zmp_margin {params.zmp_margin * 1e3:.1f} mm)")
 
 
+def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing=None):
+    """The time objective's plan (:mod:`drake_estop.planning.brake`): the soonest rest at the feet's
+    midpoint with the ZMP ``zmp_margin`` inside the support polygon. Double support: from ``state``.
+    Single support: over the landing choices, or at the paper's ``paper_landing`` = ``(step length,
+    touchdown from the start, Newton iterations, continuous solution)`` if given. None where no
+    brake fits (the caller falls back)."""
+    w = pattern.w
+    sole = pattern.params.sole
+    zmp = np.asarray(state.zmp[:2], float)
+    single = state.support == "single"
+    if not single:
+        feet = {side: state.feet[side][:2].copy() for side in ("left", "right")}
+        yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
+        polygon = soles_polygon(sole, tuple((s, float(feet[s][0]), float(feet[s][1]), yaw[s]) for s in feet))
+        required = min(params.zmp_margin, float(polygon.margin(zmp)[0]))  # or the walk's own margin at the start
+        found = stop_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel,
+                           [0.5 * (feet["left"] + feet["right"])], [polygon], params, w, required)
+        return None if found is None else _brake_plan(pattern, state, params, signal_time, case, t_solve,
+                                                      found[1], feet, yaw, None, polygon, required)
+    support = state.support_foot
+    swing = "right" if support == "left" else "left"
+    yaw = {support: float(state.feet_yaw[support]), swing: float(state.next_landing_yaw)}
+    ankle = (support, float(state.feet[support][0]), float(state.feet[support][1]), yaw[support])
+    support_polygon = soles_polygon(sole, (ankle,))
+
+    def polygon_for(landing_xy):
+        landed = (swing, float(landing_xy[0]), float(landing_xy[1]), yaw[swing])
+        return soles_polygon(sole, (ankle, landed) if support == "left" else (landed, ankle))
+
+    required = min(params.zmp_margin, float(support_polygon.margin(zmp)[0]))
+    landing_y = float(state.next_landing[1])
+    if paper_landing is not None:  # (the paper's solve moved next_landing already if the capture point asked)
+        if moving_zmp(state.zmp_rate, state.zmp_accel):
+            return None  # the paper's landing phase holds the ZMP (eq. 19): not from a moving one
+        landing = np.array([float(zmp[0]) + paper_landing[0], landing_y])
+        brake = held_brake(state.com, state.com_vel, zmp, state.feet[support][:2], landing, paper_landing[1],
+                           polygon_for(landing), params, w, required)
+    else:
+        def search(y):
+            return swing_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel, state.feet[support][:2],
+                               state.feet[swing][:2], y, descent_time(float(state.feet[swing][2]), params),
+                               support_polygon, polygon_for, params, w, required)
+
+        brake = search(landing_y)
+        if brake is not None:  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
+            shifted = capture_landing_y(pattern, state, brake.ends[0])
+            if shifted is not None and abs(shifted - landing_y) > 1e-9:
+                landing_y, brake = shifted, search(shifted)
+    if brake is None:
+        return None
+    landing_xy = np.array([brake.landing_x, landing_y])
+    feet = {support: state.feet[support][:2].copy(), swing: landing_xy}
+    plan = _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, feet, yaw, swing,
+                       polygon_for(landing_xy), required)
+    if paper_landing is not None:  # the landing came from the paper's solve (III.A)
+        plan.newton_iterations, plan.continuous_solution = paper_landing[2], paper_landing[3]
+    return plan
+
+
+def _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, final_feet, final_yaw, landing_foot,
+                polygon, required):
+    """The :class:`StopPlan` of a :class:`~drake_estop.planning.brake.Brake` from ``state``."""
+    w = pattern.w
+    t0 = state.time
+    solve_time = time.perf_counter() - t_solve
+    midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
+    x_traj, y_traj = (
+        lipm.LipmTrajectory.from_zmp(t0, brake.durations + [1.0], brake.coeffs[a] + [lipm.pad([midpoint[a]])],
+                                     state.com[a], state.com_vel[a], w, rest_tail=True)  # at rest: eq. 27-28
+        for a in (0, 1))
+    landing, transition, slowdown, halt = (t0 + e for e in brake.ends)
+    single = landing_foot is not None
+    plan = StopPlan(
+        signal_time=signal_time, start_time=t0, case=case, support=pattern.support_at(signal_time)[0],
+        start_support=state.support, landing_time=landing, transition_end=transition, slowdown_end=slowdown,
+        halt_end=halt, step_length=brake.landing_x - float(state.zmp[0]) if single else None,
+        zmp_max=None,
+        landing_foot=landing_foot, landing_position=final_feet[landing_foot] if single else None,
+        final_feet=final_feet, x=x_traj, y=y_traj, pattern=pattern, params=params, start_state=state,
+        solve_time=solve_time, cost=brake.duration,  # the time objective: time to rest from the plan start
+        final_yaw=final_yaw,
+    )
+    if single:
+        plan.swing_start = {"pos": state.feet[landing_foot], "vel": state.feet_vel[landing_foot],
+                            "acc": state.feet_acc[landing_foot]}
+    plan.upper_body_peak = state.upper_body + state.upper_body_rate * (slowdown - t0) / 3.0  # eq. 33
+    if not single:  # ZMP_max: the largest sagittal ZMP displacement from the start (eq. 29's role)
+        plan.zmp_max = brake.peak - float(state.zmp[0])
+    plan.min_zmp_margin = _verify_zmp(plan, final_polygon=polygon)
+    if not plan.min_zmp_margin >= required - 1e-9:  # NaN too: never hand out such a plan
+        raise InfeasibleStop(f"zmp_margin: the brake's ZMP comes {plan.min_zmp_margin * 1e3:.1f} mm from the "
+                             f"support polygon's edge (zmp_margin {params.zmp_margin * 1e3:.1f} mm)")
+    return plan
+
+
 def _verify_zmp(plan: StopPlan, final_polygon: SupportPolygon | None = None) -> float:
     """Smallest ZMP margin to the support polygon over every servo tick of the stop.
 
@@ -430,14 +538,18 @@ def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> fl
     """Plan once (single and double support) so the compiled solver is loaded before the
     robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
     compile after an install or an edit of the solver), which must not land on the servo
-    tick of a real stop. Returns the seconds it took."""
+    tick of a real stop. The time objective (planning/brake.py) falls back to the compiled
+    solver where its own search finds no stop, so it is warmed up too. Returns the seconds it
+    took."""
     wall = time.perf_counter()
     start, end = pattern.stride()
-    for fraction in (0.3, 0.9):
-        try:
-            plan_stop(pattern, start + fraction * (end - start), params)
-        except InfeasibleStop:
-            pass
+    params = params or StopParameters()
+    for variant in (params, replace(params, objective="paper")) if params.objective != "paper" else (params,):
+        for fraction in (0.3, 0.9):
+            try:
+                plan_stop(pattern, start + fraction * (end - start), variant)
+            except InfeasibleStop:
+                pass
     return time.perf_counter() - wall
 
 

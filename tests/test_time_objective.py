@@ -1,0 +1,222 @@
+"""StopParameters(objective="time"): the soonest rest at the feet's midpoint (planning/brake.py), every tick
+of the stride; its parameter, option and scenario field; re-plans from a pushed state."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from checks import lipm_tracking_error
+
+from drake_estop.cli import main
+from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.rollout import rollout, stride_ticks
+from drake_estop.scenario import load_scenario
+
+TIME = StopParameters(objective="time")
+
+
+@pytest.fixture(scope="module")
+def time_plans(pattern, stride_times):
+    return [plan_stop(pattern, t, TIME) for t in stride_times]
+
+
+def _ticks(plan, start, end):
+    dt = plan.params.servo_period
+    return start + dt * np.arange(int(round((end - start) / dt)) + 1)
+
+
+def test_time_to_rest_median_at_most_0_6_s_and_never_later_than_the_paper(time_plans, stride_plans):
+    """The behaviour the objective is for: over every tick of the stride the COG rests at the feet's
+    midpoint 0.6 s after the signal or sooner (median; the paper's objective: about 1.1 s), and at
+    no tick later than with the paper's objective."""
+    rest = np.array([plan.halt_end - plan.signal_time for plan in time_plans])
+    paper = np.array([plan.halt_end - plan.signal_time for plan in stride_plans])
+    assert np.median(rest) <= 0.6, np.median(rest)
+    assert np.all(rest <= paper + 1e-9), [(p.signal_time, r, q) for p, r, q in zip(time_plans, rest, paper) if r > q]
+
+
+def test_one_step_wherever_the_paper_objective_is(time_plans, stride_plans):
+    for plan, paper in zip(time_plans, stride_plans):
+        assert plan.steps_after_signal <= max(1, paper.steps_after_signal), plan.signal_time
+        if paper.case == "one-step":
+            assert plan.case == "one-step", plan.signal_time
+    # most signals land once, replanned: the nominal step is finished only where that is sooner
+    assert sum(plan.case == "one-step" for plan in time_plans) >= 0.85 * len(time_plans)
+
+
+def test_cog_at_rest_at_the_final_feet_midpoint_at_halt_end(time_plans):
+    for plan in time_plans:
+        midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+        pos, vel, _, zmp = plan.com([plan.halt_end, plan.halt_end + 2.0])
+        np.testing.assert_allclose(pos, [midpoint, midpoint], atol=1e-9, err_msg=str(plan.signal_time))  # eq. 27
+        np.testing.assert_allclose(vel, 0.0, atol=1e-9, err_msg=str(plan.signal_time))  # eq. 28
+        np.testing.assert_allclose(zmp, [midpoint, midpoint], atol=1e-9, err_msg=str(plan.signal_time))
+        # still moving just before: halt_end is when the COG comes to rest, not an arbitrary later time
+        assert np.linalg.norm(plan.com([plan.halt_end - 0.05])[1]) > 1e-3, plan.signal_time
+
+
+def test_lipm_residual_at_every_tick(time_plans, pattern):
+    """The planned COG and ZMP satisfy x'' = w^2 (x - p) (eq. 4) at every servo tick of every stop."""
+    w2 = pattern.w**2
+    for plan in time_plans:
+        pos, _, acc, zmp = plan.com(_ticks(plan, plan.signal_time, plan.halt_end + 0.5))
+        assert np.abs(acc - w2 * (pos - zmp)).max() < 1e-9, plan.signal_time
+
+
+def test_cog_obeys_lipm_by_independent_integration(time_plans, pattern):
+    for plan in time_plans[::4]:
+        data = rollout(plan, after_halt=0.5)
+        sel = data.times >= plan.signal_time - 0.1
+        for axis in (0, 1):
+            err = lipm_tracking_error(data.times[sel], data.com[sel, axis], data.com_vel[sel, axis],
+                                      data.zmp[sel, axis], pattern.w)
+            assert err < 1e-3, (plan.signal_time, axis, err)
+
+
+def test_continuous_with_the_pattern_at_the_start(time_plans, pattern):
+    """Position, velocity, ZMP (eq. 10-12) and the ZMP's rate and acceleration (eq. 13) carry over
+    from the walk where the stop leaves it, and through every phase boundary."""
+    for plan in time_plans:
+        t0 = plan.start_time
+        walk = [traj.evaluate_at(t0) for traj in pattern.trajectories]
+        stop = [traj.evaluate_at(t0) for traj in (plan.x, plan.y)]
+        for axis in (0, 1):
+            for k, name, tol in ((0, "position", 1e-9), (1, "velocity", 1e-9), (3, "zmp", 1e-9),
+                                 (4, "zmp rate", 1e-6), (5, "zmp acceleration", 1e-4)):
+                assert stop[axis][k] == pytest.approx(walk[axis][k], abs=tol), (plan.signal_time, axis, name)
+        for b in (plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end):
+            for traj in (plan.x, plan.y):
+                before, after = traj.evaluate_at(b - 1e-9), traj.evaluate_at(b + 1e-9)
+                assert np.allclose(before[:4], after[:4], atol=1e-6), (plan.signal_time, b)
+                assert np.allclose(before[4:], after[4:], atol=1e-4), (plan.signal_time, b)
+
+
+def test_zmp_inside_the_support_polygon_with_the_margin_at_every_tick(time_plans, params):
+    assert TIME.zmp_margin == params.zmp_margin == 0.01
+    for plan in time_plans:
+        assert plan.min_zmp_margin >= TIME.zmp_margin - 1e-9, plan.signal_time
+        times = _ticks(plan, plan.start_time, plan.halt_end + 0.2)
+        zmp = plan.com(times)[3]
+        worst = min(float(plan.polygon(t).margin(z)[0]) for t, z in zip(times, zmp))  # independent of the planner
+        assert worst >= TIME.zmp_margin - 1e-9, (plan.signal_time, worst)
+
+
+def test_phase_times_ordered_on_ticks_and_the_limits_kept(time_plans):
+    for plan in time_plans:
+        times = (plan.start_time, plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end)
+        assert all(a <= b + 1e-12 for a, b in zip(times, times[1:])), (plan.signal_time, times)
+        for b in times:
+            assert abs(b / TIME.servo_period - round(b / TIME.servo_period)) < 1e-6
+        assert plan.transition_end - plan.landing_time >= TIME.min_transition_time - 1e-9
+        assert plan.halt_end - plan.slowdown_end >= TIME.min_transition_time - 1e-9
+        if plan.landing_foot is not None:
+            duration = plan.landing_time - plan.start_time
+            assert duration >= TIME.min_landing_time - 1e-9
+            assert TIME.min_step_length - 1e-12 <= plan.step_length <= TIME.max_step_length + 1e-12
+            swing = plan.swing_start["pos"][:2]
+            assert np.linalg.norm(plan.landing_position - swing) / duration <= TIME.max_swing_speed + 1e-9
+            # the fore leg's reach at the touchdown (landing ankle ahead of the COG)
+            assert plan.landing_position[0] - plan.com([plan.landing_time])[0][0, 0] <= TIME.max_fore_reach + 1e-9
+
+
+def test_turning_walk_keeps_the_margin_in_the_turned_soles():
+    """The geometry goes through the support polygons of the turned soles: a turning walk's stops keep
+    the margin tick by tick and rest at the midpoint."""
+    pattern = NominalPattern(GaitParameters(turn=15.0))
+    for t in stride_ticks(pattern, TIME)[::10]:
+        plan = plan_stop(pattern, float(t), TIME)
+        for tick, zmp in zip(times := _ticks(plan, plan.start_time, plan.halt_end), plan.com(times)[3]):
+            assert plan.polygon(tick).margin(zmp)[0] >= TIME.zmp_margin - 1e-9, (t, tick)
+        midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+        np.testing.assert_allclose(plan.com([plan.halt_end])[0][0], midpoint, atol=1e-9)
+
+
+@pytest.mark.parametrize("value", ["fast", "Time", None])
+def test_bad_objective_names_the_parameter(value):
+    with pytest.raises(ValueError, match="objective"):
+        StopParameters(objective=value)
+
+
+def test_cli_objective_option(tmp_path, capsys):
+    assert main(["simulate", "--kinematic", "--objective", "fast"]) == 2
+    assert "--objective" in capsys.readouterr().err
+    summary = tmp_path / "s.json"
+    assert main(["simulate", "--kinematic", "--estop-time", "3.1", "--objective", "time", "--summary",
+                 str(summary)]) == 0
+    plan = plan_stop(NominalPattern(), 3.1, TIME)
+    assert json.loads(summary.read_text())["phase_times"]["halt_end"] == pytest.approx(plan.halt_end, abs=1e-12)
+    assert plan.halt_end < plan_stop(NominalPattern(), 3.1).halt_end
+
+
+def test_scenario_objective_field(capsys):
+    assert load_scenario(text="{stop: {objective: time}}").stop.objective == "time"
+    with pytest.raises(ValueError, match="objective"):
+        load_scenario(text="{stop: {objective: quick}}")
+    assert main(["simulate", "--kinematic", "--scenario-text", "{stop: {objective: quick}}"]) == 2
+    assert "objective" in capsys.readouterr().err
+
+
+def _check_replan(plan, new, t, com, vel):
+    assert new.start_time == pytest.approx(t)
+    for old, traj in ((plan.x, new.x), (plan.y, new.y)):
+        a, b = old.evaluate_at(t), traj.evaluate_at(t)
+        assert b[3] == pytest.approx(a[3], abs=1e-9)  # eq. 12: the ZMP continues
+        assert b[4] == pytest.approx(a[4], abs=1e-6) and b[5] == pytest.approx(a[5], abs=1e-4)  # eq. 13
+    pos, v, _, _ = new.com([t])
+    np.testing.assert_allclose(pos[0], com, atol=1e-12)  # eq. 10-11: from the measured COG
+    np.testing.assert_allclose(v[0], vel, atol=1e-12)
+    times = _ticks(new, t, new.halt_end)
+    pos, _, _, zmp = new.com(times)
+    assert np.all(np.isfinite(pos)) and np.all(np.isfinite(zmp))
+    assert min(float(new.polygon(s).margin(z)[0]) for s, z in zip(times, zmp)) >= TIME.zmp_margin - 1e-9
+    midpoint = 0.5 * (new.final_feet["left"] + new.final_feet["right"])
+    end, rest, _, _ = new.com([new.halt_end + 1.0])
+    np.testing.assert_allclose(end[0], midpoint, atol=1e-9)
+    np.testing.assert_allclose(rest[0], 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("signal", [2.9, 3.1, 3.3, 3.55])
+def test_replan_from_a_pushed_state_is_valid_or_infeasible(pattern, signal):
+    """Re-plans (online controller, after a push) of time-objective plans, in the swing (the ZMP
+    moving on the support sole, then held) and after the landing: a plan continuous with the old
+    one's ZMP, from the measured COG, inside the polygon, at rest at the midpoint; or InfeasibleStop.
+    Never a NaN."""
+    plan = plan_stop(pattern, signal, TIME)
+    outcomes = {"plan": 0, "infeasible": 0}
+    for fraction in (0.05, 0.3, 0.6, 0.9):
+        t = plan.start_time + round(fraction * (plan.slowdown_end - plan.start_time) / TIME.servo_period) * 0.005
+        pos, vel, _, _ = plan.com([t])
+        for push in ([0.08, 0.0], [-0.05, 0.0], [0.0, 0.08], [0.03, -0.06]):
+            com, v = pos[0] + 0.1 * np.array(push), vel[0] + np.array(push)
+            try:
+                new = replan_stop(plan, t, com, v)
+            except InfeasibleStop:
+                outcomes["infeasible"] += 1
+                continue
+            if new is None:  # nothing left to re-plan at this tick (the last ZMP transition)
+                assert not plan.landing_time <= t < plan.slowdown_end
+                continue
+            outcomes["plan"] += 1
+            assert new.params.objective == "time"
+            _check_replan(plan, new, t, com, v)
+    assert outcomes["plan"] >= 6, outcomes
+
+
+def test_paper_objective_is_the_default(stride_plans):
+    assert StopParameters().objective == "paper"
+    assert all(plan.params.objective == "paper" for plan in stride_plans)
+    assert math.isfinite(stride_plans[0].cost) and stride_plans[0].newton_iterations > 0
+
+
+@pytest.mark.parametrize("margin", [-0.02, math.nan])
+def test_a_plan_failing_the_zmp_verification_is_never_handed_out(pattern, monkeypatch, margin):
+    """The planner's own tick-by-tick ZMP check (_verify_zmp) stands behind the brake's: a plan it
+    rejects (outside the margin, or NaN) raises InfeasibleStop instead of being returned."""
+    from drake_estop.planning import planner
+
+    monkeypatch.setattr(planner, "_verify_zmp", lambda plan, final_polygon=None: margin)
+    for signal in (3.1, 3.55):
+        with pytest.raises(InfeasibleStop):
+            plan_stop(pattern, signal, TIME)
