@@ -25,10 +25,9 @@ reach, step length, landing time, transition durations, ``zmp_margin``):
   only a first transition that carries the walk's ZMP rate and acceleration (double
   support) curves, and it is checked at every servo tick.
 
-Two chains:
+The chains:
 
-* :func:`stop_brake`, from a given state (double support; or after a landing with the ZMP
-  held at the support ankle, eq. 19)::
+* :func:`stop_brake`, from a given state (double support)::
 
       ZMP --r1--> c (held h) --r2--> d --r3--> m
 
@@ -39,9 +38,15 @@ Two chains:
   (earliest touchdown the swing-speed and descent limits allow, for each step length on a
   grid), and the ZMP already brakes on the support sole while the foot swings::
 
-      support ankle --rA--> a (held to the touchdown) --r1--> c (held h) --r3--> m
+      ZMP (the support ankle) --rA--> a (held to the touchdown) --r1--> c (held h) --r3--> m
 
-  with ``a`` inside the support sole and ``c`` inside both soles' polygon.
+  with ``a`` inside the support sole and ``c`` inside both soles' polygon;
+
+* :func:`held_brake`, single support on a given landing (the paper's, where
+  :func:`swing_brake` finds no stop): the ZMP held until the touchdown (eq. 19), then
+  :func:`stop_brake`.
+
+Where none fits, the planner plans with the paper's objective.
 
 The integrals of the quintic shapes are Gauss-Legendre quadratures (exact to rounding),
 tabulated once per (w, servo period, duration limits). Pure numpy; no Drake import.
@@ -192,20 +197,18 @@ CHUNK = 1024  # candidates evaluated at once, shortest first
 LAZY = 64  # swing_brake: candidates whose polygon margin is evaluated at once, soonest first
 
 
-def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w: float, required: float,
-               lead=None) -> tuple | None:
+def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w: float,
+               required: float) -> tuple | None:
     """The shortest chain ``ZMP -> c (held) -> d -> m`` from the COG state ``com, com_vel`` and the ZMP
     ``zmp`` (rate ``zmp_rate``, acceleration ``zmp_accel``), all (2,) [m, m/s, m/s^2], that ends at rest
     at one of ``midpoints`` (k, 2) with its ZMP ``required`` [m] inside the matching one of
-    ``polygons``. ``com, com_vel`` may be (k, 2), a state per midpoint, each reached after ``lead``
-    (k,) [s] (the time to rest compared is ``lead`` + the chain's). Returns ``(index of the midpoint,
-    Brake)``, among equally soon ones the one with the larger margin, or None."""
+    ``polygons``. Returns ``(index of the midpoint, Brake)``, among equally short ones the one with the
+    larger margin, or None."""
     midpoints = np.atleast_2d(np.asarray(midpoints, float))
     rows = len(midpoints)
-    com, com_vel = (np.broadcast_to(np.asarray(v, float)[..., :2], (rows, 2)) for v in (com, com_vel))
+    com, com_vel = (np.broadcast_to(np.asarray(v, float)[:2], (rows, 2)) for v in (com, com_vel))
     zmp = np.asarray(zmp, float)[:2]
     rate, accel = np.asarray(zmp_rate, float)[:2], np.asarray(zmp_accel, float)[:2]
-    lead = np.zeros(rows) if lead is None else np.asarray(lead, float)
     t = _stop_table(float(w), float(params.servo_period), _ticks(params, RAMP_FACTORS), _ticks(params, CATCH_FACTORS),
                     _ticks(params, RETURN_FACTORS), float(params.min_slowdown_time),
                     float(min(params.max_slowdown_time, STOP_HOLD_MAX)))
@@ -214,7 +217,7 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
     curved = moving_zmp(rate, accel)
     best = None
     for low in range(0, len(t["total"]), CHUNK):
-        if best is not None and float(lead.min() + t["total"][low]) >= best[0] - 1e-9:
+        if best is not None and float(t["total"][low]) >= best[0] - 1e-9:
             break
         k = slice(low, low + CHUNK)
         (fc, fd, fk), (bc, bd, bk) = ((c[k], d[k], known[:, k]) for c, d, known in (t["fwd"], t["bwd"]))
@@ -234,7 +237,7 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
         for i in np.nonzero(np.any(margin >= required, axis=1))[0]:  # d only where c fits
             fits = margin[i] >= required
             margin[i, fits] = np.minimum(margin[i, fits], polygons[i].margin(d[i, fits]))
-        total = lead[:, None] + t["total"][k][None, :]
+        total = np.broadcast_to(t["total"][k], margin.shape)
         for i, j in _shortest(margin, total, required):
             if best is not None and total[i, j] >= best[0] - 1e-9:
                 break
