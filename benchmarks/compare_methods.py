@@ -36,7 +36,7 @@ import alternatives
 import numpy as np
 from reference import reference_solve
 
-from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
 from drake_estop.planning.rollout import rollout, stride_ticks
 
@@ -254,6 +254,42 @@ def comparison_lines(rows, summaries):
     return lines
 
 
+TURNING_GAITS = {"turning +15 deg per step": dict(turn=15.0), "turning -15 deg per step": dict(turn=-15.0),
+                 "side-stepping 4 cm per step, no step length": dict(step_length=0.0, side_step=0.04)}
+
+
+def turning_lines(params, every=1):
+    """The stop methods on turning and side-stepping walks (issue 10): every tick of the third step's
+    stride. The ZmpPlanner peer is left out here: its stop (benchmarks/alternatives.py) places level,
+    unturned soles."""
+    lines = ["Turning and side-stepping walks (the same stride of the third step, every"
+             f" {'' if every == 1 else f'{every}th '}5 ms tick; ZMP margins against the turned soles):", "",
+             "| walk | method | stopped within one step | one-step case | time to rest median / worst [s] |"
+             " COG travel median / worst [m] | min ZMP margin [cm] | plan time median / max [ms] |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    methods = (("paper objective", plan_stop, params), ("`objective=\"time\"`", plan_stop,
+                                                         replace(params, objective="time")),
+               ("finish the step", alternatives.finish_the_step, params))
+    for walk, kwargs in TURNING_GAITS.items():
+        pattern = NominalPattern(GaitParameters(**kwargs))
+        times = stride_ticks(pattern, params)[::every]
+        for name, planner, variant in methods:
+            planner(pattern, float(times[0]), variant)  # warm-up
+            rows = []
+            for t in times:
+                try:
+                    rows.append({"m": plan_metrics(planner(pattern, float(t), variant))})
+                except InfeasibleStop:
+                    rows.append({"m": None})
+            s = summarise(rows, "m")
+            one_step = sum(r["m"] is not None and r["m"]["case"] == "one-step" for r in rows)
+            lines.append(f"| {walk} | {name} | {100 * s['one_step_share']:.1f} % | {one_step}/{len(rows)} |"
+                         f" {s['rest_median']:.3f} / {s['rest_worst']:.3f} | {s['travel_median']:.3f} /"
+                         f" {s['travel_worst']:.3f} | {100 * s['margin_min']:.2f} | {1e3 * s['compute_median']:.2f} /"
+                         f" {1e3 * s['compute_max']:.2f} |")
+    return lines + [""]
+
+
 def write_results(rows, summaries, ratio, path, figure_name, command, extra_lines):
     lines = [
         "# Stop methods compared",
@@ -320,6 +356,7 @@ def main(argv=None):
     figure(rows, out / "compare_methods.png")
     command = "python benchmarks/compare_methods.py " + " ".join(argv if argv is not None else sys.argv[1:])
     extra = comparison_lines(rows, summaries) + zmp_planner_tuning(times[:: args.tuning_every], pattern, params)
+    extra += [""] + turning_lines(params, args.every)
     extra += [""] + ([] if args.no_diagrams else diagram_rtfs())
     write_results(rows, summaries, ratio, out / "RESULTS.md", "compare_methods.png", command.strip(), extra)
     print((out / "RESULTS.md").read_text())
