@@ -5,8 +5,8 @@
 Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
 no path set-up.
 
-Takes a screenshot after letting the page's virtual time run (the replay's
-animation starts playing), then checks the robot is on screen: enough pixels
+Takes a screenshot of the replay at a time of its animation (``--budget-ms``),
+then checks the robot is on screen: enough pixels
 of the model's blue leg/arm material (``models/humanoid.urdf``: rgba 0.15 0.3
 0.75, shaded) must be present (``--min-robot-pixels``); Meshcat's grey
 gradient background and the thin trace lines do not reach that count (a
@@ -61,9 +61,45 @@ def _address(html):
     return text if text.startswith(("http://", "https://")) else Path(html).resolve().as_uri()
 
 
+#: Appended to a replay's HTML: show the recording at a given time by seeking Meshcat's animator as
+#: its commands arrive (a screenshot is taken once the page has loaded).
+_SEEK_SCRIPT = """<script>
+(function () {  // drake_estop render_replay: the replay at %(at).3f s
+  function seek() {
+    if (viewer.animator.duration > 0) {
+      viewer.animator.seek(Math.min(%(at).6f, viewer.animator.duration));
+      viewer.needs_render = true;
+    }
+  }
+  const handle = viewer.handle_command_bytearray.bind(viewer);
+  viewer.handle_command_bytearray = function (bytes) { handle(bytes); seek(); };
+  seek();
+})();
+</script>
+"""
+
+
+def _seeking_copy(html: Path, at: float, folder: str) -> Path:
+    """A copy of the replay ``html`` that opens at time ``at`` [s] of its animation."""
+    text = html.read_text()
+    end = text.rfind("</body>")
+    if end < 0 or "MeshCat.Viewer" not in text:
+        raise RuntimeError(f"{html} is not a Meshcat replay (no viewer or </body>)")
+    copy = Path(folder) / "replay_at.html"
+    copy.write_text(text[:end] + _SEEK_SCRIPT % {"at": at} + text[end:])
+    return copy
+
+
 def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeout=60,
                attempts=3):
     """Run headless Chromium on ``html`` and write ``png``.
+
+    A replay file is shown at ``budget_ms`` of its animation: a copy of it seeks
+    Meshcat's animator there as the page loads, and Chromium takes the
+    screenshot once the page has loaded. (Letting Chromium's virtual time play
+    the animation instead, ``--virtual-time-budget``, hung about half of the
+    runs with Chromium 156 and swiftshader; seeking has not hung.) A live
+    Meshcat URL still plays for ``budget_ms`` of virtual time.
 
     Up to ``attempts`` runs of at most ``timeout`` seconds each; a screenshot
     written by a run that then hung is kept. Raises ``RuntimeError`` with
@@ -71,16 +107,21 @@ def screenshot(html, png, *, chromium, size=(1280, 800), budget_ms=10000, timeou
     """
     png = Path(png).resolve()
     failures = []
+    replay = None if str(html).startswith(("http://", "https://")) else Path(html)
     for _ in range(attempts):
         png.unlink(missing_ok=True)
         with tempfile.TemporaryDirectory(prefix="estop_chromium_") as profile:
+            if replay is not None and replay.is_file():
+                timing = [f"--timeout={max(int(budget_ms), 1000) + 10000}",
+                          _address(_seeking_copy(replay, budget_ms / 1000.0, profile))]
+            else:
+                timing = [f"--virtual-time-budget={budget_ms}", _address(html)]
             command = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                        "--no-first-run", "--disable-background-networking",
                        "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
                        "--use-gl=swiftshader", "--enable-unsafe-swiftshader",
                        f"--user-data-dir={profile}", f"--screenshot={png}",
-                       f"--window-size={size[0]},{size[1]}",
-                       f"--virtual-time-budget={budget_ms}", _address(html)]
+                       f"--window-size={size[0]},{size[1]}", *timing]
             returncode, stderr = _run_once(command, png, timeout)
         if png.is_file() and png.stat().st_size > 0:
             return png
@@ -158,7 +199,7 @@ def main(argv=None):
     parser.add_argument("png")
     parser.add_argument("--chromium", default=None)
     parser.add_argument("--budget-ms", type=int, default=10000,
-                        help="virtual time before the screenshot [ms]; the replay plays in it (default %(default)s)")
+                        help="replay time shown in the screenshot [ms] (default %(default)s)")
     parser.add_argument("--min-robot-pixels", type=int, default=800,
                         help="minimum count of robot-blue pixels (default %(default)s)")
     args = parser.parse_args(argv)
