@@ -29,3 +29,14 @@ def lipm_tracking_error(times, com, com_vel, zmp, w, window: float = 0.5) -> flo
                         max_step=t[1] - t[0])
         worst = max(worst, float(np.abs(sol.y[0] - com[sel]).max()))
     return worst
+
+
+def plan_lipm_error(plan, *, after_halt: float, lead: float = 0.1) -> float:
+    """Largest :func:`lipm_tracking_error` of a stop plan's rollout, over both horizontal axes, from
+    ``lead`` seconds before its signal to ``after_halt`` seconds past its halt."""
+    from drake_estop.planning.rollout import rollout
+
+    data = rollout(plan, after_halt=after_halt)
+    sel = data.times >= plan.signal_time - lead
+    return max(lipm_tracking_error(data.times[sel], data.com[sel, axis], data.com_vel[sel, axis],
+                                   data.zmp[sel, axis], plan.pattern.w) for axis in (0, 1))
