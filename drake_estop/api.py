@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.primitives import LogVectorOutput
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_estop.model import ALL_JOINTS, load_humanoid
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters
 from drake_estop.planning.rollout import rollout, stop_metrics
+from drake_estop.systems.diagram import add_port_loggers
 from drake_estop.systems.ik import WholeBodyIK
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
@@ -281,12 +281,7 @@ def _robot_plant(builder, plant, scene_graph):
 def _add_loggers(builder, planner, ik, period):
     ports = {name: planner.GetOutputPort(name) for name in LOGGED_PLANNER_OUTPUTS}
     ports.update(q=ik.q_port, ik_com_error=ik.com_error_port, ik_foot_error=ik.foot_error_port)
-    loggers = {}
-    for name, port in ports.items():
-        logger = LogVectorOutput(port, builder, publish_period=period)
-        logger.set_name(f"estop_log_{name}")
-        loggers[name] = logger
-    return loggers
+    return add_port_loggers(builder, ports, period, prefix="estop_log_")
 
 
 def _add_meshcat(builder, meshcat, scene_graph, planner, pattern, publish_period):

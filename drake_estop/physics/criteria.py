@@ -134,11 +134,6 @@ class PhysicsResult:
         }
 
 
-def _sole_polygon_corners(sole, xy, yaw, side):
-    """Sole rectangle corners (4, 2) at ankle ``xy`` rotated by ``yaw``."""
-    return sole.corners(np.asarray(xy)[:2], side, float(yaw))
-
-
 def _planned_support(plan: StopPlan, t: float):
     """Feet the plan stands on at ``t`` (the sides of :meth:`StopPlan.polygon`)."""
     return plan.support_sides(t)
@@ -213,7 +208,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         margin_plan[i] = SupportPolygon(np.vstack([
             sole.corners(feet_plan[s][i, :2], s, planned_yaw[i][s]) for s in standing])).margin(cop[i])[0]
         if touching:
-            corners = np.vstack([_sole_polygon_corners(sole, feet_meas[s][i], feet_yaw[s][i], s)
+            corners = np.vstack([sole.corners(feet_meas[s][i][:2], s, float(feet_yaw[s][i]))
                                  for s in touching])
             margin_meas[i] = SupportPolygon(corners).margin(cop[i])[0]
     speed = np.linalg.norm(com_vel[:, :2], axis=1)

@@ -97,6 +97,17 @@ def _add_plant(builder):
     return plant, scene_graph
 
 
+def add_port_loggers(builder, ports: dict, period: float, prefix: str = "log_") -> dict:
+    """A ``LogVectorOutput`` per ``ports`` entry (name -> output port), sampled every ``period`` [s]
+    and named ``prefix + name``; returns name -> logger."""
+    loggers = {}
+    for name, port in ports.items():
+        logger = LogVectorOutput(port, builder, publish_period=period)
+        logger.set_name(f"{prefix}{name}")
+        loggers[name] = logger
+    return loggers
+
+
 def _add_loggers(builder, planner, ik, period):
     """Vector loggers of the planner outputs and the IK outputs, one per tick."""
     ports = {name: planner.GetOutputPort(name) for name in
@@ -104,12 +115,7 @@ def _add_loggers(builder, planner, ik, period):
     ports.update(q=ik.q_port, ik_com_error=ik.com_error_port,
                  ik_foot_error=ik.foot_error_port,
                  velocity_limit_violations=ik.violations_port)
-    loggers = {}
-    for name, port in ports.items():
-        logger = LogVectorOutput(port, builder, publish_period=period)
-        logger.set_name(f"log_{name}")
-        loggers[name] = logger
-    return loggers
+    return add_port_loggers(builder, ports, period)
 
 
 def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshcat=None,
