@@ -144,7 +144,7 @@ def test_physics_run_logs_measurements_and_criteria(tmp_path):
     data = json.load(open(summary))
     assert code == (0 if data["physics"]["success"] else 1)
     assert set(data["physics"]["criteria"]) == {"no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint",
-                                                "cop_in_support"}
+                                                "cop_in_support", "joint_speed_within_limits"}
     rows = list(csv.DictReader(open(log)))
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z"):
         assert column in rows[0]

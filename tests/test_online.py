@@ -15,6 +15,7 @@ from drake_estop.physics.online import (
     run_online,
 )
 from drake_estop.physics.perturbations import Perturbations, Push
+from drake_estop.physics.plant import actuated_indices
 from drake_estop.planning.gait import NominalPattern
 
 
@@ -55,6 +56,7 @@ def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
     assert 0 < tick["median"] <= tick["p99"] <= tick["max"]
     assert online["replans"] >= 0 and online["replan_failures"] >= 0
     assert online["joint_velocity_violations"] == 0
+    assert paper_stop.criteria["joint_speed_within_limits"]  # the criterion is that count being 0
 
 
 def test_one_step_feasible_logged_every_tick_online(paper_stop):
@@ -116,6 +118,29 @@ def test_a_push_changes_the_measured_motion_and_is_absorbed():
     assert pushed.online["replans"] >= 1
     assert pushed.criteria["no_fall"]
     assert pushed.criteria["rests_at_midpoint"]
+
+
+def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypatch):
+    """3.63 s (double support, two ticks before lift-off): the IK holds the rear knee straight on its
+    limit, then bends it at 8.9 rad/s (limit 6). The default diagram's rate-limited servo command
+    keeps the measured speed under the limit and the stop meets every criterion; without the limit
+    the measured knee goes over it (the criterion is not vacuous)."""
+    import drake_estop.physics.online as online
+
+    pattern = NominalPattern()
+    limited = run_online(estop_time=3.63, pattern=pattern)
+    assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
+    assert limited.online["joint_velocity_violations"] == 0
+    assert limited.online["joint_velocity_peak"]["ratio"] <= 1.0
+    handles = build_online_diagram(pattern, controller_stop_parameters(), 3.63)
+    limits = handles.diagram.GetSubsystemByName("desired_state").velocity_limits
+    plant_limits = handles.plant.GetVelocityUpperLimits()[actuated_indices(handles.plant)[1]]
+    np.testing.assert_allclose(limits, online.SERVO_VELOCITY_LIMIT_FRACTION * plant_limits)
+    monkeypatch.setattr(online, "SERVO_VELOCITY_LIMIT_FRACTION", None)
+    unlimited = run_online(estop_time=3.63, pattern=pattern)
+    assert not unlimited.criteria["joint_speed_within_limits"]
+    assert unlimited.online["joint_velocity_peak"]["joint"] == "l_knee"
+    assert unlimited.online["joint_velocity_peak"]["ratio"] > 1.0
 
 
 # -- command line ----------------------------------------------------------------------------------

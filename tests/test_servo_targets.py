@@ -24,3 +24,32 @@ def test_desired_state_interpolator(mode):
     np.testing.assert_allclose(system.desired_state_port.Eval(context), [*(base + v * dt / 2), *v])
     with pytest.raises(ValueError):
         DesiredStateInterpolator(q_indices=[0], initial_q=q0, mode="spline")
+
+
+def test_velocity_limits_rate_limit_the_command_until_it_catches_up():
+    """With ``velocity_limits`` a target further than limit * period from the last command is reached
+    over several ticks, at the limit (SoftErrorLimiter); a slow target passes unchanged."""
+    dt = 0.005
+    q0 = np.array([9.0, 0.0, 0.0])
+    system = DesiredStateInterpolator(q_indices=[1, 2], initial_q=q0, servo_period=dt,
+                                      velocity_limits=[2.0, np.inf])
+    context = system.CreateDefaultContext()
+    target = np.array([9.0, 0.025, -0.5])  # joint 1: 2.5 ticks at 2 rad/s; joint 2: no limit
+    system.q_port.FixValue(context, target)
+    commands, rates = [], []
+    for k in range(4):
+        context.SetTime(k * dt)
+        desired = system.desired_state_port.Eval(context)
+        rates.append(desired[2:].copy())
+        context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
+        commands.append(context.get_discrete_state().get_vector().value()[:2].copy())
+    np.testing.assert_allclose([c[0] for c in commands], [0.01, 0.02, 0.025, 0.025])
+    np.testing.assert_allclose([r[0] for r in rates], [2.0, 2.0, 1.0, 0.0])
+    np.testing.assert_allclose(commands[0][1], -0.5)  # the unlimited joint goes at once
+    assert max(abs(r[0]) for r in rates) <= 2.0 + 1e-12
+
+
+@pytest.mark.parametrize("limits", [[1.0], [1.0, 0.0], [1.0, float("nan")], [-1.0, 1.0]])
+def test_velocity_limits_must_be_positive_one_per_joint(limits):
+    with pytest.raises(ValueError, match="velocity_limits"):
+        DesiredStateInterpolator(q_indices=[1, 2], initial_q=np.zeros(3), velocity_limits=limits)

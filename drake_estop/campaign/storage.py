@@ -29,7 +29,8 @@ import pyarrow.parquet as pq
 from drake_estop.campaign.config import ConfigError
 
 #: The criteria of a physics run (``drake_estop.physics.criteria.CRITERIA``).
-CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support")
+CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support",
+            "joint_speed_within_limits")
 
 _PARAMETERS = [
     ("run", pa.int64()), ("seed", pa.int64()), ("signal_phase", pa.float64()), ("estop_time", pa.float64()),

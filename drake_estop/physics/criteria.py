@@ -31,6 +31,26 @@ from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopPlan
 
 
+def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
+    """Per logged tick, the number of joints whose measured speed exceeds the model's velocity limit."""
+    v = states[:, plant.num_positions():]
+    limit = plant.GetVelocityUpperLimits()
+    finite = np.isfinite(limit)
+    return np.sum(np.abs(v[:, finite]) > limit[finite], axis=1)
+
+
+def joint_velocity_peak(plant, states: np.ndarray, times: np.ndarray) -> dict:
+    """The joint closest to (or furthest over) its velocity limit: name, speed / limit, time."""
+    v = np.abs(states[:, plant.num_positions():])
+    limit = plant.GetVelocityUpperLimits()
+    ratio = np.where(np.isfinite(limit), v / np.where(np.isfinite(limit), limit, 1.0), 0.0)
+    tick, index = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    names = {plant.get_joint(j).velocity_start(): plant.get_joint(j).name() for j in plant.GetJointIndices()
+             if plant.get_joint(j).num_velocities() == 1}
+    return {"joint": names.get(int(index), str(index)), "ratio": float(ratio[tick, index]),
+            "time": float(times[tick])}
+
+
 def multibody_zmp(plant, times, q, *, context=None) -> np.ndarray:
     """ZMP (n, 2) on z = 0 of the whole-body motion q(t) (rigid multibody, finite differences).
 
@@ -231,6 +251,9 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         # the first sample (t = 0) precedes the first contact solve: no contact results yet
         "cop_in_support": bool(np.all(np.isfinite(margin_plan[1:]))
                                and np.min(margin_plan[1:]) >= -physics.cop_tolerance),
+        # measured joint speeds within the model's velocity limits at every logged tick (a real
+        # servo trips past them): the whole run, walk included
+        "joint_speed_within_limits": not np.any(joint_velocity_violations(plant, states)),
     }
     return PhysicsResult(
         plan=plan, times=times, cop_x=cop[:, 0], cop_y=cop[:, 1], normal_force=normal,
@@ -245,7 +268,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         sim_wall_time=wall_time, ik_wall_time=reference.wall_time, params=physics, reference=reference)
 
 
-CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support")
+CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support", "joint_speed_within_limits")
 
 
 @dataclass

@@ -355,12 +355,20 @@ def add_physics_plant(builder, params: PhysicsParameters):
     return plant, scene_graph, instance, ground_id
 
 
-def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mode="interpolate"):
+def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mode="interpolate",
+                      velocity_limit_fraction=None):
     """The IK's positions, one solve per servo tick, as the plant's PD ``desired_state`` (a
-    :class:`DesiredStateInterpolator`). Returns that system."""
-    q_idx, _ = actuated_indices(plant)
+    :class:`DesiredStateInterpolator`). With ``velocity_limit_fraction`` (in (0, 1]) its command is
+    rate-limited to that fraction of the model's joint velocity limits. Returns that system."""
+    q_idx, v_idx = actuated_indices(plant)
+    limits = None
+    if velocity_limit_fraction is not None:
+        if not 0.0 < velocity_limit_fraction <= 1.0:
+            raise ValueError(f"velocity_limit_fraction must be in (0, 1], got {velocity_limit_fraction!r}")
+        limits = velocity_limit_fraction * np.minimum(plant.GetVelocityUpperLimits()[v_idx],
+                                                      -plant.GetVelocityLowerLimits()[v_idx])
     desired = builder.AddNamedSystem("desired_state", DesiredStateInterpolator(
-        q_indices=q_idx, initial_q=initial_q, servo_period=servo_period, mode=mode))
+        q_indices=q_idx, initial_q=initial_q, servo_period=servo_period, mode=mode, velocity_limits=limits))
     builder.Connect(ik.q_port, desired.q_port)
     builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
     return desired
@@ -445,9 +453,18 @@ class DesiredStateInterpolator(LeafSystem):
       struck the floor 6 mm early and the robot bounced off the ground).
     ``q_indices`` / ``v_indices`` select the actuated joints (desired_state
     layout, e.g. :func:`drake_estop.physics.plant.actuated_indices`).
+
+    ``velocity_limits`` (one per actuated joint [rad/s], optional) limits the
+    command's rate: ``q_k`` is moved at most ``limit * period`` from the
+    previous tick's command, and the rest waits for the next ticks (the
+    velocity limit of hrpsys-base's SoftErrorLimiter on HRP-2). A servo
+    reference that asks for more than a joint can do (a knee passing near
+    straight, where its speed is the leg's extension rate / sin(knee)) is
+    then slowed instead of tripping the servo; the IK's later ticks catch
+    up.
     """
 
-    def __init__(self, *, q_indices, initial_q, servo_period=0.005, mode="interpolate"):
+    def __init__(self, *, q_indices, initial_q, servo_period=0.005, mode="interpolate", velocity_limits=None):
         super().__init__()
         if mode not in ("interpolate", "extrapolate"):
             raise ValueError(f"mode must be 'interpolate' or 'extrapolate', got {mode!r}")
@@ -455,6 +472,12 @@ class DesiredStateInterpolator(LeafSystem):
         self._idx = np.asarray(q_indices, int)
         self._dt = float(servo_period)
         n = len(self._idx)
+        self._max_step = None
+        if velocity_limits is not None:
+            limits = np.asarray(velocity_limits, float)
+            if limits.shape != (n,) or not np.all(limits > 0):  # NaN fails too; inf means no limit
+                raise ValueError(f"velocity_limits must be {n} positive values [rad/s], got {velocity_limits!r}")
+            self._max_step = limits * self._dt
         initial = np.asarray(initial_q, float)
         self.q_port = self.DeclareVectorInputPort("q", len(initial))
         # [q_a of the previous tick, time of the last tick]
@@ -464,15 +487,28 @@ class DesiredStateInterpolator(LeafSystem):
             prerequisites_of_calc={self.q_port.ticket(), self.xd_ticket(), self.time_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
 
-    def _update(self, context, discrete_state):
+    @property
+    def velocity_limits(self):
+        """The command's rate limits [rad/s] per actuated joint, or None."""
+        return None if self._max_step is None else self._max_step / self._dt
+
+    def _command(self, context, previous):
+        """This tick's actuated positions: the input, rate-limited from ``previous``."""
         q = self.q_port.Eval(context)[self._idx]
+        if self._max_step is None:
+            return q
+        return previous + np.clip(q - previous, -self._max_step, self._max_step)
+
+    def _update(self, context, discrete_state):
+        previous = context.get_discrete_state(self._state).value()[:-1]
+        q = self._command(context, previous)
         discrete_state.set_value(self._state, np.concatenate([q, [context.get_time()]]))
         return EventStatus.Succeeded()
 
     def _calc(self, context, output):
         state = context.get_discrete_state(self._state).value()
         previous, tick = state[:-1], state[-1]
-        q = self.q_port.Eval(context)[self._idx]
+        q = self._command(context, previous)
         v = (q - previous) / self._dt
         base = q if self._extrapolate else previous
         output.SetFromVector(np.concatenate([base + (context.get_time() - tick) * v, v]))
