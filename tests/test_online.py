@@ -1,6 +1,8 @@
 """The online controller in physics: the default `simulate --physics` diagram, perturbations, the CLI."""
 
 import json
+import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -141,6 +143,24 @@ def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypa
     assert not unlimited.criteria["joint_speed_within_limits"]
     assert unlimited.online["joint_velocity_peak"]["joint"] == "l_knee"
     assert unlimited.online["joint_velocity_peak"]["ratio"] > 1.0
+
+
+def test_lift_off_signal_stops_without_rocking(monkeypatch):
+    """2.85 s, the third step's lift-off: with the landing at most 50 ms before the nominal touchdown
+    (the controller's ``max_early_landing``) the stop meets every criterion; the paper's free landing
+    (0.16 s early) rocks the robot from foot to foot and it comes to rest late (stride sweep, session 4)."""
+    import drake_estop.physics.online as online
+
+    pattern = NominalPattern()
+    bounded = run_online(estop_time=2.85, pattern=pattern)
+    assert bounded.success, [name for name, ok in bounded.criteria.items() if not ok]
+    assert bounded.numbers()["torso_tilt_max_rad"] < 0.03
+    free = replace(online.CONTROLLER_STOP_PARAMETERS, max_early_landing=math.inf)
+    monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
+    rocking = run_online(estop_time=2.85, pattern=pattern)
+    assert rocking.plan.plans[0].landing_time < bounded.plan.plans[0].landing_time - 0.1
+    assert not rocking.criteria["comes_to_rest"]
+    assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
 
 
 # -- command line ----------------------------------------------------------------------------------

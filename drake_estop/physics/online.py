@@ -39,6 +39,17 @@ How the controller balances (and what it does not do):
   multibody ZMP error of the motion (the limbs' angular momentum, up to
   12 cm for tens of ms while the swing leg decelerates) less often pushes
   the centre of pressure over a sole edge.
+* **The first plan lands no earlier than 50 ms before the walk's own
+  touchdown** (``max_early_landing``; re-plans are free). A signal at
+  lift-off (2.85, 2.87 s) otherwise lands 0.16 s early, with the lateral COG
+  still over the support foot (4 cm inside its ankle, moving out at only
+  0.09 m/s); the lateral ZMP then swings 16.5 cm to the landing foot in the
+  0.1 s transition and the stiff robot rocked from foot to foot for 2 s
+  (each sole in turn unloaded, torso tilt up to 0.11 rad) and came to rest
+  late. With the bound the four lift-off signals (2.85-2.91 s) land at
+  3.44 s, all still one-step, the other 36 stride plans are unchanged. A
+  slower transition (0.15-0.2 s) also stopped the rocking, but turned 24-38
+  of the stride's 40 stops into next-step ones.
 * **The servo command respects the joint velocity limits.** The planner
   keeps the IK reference of the nominal stride under every joint's limit
   (``benchmarks/bench_joint_velocity.py``), but two references still ask for
@@ -96,7 +107,7 @@ from drake_estop.systems.stop_controller import add_stop_controller, connect_ref
 from drake_estop.timing import TickTimer
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s.
-CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5))
+CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5), max_early_landing=0.05)
 
 
 #: The servo command's rate limit, as a fraction of the model's joint velocity limits: the stiff PD servo
@@ -105,10 +116,13 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 
 
 def controller_stop_parameters(params: StopParameters | None = None) -> StopParameters:
-    """``params`` (default: the paper's) with the controller's ZMP margin and halt durations."""
+    """``params`` (default: the paper's) with the controller's ZMP margin, halt durations and earliest
+    landing (:data:`CONTROLLER_STOP_PARAMETERS`; a larger margin or a later landing in ``params`` is kept)."""
     base = params or StopParameters()
-    return replace(base, zmp_margin=max(base.zmp_margin, CONTROLLER_STOP_PARAMETERS.zmp_margin),
-                   halt_durations=CONTROLLER_STOP_PARAMETERS.halt_durations)
+    controller = CONTROLLER_STOP_PARAMETERS
+    return replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
+                   halt_durations=controller.halt_durations,
+                   max_early_landing=min(base.max_early_landing, controller.max_early_landing))
 
 
 @dataclass

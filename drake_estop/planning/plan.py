@@ -48,6 +48,10 @@ class StopParameters:
         Landing step from the support ankle, sagittal [m].
     min_landing_time, max_landing_time : float
         Time to touchdown [s].
+    max_early_landing : float
+        Single support: the landing no earlier than this before the nominal
+        touchdown [s] (default inf: the paper's, as early as the other
+        limits allow). Re-plans ignore it.
     min_transition_time, max_transition_time : float
         Double-support ZMP transition [s].
     min_slowdown_time, max_slowdown_time : float
@@ -95,6 +99,9 @@ class StopParameters:
     min_step_length: float = 0.0  # [m] no stepping backwards
     min_landing_time: float = 0.1  # minimum time to touchdown [s]
     max_landing_time: float = 1.0
+    # the landing no earlier than this before the nominal touchdown [s]; inf: as early as the other
+    # limits allow (the paper). Re-plans (:func:`replan_stop`) ignore it: a push may need the early step
+    max_early_landing: float = math.inf
     min_transition_time: float = 0.1  # minimum double-support ZMP transition [s]
     max_transition_time: float = 0.8
     min_slowdown_time: float = 0.005
@@ -147,6 +154,8 @@ class StopParameters:
                           ("min_step_length", "max_step_length")):
             if getattr(self, low) >= getattr(self, high):
                 raise ValueError(f"{low} must be below {high}")
+        if not (isinstance(self.max_early_landing, (int, float)) and self.max_early_landing >= 0):
+            raise ValueError(f"max_early_landing must be >= 0 (inf for no limit), got {self.max_early_landing!r}")
         if self.zmp_margin < 0 or self.crouch_depth < 0:
             raise ValueError("zmp_margin and crouch_depth must be >= 0")
         if self.quantisation not in ("resolve", "round"):

@@ -229,7 +229,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         touchdown = pattern.steps[state.step_index]["touchdown"]
         problem = SingleSupportProblem(start, w, params, float(state.zmp[0]),
                                        state.feet[swing][:2].copy(), float(state.next_landing[1]),
-                                       min_landing=descent_time(float(state.feet[swing][2]), params),
+                                       min_landing=_earliest_landing(state, params, swing, touchdown),
                                        nominal_landing=float(touchdown - state.time))
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
@@ -244,6 +244,14 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         raise ValueError(f"zmp_region must be 'fore' or 'polygon', got {zmp_region!r}")
     rear_ankle = state.feet[rear][0] - state.zmp[0]
     return DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
+
+
+def _earliest_landing(state: PatternState, params: StopParameters, swing: str, touchdown: float) -> float:
+    """Shortest time to touchdown [s]: the swing foot's descent (:func:`descent_time`), and no
+    earlier than ``max_early_landing`` before the nominal touchdown (at most ``max_landing_time``)."""
+    descent = descent_time(float(state.feet[swing][2]), params)
+    early = touchdown - state.time - params.max_early_landing
+    return max(descent, min(early, params.max_landing_time - params.servo_period))
 
 
 LATERAL_REACH_ALLOWANCE = 0.03  # [m] lateral COG-to-landing-ankle offset beyond step_width / 2 that
@@ -696,7 +704,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
     stop exists from that state.
     """
-    params = plan.params
+    params = replace(plan.params, max_early_landing=math.inf)  # a push may need the early step
     if plan.x is None or t < plan.start_time:
         return None
     single = plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
