@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+import numpy as np
 
 MATRIX_CELLS = {
     "push forward 17 N s": {"push": (170.0, 0.0)},
@@ -61,7 +64,11 @@ def _run(job):
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
     numbers = result.numbers()
+    airborne = int(np.count_nonzero(~np.isfinite(result.cop_margin_plan[1:])))
     return {"t": t, "options": job[1], "success": bool(result.success),
+            "numbers": {"tilt": numbers["torso_tilt_max_rad"], "slip": max(result.slip.values()),
+                        "rest_after_halt": numbers["rest_after_halt_s"], "offset": numbers["final_cog_offset_m"],
+                        "cop_margin": numbers["cop_margin_plan_min_m"], "airborne_ticks": airborne},
             "failed": [k for k, v in result.criteria.items() if not v], "case": result.plan.plans[0].case,
             "replans": result.online["replans"],
             "joint_velocity_violations": result.online["joint_velocity_violations"],
@@ -122,12 +129,12 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
     lines = ["# Online stop controller: robustness (physics)", "",
              f"Measured by `python benchmarks/robustness.py` on this 2-core machine, {len(rows)} runs on "
              f"{workers} workers in {wall / 60:.1f} min. Every run: the default online controller "
-             "(`simulate --physics`), success = every criterion of `physics.analyse`.", "",
+             "(`simulate --physics`), success = every criterion of `physics.analyse`. " + _legend(), "",
              f"## Stride sweep: {ok}/{len(sweep)} stops meet every criterion", "",
              "| signal [s] | case | re-plans | result |", "| --- | --- | --- | --- |"]
     for r in sweep:
         lines.append(f"| {r['t']:.3f} | {r.get('case', '-')} | {r.get('replans', '-')} | "
-                     f"{'ok' if r['success'] else 'FAIL ' + ', '.join(r.get('failed', [])) + r.get('error', '')} |")
+                     f"{_cell(r)} |")
     ticks = [r["tick_compute"] for r in rows if r.get("tick_compute", {}).get("median")]
     if ticks:
         lines += ["", "Controller work per servo tick over all runs (median of the runs' medians / worst p99 / "
@@ -170,10 +177,39 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _legend():
+    from drake_estop.physics.plant import PhysicsParameters
+
+    p = PhysicsParameters()
+    return (f"A failed criterion shows its number: torso tilt (limit {p.max_torso_tilt:g} rad, with the "
+            f"pelvis height), sole slip (limit {p.max_slip * 1e3:g} mm), rest after the planned halt (limit "
+            f"{p.rest_within:g} s), final COG offset from the feet's midpoint (limit {p.rest_offset * 1e3:g} mm), "
+            f"least CoP margin in the planned support (at most {p.cop_tolerance * 1e3:g} mm outside; a tick with no "
+            "contact has no CoP and fails it), ticks over a joint-speed limit.")
+
+
 def _cell(row):
     if row["success"]:
         return "ok"
-    return "FAIL: " + (", ".join(row.get("failed", [])) or row.get("error", "")[:60])
+    return "FAIL: " + (", ".join(_failure(row, name) for name in row.get("failed", [])) or row.get("error", "")[:60])
+
+
+def _failure(row, name):
+    """A failed criterion with the number that failed it (how near the run came to passing)."""
+    numbers = row.get("numbers")
+    if not numbers:
+        return name
+    rest = numbers["rest_after_halt"]
+    detail = {
+        "no_fall": f"tilt {numbers['tilt']:.2f} rad",
+        "no_slip": f"{numbers['slip'] * 1e3:.0f} mm",
+        "comes_to_rest": "never" if not math.isfinite(rest) else f"{rest:.2f} s after the halt",
+        "rests_at_midpoint": f"{numbers['offset'] * 1e3:.0f} mm off",
+        "cop_in_support": (f"{numbers['cop_margin'] * 1e3:+.1f} mm" + (
+            f", {numbers['airborne_ticks']} airborne ticks" if numbers["airborne_ticks"] else "")),
+        "joint_speed_within_limits": f"{row.get('joint_velocity_violations', '?')} ticks",
+    }.get(name)
+    return f"{name} ({detail})" if detail else name
 
 
 def _median(values):
