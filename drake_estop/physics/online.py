@@ -110,6 +110,10 @@ from drake_estop.timing import TickTimer
 CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5), max_early_landing=0.05)
 
 
+#: The whole-body IK keeps the knees bent by at least this much [rad] (a leg-extension limit; the module
+#: docstring says why).
+IK_MIN_KNEE_BEND = 0.15
+
 #: The servo command's rate limit, as a fraction of the model's joint velocity limits: the stiff PD servo
 #: overshoots a command at the limit by about 1 % (measured 6.08 rad/s on a knee commanded at 6).
 SERVO_VELOCITY_LIMIT_FRACTION = 0.95
@@ -179,8 +183,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                                            timer=timer, **(planner_options or {}))
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
+    solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
-        plant=kin_plant, servo_period=dt, initial_q=q0, solver=WholeBodyIkSolver(kin_plant), timer=timer))
+        plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     connect_reference(builder, planner, ik)
     add_servo_targets(builder, plant, instance, ik, q0, dt, velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period

@@ -154,12 +154,20 @@ class WholeBodyIkSolver:
     ``foot_rotation_tolerance`` / ``orientation_tolerance`` [rad] decide
     ``success``; iterations stop early once every error is below
     ``convergence_ratio`` times its tolerance.
+
+    ``min_knee_bend`` [rad] (default 0: the URDF's own limit, a straight
+    knee) raises the knees' lower limit in the solve: a leg-extension limit.
+    Near a straight knee its speed (the leg's extension rate / sin(knee))
+    is unbounded, and a straight knee that must bend again drops the pelvis
+    at once. With the floor the COG target that would stretch a leg is met
+    as far as the bent leg reaches: the COG height gives way first (the
+    height error then counts against ``com_tolerance``).
     """
 
     def __init__(self, plant, *, max_iterations=30, com_tolerance=1e-3,
                  foot_position_tolerance=1e-3, foot_rotation_tolerance=1e-2,
                  orientation_tolerance=1e-2, convergence_ratio=0.01,
-                 rotation_weight=0.3, damping_bias=1e-9):
+                 rotation_weight=0.3, damping_bias=1e-9, min_knee_bend=0.0):
         self._plant = plant
         self._context = plant.CreateDefaultContext()
         self.max_iterations = max_iterations
@@ -169,6 +177,7 @@ class WholeBodyIkSolver:
         self._bias = damping_bias
         self._init_indices(plant)
         self._init_weights(rotation_weight)
+        self._raise_knee_limits(plant, min_knee_bend)
 
     # -- set-up -------------------------------------------------------------
 
@@ -190,6 +199,16 @@ class WholeBodyIkSolver:
                        plant.GetFrameByName(RIGHT_SOLE))
         self._base_frame = base.body_frame()
         self._nv = plant.num_velocities()
+
+    def _raise_knee_limits(self, plant, min_knee_bend):
+        """Knees no straighter than ``min_knee_bend`` [rad] in the solve."""
+        if not (math.isfinite(min_knee_bend) and 0.0 <= min_knee_bend < 1.0):
+            raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {min_knee_bend!r}")
+        self._lower = self._lower.copy()
+        for name in LEG_JOINTS:
+            if name.endswith("knee"):
+                index = plant.GetJointByName(name).position_start()
+                self._lower[index] = max(self._lower[index], min_knee_bend)
 
     def _init_weights(self, rotation_weight):
         """Row weights: metres count 1, radians count ``rotation_weight``."""
