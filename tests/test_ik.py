@@ -263,3 +263,31 @@ def test_system_non_finite_input_holds_q(ik_system, q_nominal):
     np.testing.assert_array_equal(ik_system.q_port.Eval(context), q_nominal)
     assert np.isinf(ik_system.com_error_port.Eval(context)[0])
     assert np.isinf(ik_system.foot_error_port.Eval(context)[0])
+
+
+def _knees(plant, q):
+    return np.array([q[plant.GetJointByName(name).position_start()] for name in ("l_knee", "r_knee")])
+
+
+def test_min_knee_bend_lowers_the_cog_instead_of_straightening_a_knee(plant, q_nominal):
+    """A COG 0.25 m ahead of the rear ankle at the walking height needs a straight rear knee: the
+    default solver straightens it onto its 0 rad limit; with ``min_knee_bend`` both knees stay bent by
+    0.15 rad or more and the COG is lowered instead (the remaining error is about 1 mm)."""
+    rear, fore = RigidTransform([0.0, 0.095, 0.0]), RigidTransform([0.3, -0.095, 0.0])
+    target = np.array([0.25, 0.0, 0.814])
+    straight = WholeBodyIkSolver(plant).solve(q_nominal, target, rear, fore)
+    bent = WholeBodyIkSolver(plant, min_knee_bend=0.15).solve(q_nominal, target, rear, fore)
+    assert straight.success and _knees(plant, straight.q).min() < 0.05
+    assert np.all(_knees(plant, bent.q) >= 0.15 - 1e-12) and bent.joint_limit_ok
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, bent.q)
+    com = plant.CalcCenterOfMassPositionInWorld(context)
+    assert np.linalg.norm(com[:2] - target[:2]) < 3e-3
+    assert com[2] < target[2] - 5e-4  # the height gave way
+    assert bent.com_error < 3e-3 and bent.foot_position_error < 2e-3
+
+
+@pytest.mark.parametrize("bend", [-0.1, 1.0, float("nan")])
+def test_min_knee_bend_must_be_a_small_angle(plant, bend):
+    with pytest.raises(ValueError, match="min_knee_bend"):
+        WholeBodyIkSolver(plant, min_knee_bend=bend)

@@ -163,6 +163,24 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
 
 
+def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
+    """17 N s forward at 3.55 s (double support), a cell of the issue's matrix: with the IK's knee floor
+    (``IK_MIN_KNEE_BEND``) every criterion is met; without it the re-plan's COG stretched the rear knee
+    straight, bending it back dropped the pelvis and the robot left the floor for a tick (no CoP)."""
+    import drake_estop.physics.online as online
+
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(3.55, 170.0, 0.0, 0.1),))
+    bent = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
+    assert bent.success, [name for name, ok in bent.criteria.items() if not ok]
+    assert bent.online["replans"] >= 1
+    assert np.all(np.isfinite(bent.cop_margin_plan[1:]))
+    monkeypatch.setattr(online, "IK_MIN_KNEE_BEND", 0.0)
+    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
+    assert not straight.criteria["cop_in_support"]
+    assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 

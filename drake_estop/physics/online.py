@@ -67,6 +67,17 @@ How the controller balances (and what it does not do):
   about 1 % (measured 6.08 rad/s at a 6 rad/s command); the IK's later ticks
   catch up. Measured over the whole run, walk included, by the success
   criterion ``joint_speed_within_limits``.
+* **The IK keeps the knees bent** by at least :data:`IK_MIN_KNEE_BEND`
+  (0.15 rad; ``WholeBodyIkSolver(min_knee_bend=...)``): a COG target beyond a
+  leg's reach lowers the COG (by about a millimetre) instead of
+  straightening the knee. After a push in double support the re-plan's COG
+  went past the rear leg's reach: the IK held that knee straight on its
+  limit for tens of ms, then bent it back at the servo's rate limit, the
+  pelvis dropped and the robot left the floor for a tick (no centre of
+  pressure: ``cop_in_support`` failed in three of the four double-support
+  push cells). Measured with the floor: the forward, left and right 17 N s
+  double-support pushes meet every criterion, the backward one still loses
+  the floor for a tick.
 * **Not done (measured, see the README):** a torque-level balance law. A DCM
   law realised through the COG target (the earlier ``DcmStabilizer``) and an
   ankle-torque (foot damping) law on the stiff position servos were both
