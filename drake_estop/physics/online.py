@@ -66,7 +66,9 @@ How the controller balances (and what it does not do):
   joint's limit: the stiff PD servo overshoots a command at the limit by
   about 1 % (measured 6.08 rad/s at a 6 rad/s command); the IK's later ticks
   catch up. Measured over the whole run, walk included, by the success
-  criterion ``joint_speed_within_limits``.
+  criterion ``joint_speed_within_limits``. The IK's knee floor (below) now
+  keeps both of those references within the limits too; the rate limit
+  stays as the servo's safety net (tested with the floor off).
 * **The IK keeps the knees bent** by at least :data:`IK_MIN_KNEE_BEND`
   (0.15 rad; ``WholeBodyIkSolver(min_knee_bend=...)``): a COG target beyond a
   leg's reach lowers the COG (by about a millimetre) instead of
