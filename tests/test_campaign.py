@@ -154,7 +154,11 @@ def test_workers_and_scheduler_exclude_each_other(tmp_path):
 # -- kill and resume, through the real executor and storage (stand-in runs of 0.25 s)
 
 KILLED_CAMPAIGN = textwrap.dedent("""
+    import signal
     import sys
+    # Ctrl-C as in a terminal, whatever this test inherited: a test run started in the background by a
+    # non-interactive shell ignores SIGINT, and so would the campaign (it then ran to the end: exit 0)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.path.insert(0, {tests!r})
     from campaign_helpers import fake_run
     from drake_estop.campaign.runner import CampaignInterrupted, run_campaign
@@ -233,11 +237,9 @@ def test_a_killed_campaign_resumes_to_the_uninterrupted_table(tmp_path):
 
 def test_ctrl_c_merges_and_reports_the_finished_runs(tmp_path):
     out = tmp_path / "interrupted"
-    # 200 fake runs (25 s on 2 workers): the interrupt must come while the campaign runs, also on a
-    # loaded machine (with 40 runs, 5 s, a CI run under load once saw the campaign finish first: exit 0)
-    assert _start_and_kill(out, 200, tmp_path, interrupt=True) == 130
+    assert _start_and_kill(out, 40, tmp_path, interrupt=True) == 130
     table = ResultStore(out).read()
-    assert 4 <= table.num_rows < 200 and not _parts(out)  # merged into results.parquet
+    assert 4 <= table.num_rows < 40 and not _parts(out)  # merged into results.parquet
     assert pq.read_table(out / "results.parquet").num_rows == table.num_rows
     assert (out / "report.html").exists()
 
