@@ -53,3 +53,19 @@ def test_velocity_limits_rate_limit_the_command_until_it_catches_up():
 def test_velocity_limits_must_be_positive_one_per_joint(limits):
     with pytest.raises(ValueError, match="velocity_limits"):
         DesiredStateInterpolator(q_indices=[1, 2], initial_q=np.zeros(3), velocity_limits=limits)
+
+
+@pytest.mark.parametrize("fraction", [0.0, 1.5, float("nan")])
+def test_velocity_limit_fraction_must_be_in_0_1(fraction):
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
+
+    from drake_estop.model import load_humanoid
+    from drake_estop.physics.plant import add_servo_targets
+
+    plant = MultibodyPlant(0.001)
+    instance = load_humanoid(plant)
+    plant.Finalize()
+    with pytest.raises(ValueError, match="velocity_limit_fraction"):
+        add_servo_targets(DiagramBuilder(), plant, instance, None, np.zeros(plant.num_positions()), 0.005,
+                          velocity_limit_fraction=fraction)
