@@ -291,3 +291,32 @@ def test_min_knee_bend_lowers_the_cog_instead_of_straightening_a_knee(plant, q_n
 def test_min_knee_bend_must_be_a_small_angle(plant, bend):
     with pytest.raises(ValueError, match="min_knee_bend"):
         WholeBodyIkSolver(plant, min_knee_bend=bend)
+
+
+def test_stall_stop_ends_an_unreachable_solve_early_at_the_same_answer(plant, q_nominal):
+    """An unreachable COG target (beyond the bent rear leg's reach) plateaus within a few iterations:
+    the stagnation stop returns there, with the posture and errors of the full 30-iteration solve."""
+    rear, fore = RigidTransform([0.0, 0.095, 0.0]), RigidTransform([0.3, -0.095, 0.0])
+    target = np.array([0.25, 0.0, 0.814])
+    full = WholeBodyIkSolver(plant, min_knee_bend=0.15, stall_iterations=None).solve(q_nominal, target, rear, fore)
+    early = WholeBodyIkSolver(plant, min_knee_bend=0.15).solve(q_nominal, target, rear, fore)
+    assert full.iterations == 30 and not full.success
+    assert early.iterations <= 8
+    assert np.max(np.abs(early.q - full.q)) < 1e-4
+    assert abs(early.com_error - full.com_error) < 1e-5
+
+
+def test_stall_stop_leaves_converging_solves_alone(plant, solver, q_nominal):
+    """A reachable target is met to the tolerances with the stop on, the same as without it."""
+    for com, left, right, upper in walking_targets(6):
+        on = solver.solve(q_nominal, com, left, right, None, upper)
+        off = WholeBodyIkSolver(plant, stall_iterations=None).solve(q_nominal, com, left, right, None, upper)
+        assert on.success and on.iterations == off.iterations
+        np.testing.assert_allclose(on.q, off.q, atol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs", [{"stall_iterations": 0}, {"stall_iterations": 1.5},
+                                    {"min_improvement": 1.0}, {"min_improvement": float("nan")}])
+def test_stall_settings_are_validated(plant, kwargs):
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        WholeBodyIkSolver(plant, **kwargs)

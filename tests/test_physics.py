@@ -85,13 +85,15 @@ def test_cop_estimator_box_at_rest(contact):
     assert cop.body_normal_forces_port.Eval(cop_context)[0] == pytest.approx(weight, rel=1e-3)
     wrench = cop.wrench_port.Eval(cop_context)
     np.testing.assert_allclose(wrench[3:5], 0.0, atol=1e-3 * weight)  # no net friction at rest
+    # the one body's own wrench is the whole ground wrench (the box's force/torque sensor)
+    np.testing.assert_allclose(cop.body_wrenches_port.Eval(cop_context), wrench, atol=1e-9 * weight)
 
 
 def test_cop_estimator_ports_and_no_contact():
     diagram, plant, box, cop = _box_on_ground("point")
     assert [cop.get_input_port(i).get_name() for i in range(cop.num_input_ports())] == ["contact_results"]
     assert [cop.get_output_port(i).get_name() for i in range(cop.num_output_ports())] == [
-        "cop", "normal_force", "wrench", "body_normal_forces"]
+        "cop", "normal_force", "wrench", "body_normal_forces", "body_wrenches"]
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyMutableContextFromRoot(context)
     plant.SetFreeBodyPose(plant_context, box, RigidTransform([0.0, 0.0, 0.5]))  # in the air

@@ -100,6 +100,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
+from drake_estop.physics.compliance import add_foot_edge_compliance
 from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
 from drake_estop.physics.estimation import add_state_estimation
 from drake_estop.physics.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
@@ -126,6 +127,9 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
 #: The whole-body IK keeps the knees bent by at least this much [rad] (a leg-extension limit; the module
 #: docstring says why).
 IK_MIN_KNEE_BEND = 0.15
+
+#: Settings of the stance ankles' foot-edge compliance (:class:`drake_estop.physics.compliance.FootEdgeCompliance`).
+FOOT_EDGE_COMPLIANCE = {"edge_margin": 0.015, "damping": 80.0, "return_time": 0.3, "max_offset": 0.05}
 
 #: The servo command's rate limit, as a fraction of the model's joint velocity limits: the stiff PD servo
 #: overshoots a command at the limit by about 1 % (measured 6.08 rad/s on a knee commanded at 6).
@@ -164,7 +168,8 @@ class OnlineHandles:
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
-                         true_state: bool = False, planner_options: dict | None = None) -> OnlineHandles:
+                         true_state: bool = False, planner_options: dict | None = None,
+                         foot_compliance: dict | bool = True) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes
@@ -200,7 +205,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     connect_reference(builder, planner, ik)
-    add_servo_targets(builder, plant, instance, ik, q0, dt, velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
+    reference = ik
+    if foot_compliance is not False:
+        settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))
+        reference = add_foot_edge_compliance(builder, plant, cop, ik, dt, timer=timer, **settings)
+    add_servo_targets(builder, plant, instance, reference, q0, dt,
+                      velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
     loggers = {
         **add_online_loggers(builder, plant, cop, ik, period),
@@ -227,7 +237,7 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               true_state: bool = False, planner_options: dict | None = None):
+               true_state: bool = False, planner_options: dict | None = None, foot_compliance: dict | bool = True):
     """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
 
     ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
@@ -249,7 +259,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, true_state=true_state,
-                                   planner_options=planner_options)
+                                   planner_options=planner_options, foot_compliance=foot_compliance)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     plant_context = handles.plant.GetMyMutableContextFromRoot(context)

@@ -157,6 +157,7 @@ class CopEstimator(LeafSystem):
         - normal_force
         - wrench
         - body_normal_forces
+        - body_wrenches
 
     Sums every point-pair and hydroelastic contact between a ``ground`` body
     (by default the world body) and any other body into the net force ``f``
@@ -174,6 +175,9 @@ class CopEstimator(LeafSystem):
       - ``normal_force`` (1): total ``f_z`` [N].
       - ``wrench`` (6): ``[n, f]`` about the world origin, world frame.
       - ``body_normal_forces`` (len(bodies)): ``f_z`` on each of ``bodies``.
+      - ``body_wrenches`` (6 len(bodies)): ``[n, f]`` of the ground on each of
+        ``bodies`` about the world origin, world frame (a foot's force/torque
+        sensor, expressed in the world).
 
     Hydroelastic contacts need the geometry -> body map, which is built from
     ``scene_graph``'s model inspector at construction (pass ``scene_graph``
@@ -199,7 +203,7 @@ class CopEstimator(LeafSystem):
             "contact_results", AbstractValue.Make(ContactResults()))
         self._sums = self.DeclareCacheEntry(
             "ground reaction",
-            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(7 + len(self._bodies))),
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(7 + 7 * len(self._bodies))),
                           calc=self._calc_sums),
             {self.contact_results_port.ticket()})
         ticket = {self._sums.ticket()}
@@ -211,7 +215,11 @@ class CopEstimator(LeafSystem):
             "wrench", 6, lambda c, o: o.SetFromVector(self._sums.Eval(c)[:6]), prerequisites_of_calc=ticket)
         self.body_normal_forces_port = self.DeclareVectorOutputPort(
             "body_normal_forces", len(self._bodies),
-            lambda c, o: o.SetFromVector(self._sums.Eval(c)[7:]), prerequisites_of_calc=ticket)
+            lambda c, o: o.SetFromVector(self._sums.Eval(c)[7:7 + len(self._bodies)]),
+            prerequisites_of_calc=ticket)
+        self.body_wrenches_port = self.DeclareVectorOutputPort(
+            "body_wrenches", 6 * len(self._bodies),
+            lambda c, o: o.SetFromVector(self._sums.Eval(c)[7 + len(self._bodies):]), prerequisites_of_calc=ticket)
 
     def _robot_side(self, body_a, body_b):
         """+1 if the force given on B acts on the robot, -1 if on A, 0 if not ground contact."""
@@ -222,11 +230,13 @@ class CopEstimator(LeafSystem):
         return 0.0, None
 
     def ground_reaction(self, results: ContactResults) -> np.ndarray:
-        """[n (3), f (3), count, f_z per body] of the ground on the robot, about the world origin."""
+        """[n (3), f (3), count, f_z per body, [n, f] per body] of the ground on the robot, about the
+        world origin."""
         moment, force = np.zeros(3), np.zeros(3)
         per_body = np.zeros(len(self._bodies))
+        body_wrench = np.zeros((len(self._bodies), 6))
         count = 0
-        points, forces = [], []
+        points, forces, owners = [], [], []
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
             sign, body = self._robot_side(int(info.bodyA_index()), int(info.bodyB_index()))
@@ -235,15 +245,20 @@ class CopEstimator(LeafSystem):
             f = sign * info.contact_force()
             points.append(info.contact_point())
             forces.append(f)
+            owners.append(self._bodies.index(body) if body in self._bodies else -1)
             count += 1
             if body in self._bodies:
                 per_body[self._bodies.index(body)] += f[2]
         if forces:  # one vectorised sum of p x f (a per-contact np.cross cost ~10 % of the physics loop)
             p, f = np.array(points), np.array(forces)
+            pxf = np.column_stack([p[:, 1] * f[:, 2] - p[:, 2] * f[:, 1], p[:, 2] * f[:, 0] - p[:, 0] * f[:, 2],
+                                   p[:, 0] * f[:, 1] - p[:, 1] * f[:, 0]])
             force += f.sum(axis=0)
-            moment += np.array([np.dot(p[:, 1], f[:, 2]) - np.dot(p[:, 2], f[:, 1]),
-                                np.dot(p[:, 2], f[:, 0]) - np.dot(p[:, 0], f[:, 2]),
-                                np.dot(p[:, 0], f[:, 1]) - np.dot(p[:, 1], f[:, 0])])
+            moment += pxf.sum(axis=0)
+            owners = np.array(owners)
+            for k in range(len(self._bodies)):
+                mine = owners == k
+                body_wrench[k] += np.concatenate([pxf[mine].sum(axis=0), f[mine].sum(axis=0)])
         for i in range(results.num_hydroelastic_contacts()):
             info = results.hydroelastic_contact_info(i)
             surface = info.contact_surface()
@@ -264,7 +279,8 @@ class CopEstimator(LeafSystem):
             count += 1
             if body in self._bodies:
                 per_body[self._bodies.index(body)] += f[2]
-        return np.concatenate([moment, force, [count], per_body])
+                body_wrench[self._bodies.index(body)] += np.concatenate([np.cross(p, f) + tau, f])
+        return np.concatenate([moment, force, [count], per_body, body_wrench.ravel()])
 
     def _calc_sums(self, context, value):
         value.set_value(self.ground_reaction(self.contact_results_port.Eval(context)))
