@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-from pydrake.common.value import AbstractValue
 
-from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
+from drake_estop.model import nominal_standing_configuration
 from drake_estop.physics.compliance import SOLE_OUTER, SOLE_TOE, FootEdgeCompliance
 from drake_estop.systems.ik import shared_ik
 
@@ -17,13 +16,7 @@ FZ = 500.0
 @pytest.fixture(scope="module")
 def setup():
     plant, _, _ = shared_ik()
-    q = nominal_standing_configuration(plant)
-    plant_context = plant.CreateDefaultContext()
-    plant.SetPositions(plant_context, q)
-    poses = list(plant.get_body_poses_output_port().Eval(plant_context))
-    soles = {side: plant.GetFrameByName(name).CalcPoseInWorld(plant_context)
-             for side, name in (("left", LEFT_SOLE), ("right", RIGHT_SOLE))}
-    return plant, q, poses, soles
+    return plant, nominal_standing_configuration(plant)
 
 
 def _system(plant, **settings):
@@ -31,18 +24,17 @@ def _system(plant, **settings):
                               edge_margin=0.01, **settings)
 
 
-def _wrench(sole_pose, cop_in_sole, fz=FZ):
-    """[n, f] about the world origin of a vertical force fz at a point of the sole (sole frame x, y)."""
-    p = sole_pose.multiply(np.array([cop_in_sole[0], cop_in_sole[1], 0.0]))
+def _ft(cop_in_sole, fz=FZ):
+    """A sole's force/torque reading [n, f] (sole frame, about its origin): fz at the point ``cop_in_sole``."""
+    p = np.array([cop_in_sole[0], cop_in_sole[1], 0.0])
     f = np.array([0.0, 0.0, fz])
     return np.concatenate([np.cross(p, f), f])
 
 
-def _context(system, q, poses, left, right):
+def _context(system, q, left, right):
     context = system.CreateDefaultContext()
     system.q_in_port.FixValue(context, q)
-    system.body_poses_port.FixValue(context, AbstractValue.Make(poses))
-    system.foot_wrenches_port.FixValue(context, np.concatenate([left, right]))
+    system.foot_ft_port.FixValue(context, np.concatenate([left, right]))
     return context
 
 
@@ -52,17 +44,17 @@ def _ankles(plant, q):
 
 
 def test_ports(setup):
-    plant, *_ = setup
+    plant, _ = setup
     system = _system(plant)
     assert [system.get_input_port(i).get_name() for i in range(system.num_input_ports())] == [
-        "q", "foot_wrenches", "body_poses"]
+        "q", "foot_ft"]
     assert [system.get_output_port(i).get_name() for i in range(system.num_output_ports())] == ["q", "offsets"]
 
 
 def test_cop_inside_the_safe_region_changes_nothing(setup):
-    plant, q, poses, soles = setup
+    plant, q = setup
     system = _system(plant)
-    context = _context(system, q, poses, _wrench(soles["left"], [0.05, 0.02]), _wrench(soles["right"], [-0.05, 0.0]))
+    context = _context(system, q, _ft([0.05, 0.02]), _ft([-0.05, 0.0]))
     np.testing.assert_array_equal(system.rolling_moments(context), 0.0)
     context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
     np.testing.assert_array_equal(system.offsets_port.Eval(context), 0.0)
@@ -72,10 +64,10 @@ def test_cop_inside_the_safe_region_changes_nothing(setup):
 def test_cop_on_the_outer_edge_rolls_the_ankle_with_the_moment(setup):
     """Left CoP 4 mm inside the outer (+y) edge, 10 mm safe inset: 6 mm excess, m_x = +3 N m; the left
     ankle roll moves by dt m / damping in one tick, the rest stays (the right foot is off the ground)."""
-    plant, q, poses, soles = setup
+    plant, q = setup
     system = _system(plant)
     cop = [0.0, SOLE_OUTER - 0.004]
-    context = _context(system, q, poses, _wrench(soles["left"], cop), np.zeros(6))
+    context = _context(system, q, _ft(cop), np.zeros(6))
     moments = system.rolling_moments(context)
     np.testing.assert_allclose(moments, [0.006 * FZ, 0.0, 0.0, 0.0], atol=1e-9)
     context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
@@ -87,25 +79,25 @@ def test_cop_on_the_outer_edge_rolls_the_ankle_with_the_moment(setup):
 def test_cop_at_the_right_toe_pitches_the_right_ankle_down(setup):
     """The right foot's CoP 6 mm past the safe region towards the toe: m_y = -0.006 f_z (the toe
     pushed up), so the right ankle pitch offset is negative."""
-    plant, q, poses, soles = setup
+    plant, q = setup
     system = _system(plant)
-    context = _context(system, q, poses, np.zeros(6), _wrench(soles["right"], [SOLE_TOE - 0.004, 0.0]))
+    context = _context(system, q, np.zeros(6), _ft([SOLE_TOE - 0.004, 0.0]))
     np.testing.assert_allclose(system.rolling_moments(context), [0.0, 0.0, 0.0, -0.006 * FZ], atol=1e-9)
 
 
 def test_offsets_return_when_the_foot_is_off_the_ground(setup):
-    plant, q, poses, soles = setup
+    plant, q = setup
     system = _system(plant, max_offset=0.2)
-    context = _context(system, q, poses, _wrench(soles["left"], [0.0, 0.0], fz=10.0), np.zeros(6))
+    context = _context(system, q, _ft([0.0, 0.0], fz=10.0), np.zeros(6))
     context.SetDiscreteState(np.array([0.1, -0.1, 0.05, 0.0]))
     context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
     np.testing.assert_allclose(system.offsets_port.Eval(context), np.array([0.1, -0.1, 0.05, 0.0]) * (1 - DT / RETURN))
 
 
 def test_offsets_are_bounded(setup):
-    plant, q, poses, soles = setup
+    plant, q = setup
     system = _system(plant, max_offset=0.01)
-    context = _context(system, q, poses, _wrench(soles["left"], [0.0, SOLE_OUTER], fz=5000.0), np.zeros(6))
+    context = _context(system, q, _ft([0.0, SOLE_OUTER], fz=5000.0), np.zeros(6))
     for _ in range(50):
         context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
     assert system.offsets_port.Eval(context)[0] == pytest.approx(0.01)
@@ -114,6 +106,6 @@ def test_offsets_are_bounded(setup):
 @pytest.mark.parametrize("name, value", [("damping", 0.0), ("return_time", -1.0), ("max_offset", float("nan")),
                                          ("servo_period", 0.0), ("edge_margin", 0.06), ("edge_margin", -0.01)])
 def test_bad_settings_raise_naming_the_parameter(setup, name, value):
-    plant, *_ = setup
+    plant, _ = setup
     with pytest.raises(ValueError, match=name):
         FootEdgeCompliance(plant=plant, **{name: value})

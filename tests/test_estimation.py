@@ -14,7 +14,8 @@ from drake_estop.physics.estimation import (
     ACCELEROMETER_NOISE,
     ENCODER_NOISE,
     GYRO_NOISE,
-    SIGNALS,
+    SENSOR_SIGNALS,
+    FootForceTorqueSensors,
     RobotSensors,
     StateEstimator,
     actuated_position_indices,
@@ -48,6 +49,7 @@ def _fix_sensor_inputs(sensors, context, plant, q, *, forces=(290.0, 290.0)):
     sensors.foot_forces_in_port.FixValue(context, list(forces))
     sensors.cop_in_port.FixValue(context, [0.01, 0.0])
     sensors.wrench_in_port.FixValue(context, [1.0, 2.0, 3.0, 0.0, 0.0, sum(forces)])
+    sensors.foot_ft_in_port.FixValue(context, np.arange(12.0))
 
 
 # --------------------------------------------------------------------------
@@ -62,6 +64,7 @@ def test_sensors_without_noise_pass_the_true_signals(plant, q0):
     assert np.array_equal(sensors.gyro_port.Eval(context), [0.01, -0.02, 0.03])
     assert np.array_equal(sensors.accelerometer_port.Eval(context), [0.0, 0.0, G])
     assert np.array_equal(sensors.wrench_port.Eval(context), [1, 2, 3, 0, 0, 580])
+    assert np.array_equal(sensors.foot_ft_port.Eval(context), np.arange(12.0))
     assert np.array_equal(actuated_position_indices(plant), actuated_indices(plant)[0])
 
 
@@ -77,7 +80,8 @@ def _noise(plant, q0, seed, ticks):
                                     sensors.gyro_port.Eval(context) - [0.01, -0.02, 0.03],
                                     sensors.accelerometer_port.Eval(context) - [0, 0, G],
                                     sensors.foot_forces_port.Eval(context) - 290.0,
-                                    sensors.wrench_port.Eval(context) - [1, 2, 3, 0, 0, 580]]))
+                                    sensors.wrench_port.Eval(context) - [1, 2, 3, 0, 0, 580],
+                                    sensors.foot_ft_port.Eval(context) - np.arange(12.0)]))
     return np.array(rows)
 
 
@@ -127,11 +131,11 @@ def test_latency_shifts_every_signal_by_exactly_n_ticks(plant, latency):
     sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT, latency_ticks=latency))
     assert sensors.latency_ticks == latency
     for port in (sensors.state_port, sensors.gyro_in_port, sensors.accelerometer_in_port,
-                 sensors.foot_forces_in_port, sensors.cop_in_port, sensors.wrench_in_port):
+                 sensors.foot_forces_in_port, sensors.cop_in_port, sensors.wrench_in_port, sensors.foot_ft_in_port):
         clock = builder.AddSystem(_TickClock(port.size()))
         builder.Connect(clock.get_output_port(), port)
     samplers = {}
-    for name in SIGNALS:
+    for name in SENSOR_SIGNALS:
         port = sensors.GetOutputPort(name)
         samplers[name] = builder.AddSystem(_Sampler(port.size()))
         builder.Connect(port, samplers[name].u)
@@ -144,6 +148,32 @@ def test_latency_shifts_every_signal_by_exactly_n_ticks(plant, latency):
         assert [v for _, v in seen] == [max(k - latency, 0) for k, _ in seen], name
     logged = logger.FindLog(simulator.get_context()).data()[0]
     assert list(logged) == [max(k - latency, 0) for k in range(len(logged))]
+
+
+def test_foot_force_torque_sensors_read_in_the_sole_frame(plant, q0):
+    """A 400 N push up at a point 3 cm ahead of and 2 cm outboard of the left sole's origin, in a turned,
+    tilted sole: the sensor reads f_z = 400 in its own frame and the moment of that point about its origin
+    (CoP = (0.03, 0.02) in the sole frame); the right sole, unloaded, reads zero."""
+    from pydrake.common.value import AbstractValue
+    from pydrake.math import RollPitchYaw
+
+    context = plant.CreateDefaultContext()
+    q = q0.copy()
+    q[:4] = RollPitchYaw(0.05, -0.03, 0.4).ToQuaternion().wxyz()  # the floating base turned and tilted
+    plant.SetPositions(context, q)
+    sole = plant.GetFrameByName(LEFT_SOLE).CalcPoseInWorld(context)
+    rot = sole.rotation().matrix()
+    point = sole.multiply(np.array([0.03, 0.02, 0.0]))
+    force = rot @ np.array([0.0, 0.0, 400.0])
+    sensors = FootForceTorqueSensors(plant=plant)
+    sensor_context = sensors.CreateDefaultContext()
+    sensors.body_wrenches_port.FixValue(sensor_context, np.concatenate([np.cross(point, force), force, np.zeros(6)]))
+    sensors.body_poses_port.FixValue(sensor_context, AbstractValue.Make(
+        list(plant.get_body_poses_output_port().Eval(context))))
+    reading = sensors.foot_ft_port.Eval(sensor_context)
+    np.testing.assert_allclose(reading[3:6], [0.0, 0.0, 400.0], atol=1e-9)
+    np.testing.assert_allclose([-reading[1] / reading[5], reading[0] / reading[5]], [0.03, 0.02], atol=1e-12)
+    np.testing.assert_array_equal(reading[6:], 0.0)
 
 
 def test_latency_validation(plant):

@@ -150,7 +150,9 @@ def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypa
 def test_lift_off_signal_stops_without_rocking(monkeypatch):
     """2.85 s, the third step's lift-off: with the landing at most 50 ms before the nominal touchdown
     (the controller's ``max_early_landing``) the stop meets every criterion; the paper's free landing
-    (0.16 s early) rocks the robot from foot to foot and it comes to rest late (stride sweep, session 4)."""
+    (0.16 s early) rocks the robot from foot to foot and it comes to rest late (stride sweep, session 4).
+    The counterfactual runs without the foot-edge compliance, which on its own also stops that rocking
+    (measured: the free landing with it meets every criterion)."""
     import drake_estop.physics.online as online
 
     pattern = NominalPattern()
@@ -159,7 +161,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert bounded.numbers()["torso_tilt_max_rad"] < 0.03
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_early_landing=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    rocking = run_online(estop_time=2.85, pattern=pattern)
+    rocking = run_online(estop_time=2.85, pattern=pattern, foot_compliance=False)
     assert rocking.plan.plans[0].landing_time < bounded.plan.plans[0].landing_time - 0.1
     assert not rocking.criteria["comes_to_rest"]
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
@@ -168,7 +170,9 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
 def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     """17 N s forward at 3.55 s (double support), a cell of the issue's matrix: with the IK's knee floor
     (``IK_MIN_KNEE_BEND``) every criterion is met; without it the re-plan's COG stretched the rear knee
-    straight, bending it back dropped the pelvis and the robot left the floor for a tick (no CoP)."""
+    straight, bending it back dropped the pelvis and the robot left the floor for a tick (no CoP). The
+    counterfactual runs without the foot-edge compliance, which on its own also keeps this robot on the
+    floor (measured)."""
     import drake_estop.physics.online as online
 
     pattern = NominalPattern()
@@ -178,9 +182,23 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     assert bent.online["replans"] >= 1
     assert np.all(np.isfinite(bent.cop_margin_plan[1:]))
     monkeypatch.setattr(online, "IK_MIN_KNEE_BEND", 0.0)
-    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
+    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
     assert not straight.criteria["cop_in_support"]
     assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
+
+
+def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
+    """17 N s backward at 3.55 s (double support), a cell of the issue's matrix: with the ankles' foot-edge
+    compliance (the default) every criterion is met and the ankles moved; without it the feet rock on their
+    heels and the robot leaves the floor for a tick (no CoP), as in session 5's matrix."""
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(3.55, -170.0, 0.0, 0.1),))
+    compliant = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
+    assert compliant.success, [name for name, ok in compliant.criteria.items() if not ok]
+    assert compliant.online["ankle_offset_max"] > 1e-3
+    stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
+    assert not stiff.criteria["cop_in_support"]
+    assert stiff.online["ankle_offset_max"] == 0.0
 
 
 # -- command line ----------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ Here the law acts only on the moment's part beyond a safe region of the sole (th
 ``edge_margin``), so in the walk, with the centre of pressure inside that region, nothing changes.
 (An ankle damping law on the whole moment towards the LIPM ZMP was tried earlier and made the walk
 fall: the swing leg's momentum puts the multibody ZMP up to 12 cm off the LIPM's.) Per foot in
-contact, with ``p`` its centre of pressure in the sole frame (its force/torque sensor) and
+contact, with ``p`` its centre of pressure in the sole frame (from its force/torque sensor) and
 ``p_safe`` the nearest point of the safe region::
 
     m = (p - p_safe) x f_z                 # the moment that rolls the foot, sole frame
@@ -25,10 +25,8 @@ ground only returns.
 from __future__ import annotations
 
 import numpy as np
-from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from drake_estop.model import LEFT_SOLE, RIGHT_SOLE
 from drake_estop.timing import timed
 
 #: The sole rectangle in its frame [m] (models/humanoid.urdf): x from the heel to the toe; y inner and
@@ -44,18 +42,16 @@ class FootEdgeCompliance(LeafSystem):
         name: FootEdgeCompliance
         input_ports:
         - q
-        - foot_wrenches
-        - body_poses
+        - foot_ft
         output_ports:
         - q
         - offsets
 
     Ports:
       - ``q`` in (nq): the IK's positions (the servo reference).
-      - ``foot_wrenches`` (12): ``[n, f]`` of the ground on the left then the right sole about the world
-        origin (:attr:`drake_estop.physics.plant.CopEstimator.body_wrenches_port`, soles in that order).
-      - ``body_poses`` (abstract): the plant's body poses (the soles' orientation; a real robot's
-        force/torque sensor measures in the sole frame directly).
+      - ``foot_ft`` (12): the soles' force/torque sensors, left then right, each ``[n, f]`` about the
+        sole frame's origin in the sole frame (:class:`drake_estop.physics.estimation.FootForceTorqueSensors`
+        through :class:`drake_estop.physics.estimation.RobotSensors`, so with the sensors' latency).
       - ``q`` out (nq): ``q`` with the offsets added to the ankle joints.
       - ``offsets`` (4): ``[left roll, left pitch, right roll, right pitch]`` [rad].
 
@@ -76,8 +72,6 @@ class FootEdgeCompliance(LeafSystem):
             raise ValueError(f"edge_margin must be in [0, {SOLE_INNER}) m, got {edge_margin!r}")
         self._dt, self._damping, self._return, self._max = servo_period, damping, return_time, max_offset
         self._min_fz = float(min_normal_force)
-        self._sole_bodies = [plant.GetFrameByName(name).body().index() for name in (LEFT_SOLE, RIGHT_SOLE)]
-        self._sole_in_body = [plant.GetFrameByName(name).GetFixedPoseInBodyFrame() for name in (LEFT_SOLE, RIGHT_SOLE)]
         self._ankles = np.array([[plant.GetJointByName(f"{s}_ankle_roll").position_start(),
                                   plant.GetJointByName(f"{s}_ankle_pitch").position_start()] for s in "lr"])
         m = edge_margin  # safe region [x_low, x_high, y_low, y_high] per sole (outer is +y on the left)
@@ -85,9 +79,7 @@ class FootEdgeCompliance(LeafSystem):
                                [SOLE_HEEL + m, SOLE_TOE - m, -SOLE_OUTER + m, SOLE_INNER - m]])
         nq = plant.num_positions()
         self.q_in_port = self.DeclareVectorInputPort("q", nq)
-        self.foot_wrenches_port = self.DeclareVectorInputPort("foot_wrenches", 12)
-        self.body_poses_port = self.DeclareAbstractInputPort(
-            "body_poses", plant.get_body_poses_output_port().Allocate())
+        self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
         self._offsets = self.DeclareDiscreteState(4)
         self.q_port = self.DeclareVectorOutputPort(
             "q", nq, self._calc_q, prerequisites_of_calc={self.q_in_port.ticket(), self.xd_ticket()})
@@ -97,17 +89,12 @@ class FootEdgeCompliance(LeafSystem):
     def rolling_moments(self, context) -> np.ndarray:
         """``[left m_x, left m_y, right m_x, right m_y]`` [N m]: each sole's ground moment beyond its safe
         region, in the sole frame (zero for a foot off the ground)."""
-        wrenches = self.foot_wrenches_port.Eval(context).reshape(2, 6)
-        poses = self.body_poses_port.Eval(context)
+        sensors = self.foot_ft_port.Eval(context).reshape(2, 6)
         out = np.zeros(4)
         for k in range(2):
-            moment, force = wrenches[k, :3], wrenches[k, 3:]
-            sole = poses[int(self._sole_bodies[k])] @ self._sole_in_body[k]
-            rot, origin = sole.rotation().matrix(), sole.translation()
-            f_sole = rot.T @ force
+            n_sole, f_sole = sensors[k, :3], sensors[k, 3:]  # about the sole origin, sole frame
             if f_sole[2] < self._min_fz:
                 continue
-            n_sole = rot.T @ (moment - np.cross(origin, force))  # about the sole origin
             p = np.array([-n_sole[1] / f_sole[2], n_sole[0] / f_sole[2]])  # CoP on the sole plane
             x_low, x_high, y_low, y_high = self._safe[k]
             excess = p - np.array([np.clip(p[0], x_low, x_high), np.clip(p[1], y_low, y_high)])
@@ -126,13 +113,12 @@ class FootEdgeCompliance(LeafSystem):
         output.SetFromVector(q)
 
 
-def add_foot_edge_compliance(builder, plant, cop_estimator, ik, servo_period, *, timer=None, **settings):
-    """A :class:`FootEdgeCompliance` between ``ik.q_port`` and the servo targets; the CoP estimator must
-    have been built with the soles as its bodies, left first. Returns the system (its ``q_port`` feeds
-    the servo targets)."""
+def add_foot_edge_compliance(builder, plant, sensors, ik, servo_period, *, timer=None, **settings):
+    """A :class:`FootEdgeCompliance` between ``ik.q_port`` and the servo targets, reading the feet's
+    force/torque sensors from ``sensors`` (:class:`drake_estop.physics.estimation.RobotSensors`, e.g.
+    ``estimator.sensors``). Returns the system (its ``q_port`` feeds the servo targets)."""
     compliance = builder.AddNamedSystem("foot_edge_compliance", FootEdgeCompliance(
         plant=plant, servo_period=servo_period, timer=timer, **settings))
     builder.Connect(ik.q_port, compliance.q_in_port)
-    builder.Connect(cop_estimator.body_wrenches_port, compliance.foot_wrenches_port)
-    builder.Connect(plant.get_body_poses_output_port(), compliance.body_poses_port)
+    builder.Connect(sensors.foot_ft_port, compliance.foot_ft_port)
     return compliance

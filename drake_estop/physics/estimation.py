@@ -74,10 +74,14 @@ ACCELEROMETER_NOISE = 0.05  # [m/s^2]
 
 #: Order and sizes of RobotSensors' / StateEstimator's measurement signals (na = actuated joints).
 SIGNALS = ("encoders", "gyro", "accelerometer", "foot_forces", "cop", "wrench")
+#: RobotSensors' signals: the estimator's, then the feet's force/torque sensors (read by the ankles'
+#: foot-edge compliance, :mod:`drake_estop.physics.compliance`).
+SENSOR_SIGNALS = SIGNALS + ("foot_ft",)
 
 
 def _signal_sizes(num_actuated):
-    return {"encoders": num_actuated, "gyro": 3, "accelerometer": 3, "foot_forces": 2, "cop": 2, "wrench": 6}
+    return {"encoders": num_actuated, "gyro": 3, "accelerometer": 3, "foot_forces": 2, "cop": 2, "wrench": 6,
+            "foot_ft": 12}
 
 
 def actuated_position_indices(plant):
@@ -93,6 +97,50 @@ def noise_sample(seed: int, stream: int, tick: int, size: int) -> np.ndarray:
     return np.random.Generator(bits).standard_normal(size)
 
 
+class FootForceTorqueSensors(LeafSystem):
+    """The soles' six-axis force/torque sensors: each sole's ground wrench in its own frame.
+
+    .. pydrake_system::
+
+        name: FootForceTorqueSensors
+        input_ports:
+        - body_wrenches
+        - body_poses
+        output_ports:
+        - foot_ft
+
+    Ports:
+      - ``body_wrenches`` (12): ``[n, f]`` of the ground on the left then the right sole body about the
+        world origin, world frame (:attr:`drake_estop.physics.plant.CopEstimator.body_wrenches_port`,
+        the estimator built with the two soles).
+      - ``body_poses`` (abstract): the plant's body poses.
+      - ``foot_ft`` (12): per sole (left, right) ``[n (3), f (3)]``: the moment about the sole frame's
+        origin and the force, both in the sole frame [N m, N] (what a sensor in the foot measures).
+    """
+
+    def __init__(self, *, plant):
+        super().__init__()
+        frames = [plant.GetFrameByName(name) for name in (LEFT_SOLE, RIGHT_SOLE)]
+        self._bodies = [int(frame.body().index()) for frame in frames]
+        self._sole_in_body = [frame.GetFixedPoseInBodyFrame() for frame in frames]
+        self.body_wrenches_port = self.DeclareVectorInputPort("body_wrenches", 12)
+        self.body_poses_port = self.DeclareAbstractInputPort(
+            "body_poses", plant.get_body_poses_output_port().Allocate())
+        self.foot_ft_port = self.DeclareVectorOutputPort("foot_ft", 12, self._calc)
+
+    def _calc(self, context, output):
+        wrenches = self.body_wrenches_port.Eval(context).reshape(2, 6)
+        poses = self.body_poses_port.Eval(context)
+        out = np.empty(12)
+        for k in range(2):
+            sole = poses[self._bodies[k]] @ self._sole_in_body[k]
+            rot, origin = sole.rotation().matrix(), sole.translation()
+            moment, force = wrenches[k, :3], wrenches[k, 3:]
+            out[6 * k:6 * k + 3] = rot.T @ (moment - _cross(origin, force))
+            out[6 * k + 3:6 * k + 6] = rot.T @ force
+        output.SetFromVector(out)
+
+
 class RobotSensors(LeafSystem):
     """Encoders, IMU and foot force sensing with noise and latency.
 
@@ -106,6 +154,7 @@ class RobotSensors(LeafSystem):
         - foot_forces_in
         - cop_in
         - wrench_in
+        - foot_ft_in
         output_ports:
         - encoders
         - gyro
@@ -113,6 +162,7 @@ class RobotSensors(LeafSystem):
         - foot_forces
         - cop
         - wrench
+        - foot_ft
 
     Inputs (true signals):
       - ``state`` (nq + nv): the plant state (``plant.get_state_output_port()``);
@@ -124,6 +174,8 @@ class RobotSensors(LeafSystem):
       - ``cop_in`` (2) [m]: ``CopEstimator.cop_port`` (NaN without support).
       - ``wrench_in`` (6): ``CopEstimator.wrench_port``, ground wrench
         ``[moment about the world origin, force]`` [N m, N], world frame.
+      - ``foot_ft_in`` (12): the soles' force/torque sensors,
+        :class:`FootForceTorqueSensors` (left then right, sole frames).
 
     Outputs (what the controller gets): the same signals, ``encoders`` (na)
     in ``JointActuatorIndex`` order [rad]. With ``noise``: white Gaussian
@@ -152,8 +204,8 @@ class RobotSensors(LeafSystem):
         self._seed = int(seed)
         self._q_idx = actuated_position_indices(plant)
         self._sizes = _signal_sizes(len(self._q_idx))
-        offsets = np.cumsum([0] + [self._sizes[s] for s in SIGNALS])
-        self._slices = {s: slice(int(offsets[k]), int(offsets[k + 1])) for k, s in enumerate(SIGNALS)}
+        offsets = np.cumsum([0] + [self._sizes[s] for s in SENSOR_SIGNALS])
+        self._slices = {s: slice(int(offsets[k]), int(offsets[k + 1])) for k, s in enumerate(SENSOR_SIGNALS)}
         self._size = int(offsets[-1])
         self._sigma = np.zeros(self._size)
         self._sigma[self._slices["encoders"]] = encoder_noise
@@ -167,6 +219,7 @@ class RobotSensors(LeafSystem):
         self.foot_forces_in_port = self.DeclareVectorInputPort("foot_forces_in", 2)
         self.cop_in_port = self.DeclareVectorInputPort("cop_in", 2)
         self.wrench_in_port = self.DeclareVectorInputPort("wrench_in", 6)
+        self.foot_ft_in_port = self.DeclareVectorInputPort("foot_ft_in", 12)
         self._sample = self.DeclareCacheEntry(
             "current sample", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(self._size)),
                                             calc=self._calc_sample),
@@ -179,7 +232,7 @@ class RobotSensors(LeafSystem):
         else:
             prerequisites = {self._sample.ticket()}
         ports = {}
-        for name in SIGNALS:
+        for name in SENSOR_SIGNALS:
             ports[name] = self.DeclareVectorOutputPort(
                 name, self._sizes[name], lambda c, o, name=name: o.SetFromVector(self._delayed(c)[self._slices[name]]),
                 prerequisites_of_calc=prerequisites)
@@ -189,6 +242,7 @@ class RobotSensors(LeafSystem):
         self.foot_forces_port = ports["foot_forces"]
         self.cop_port = ports["cop"]
         self.wrench_port = ports["wrench"]
+        self.foot_ft_port = ports["foot_ft"]
 
     @property
     def latency_ticks(self) -> int:
@@ -202,7 +256,7 @@ class RobotSensors(LeafSystem):
         x = np.concatenate([
             self.state_port.Eval(context)[self._q_idx], self.gyro_in_port.Eval(context),
             self.accelerometer_in_port.Eval(context), self.foot_forces_in_port.Eval(context),
-            self.cop_in_port.Eval(context), self.wrench_in_port.Eval(context)])
+            self.cop_in_port.Eval(context), self.wrench_in_port.Eval(context), self.foot_ft_in_port.Eval(context)])
         if self._noise:
             k = self.tick(context.get_time())
             n = self._noisy.stop
@@ -684,6 +738,10 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     builder.Connect(cop_estimator.body_normal_forces_port, sensors.foot_forces_in_port)
     builder.Connect(cop_estimator.cop_port, sensors.cop_in_port)
     builder.Connect(cop_estimator.wrench_port, sensors.wrench_in_port)
+    foot_ft = builder.AddNamedSystem(f"{name_prefix}foot_force_torque", FootForceTorqueSensors(plant=plant))
+    builder.Connect(cop_estimator.body_wrenches_port, foot_ft.body_wrenches_port)
+    builder.Connect(plant.get_body_poses_output_port(), foot_ft.body_poses_port)
+    builder.Connect(foot_ft.foot_ft_port, sensors.foot_ft_in_port)
     estimator = builder.AddNamedSystem(f"{name_prefix}state_estimator", StateEstimator(
         plant=plant, servo_period=servo_period, initial_q=initial_q, true_state=true_state, timer=timer,
         **estimator_options))

@@ -3,6 +3,7 @@
 ::
 
     EStopTrigger -> StopPlannerSystem --com, com_vel, feet, upper_body--> WholeBodyIK --q-->
+        FootEdgeCompliance (ankle offsets from the feet's F/T) --q-->
         DesiredStateInterpolator (rate limit) --desired_state--> MultibodyPlant (PD servos, SAP contact)
     MultibodyPlant --state, IMU (Gyroscope, Accelerometer), contact results (CopEstimator)-->
         RobotSensors (noise, latency) --> StateEstimator --com, com_vel--> StopPlannerSystem
@@ -80,14 +81,25 @@ How the controller balances (and what it does not do):
   push cells). Measured with the floor: the forward, left and right 17 N s
   double-support pushes meet every criterion, the backward one still loses
   the floor for a tick.
+* **The stance ankles give way before a foot rolls**
+  (:class:`drake_estop.physics.compliance.FootEdgeCompliance`,
+  :data:`FOOT_EDGE_COMPLIANCE`): HRP-2's ankle damping control, acting only
+  on the part of each foot's measured moment that puts its centre of
+  pressure within 1.5 cm of a sole edge. On the stiff servos a push otherwise
+  turns the whole robot as one rigid body about a sole edge: the foot rolls,
+  its frame moves, the robot rocks from foot to foot after the landing.
+  Measured over the robustness benchmark (same machine, same code, with and
+  without; ``benchmarks/ROBUSTNESS.md``): see the README's numbers.
 * **Not done (measured, see the README):** a torque-level balance law. A DCM
   law realised through the COG target (the earlier ``DcmStabilizer``) and an
-  ankle-torque (foot damping) law on the stiff position servos were both
-  tried in this diagram and both made the walk itself fall (the centre of
-  pressure already sits on a toe or heel for tens of ms in every step
-  because of the swing leg's momentum, so a correction through the COG
-  acceleration saturates at once). Tracking that momentum needs it in the
-  plan (a multibody ZMP model) or a whole-body inverse-dynamics controller.
+  ankle-torque (foot damping) law towards the LIPM ZMP on the stiff position
+  servos were both tried in this diagram and both made the walk itself fall
+  (the centre of pressure already sits on a toe or heel for tens of ms in
+  every step because of the swing leg's momentum, so a correction through
+  the COG acceleration saturates at once; the edge compliance above leaves
+  the moment inside the safe region alone). Tracking that momentum needs it
+  in the plan (a multibody ZMP model) or a whole-body inverse-dynamics
+  controller.
 """
 
 from __future__ import annotations
@@ -160,6 +172,7 @@ class OnlineHandles:
     planner: object
     ik: object
     estimator: object
+    compliance: object  # FootEdgeCompliance, or None without it
     push: object
     initial_q: np.ndarray
     timer: TickTimer
@@ -176,7 +189,10 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     through the plant's applied-spatial-force input, sensor noise and
     latency in the sensors; the masses in :func:`run_online`'s context).
     ``true_state`` feeds the estimator's outputs from the true plant state
-    (debugging). ``planner_options`` go to
+    (debugging). ``foot_compliance``: True (default) adds the ankles'
+    :class:`drake_estop.physics.compliance.FootEdgeCompliance` with
+    :data:`FOOT_EDGE_COMPLIANCE`, a dict overrides some of those settings,
+    False leaves it out (for comparison). ``planner_options`` go to
     :class:`drake_estop.systems.stop_controller.StopPlannerSystem` (``replan_threshold``,
     ``replan_interval``, ...).
     """
@@ -205,10 +221,13 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     connect_reference(builder, planner, ik)
-    reference = ik
+    reference = compliance = ik
     if foot_compliance is not False:
         settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))
-        reference = add_foot_edge_compliance(builder, plant, cop, ik, dt, timer=timer, **settings)
+        reference = compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
+                                                          **settings)
+    else:
+        compliance = None
     add_servo_targets(builder, plant, instance, reference, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
@@ -219,10 +238,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         # every servo tick, whatever log_period: its update of tick k is published at tick k + 1
         "one_step_feasible": LogVectorOutput(planner.one_step_feasible_port, builder, dt),
     }
+    if compliance is not None:
+        loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         push, q0, timer, physics)
+                         compliance, push, q0, timer, physics)
 
 
 def _per_tick(log, servo_period: float) -> np.ndarray:
@@ -241,10 +262,12 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
 
     ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
-    for the controller's margins, as the CLI does). Returns the
+    for the controller's margins, as the CLI does); ``foot_compliance`` as in
+    :func:`build_online_diagram`. Returns the
     :class:`drake_estop.physics.plant.PhysicsResult` of :func:`drake_estop.physics.plant.analyse`
     with ``online`` added: ``tick_compute`` (median / p99 / max seconds of the
     controller's own work per servo tick after the signal), ``replans``,
+    ``ankle_offset_max`` (the foot-edge compliance's largest ankle offset [rad]),
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
     over its velocity limit, measured), the estimator's COG log and
     ``one_step_feasible`` (per servo tick ``k * servo_period`` from 0: 1.0 if
@@ -293,5 +316,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
         "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),
         "perturbations": perturbations,
+        # the largest ankle offset of the foot-edge compliance [rad] (0 without it)
+        "ankle_offset_max": float(np.max(np.abs(handles.loggers["ankle_offsets"].FindLog(context).data())))
+        if handles.compliance is not None else 0.0,
     }
     return result
