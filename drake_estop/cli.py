@@ -305,7 +305,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
                             physics=_physics_parameters(args.scenario))
         online = {key: result.online[key] for key in
-                  ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor")}
+                  ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor",
+                   "ankle_offset_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2],

@@ -266,6 +266,7 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert data["tick_compute"]["median"] > 0
     assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
+    assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound
     assert data["perturbations"]["mass_scale"] == 1.1
     header = open(log).readline().strip().split(",")
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
