@@ -165,6 +165,9 @@ def _add_simulate(sub, scenario: Scenario):
                         "preview filter at the signal (for comparison; not a real-time controller)")
     d.add_argument("--true-state", action="store_true", default=scenario.true_state,
                    help="with --physics: feed the controller the true COG instead of the state estimate")
+    d.add_argument("--no-foot-compliance", dest="foot_compliance", action="store_false",
+                   default=scenario.foot_compliance,
+                   help="with --physics: leave out the stance ankles' foot-edge compliance (for comparison)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -214,6 +217,7 @@ def _effective_scenario(args, gait, stop) -> Scenario:
     simulation = "physics" if args.physics else "kinematic" if args.kinematic else "diagram"
     return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
+                   foot_compliance=args.foot_compliance,
                    perturbations=perturbations_from_args(args), after_halt=args.after_halt)
 
 
@@ -232,10 +236,11 @@ def _simulate(args) -> int:
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
     perturbations = perturbations_from_args(args)
     if not args.physics and (perturbations != Perturbations() or args.true_state
-                             or args.controller != "online"):
-        raise ValueError("perturbations, --true-state and --controller need --physics")
-    if args.controller == "offline-filter" and (perturbations != Perturbations() or args.true_state):
-        raise ValueError("perturbations and --true-state need --controller online")
+                             or args.controller != "online" or not args.foot_compliance):
+        raise ValueError("perturbations, --true-state, --no-foot-compliance and --controller need --physics")
+    if args.controller == "offline-filter" and (perturbations != Perturbations() or args.true_state
+                                                or not args.foot_compliance):
+        raise ValueError("perturbations, --true-state and --no-foot-compliance need --controller online")
     if args.physics:
         args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
         plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations)
@@ -303,7 +308,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
 
         result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
-                            physics=_physics_parameters(args.scenario))
+                            physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance)
         online = {key: result.online[key] for key in
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor",
                    "ankle_offset_max")}

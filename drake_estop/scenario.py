@@ -65,6 +65,9 @@ class Scenario:
         Physics only: ``"online"`` or ``"offline-filter"``.
     true_state : bool
         Physics only: feed the controller the true COG instead of the estimate.
+    foot_compliance : bool
+        Physics, online controller only: the stance ankles' foot-edge compliance (default on; off for
+        comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -80,6 +83,7 @@ class Scenario:
     simulation: str = "diagram"
     controller: str = "online"
     true_state: bool = False
+    foot_compliance: bool = True
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

@@ -18,7 +18,7 @@ from drake_estop.physics.online import (
 )
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.physics.plant import actuated_indices
-from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.gait import GaitParameters, NominalPattern
 
 
 @pytest.fixture(scope="module")
@@ -201,6 +201,22 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     assert stiff.online["ankle_offset_max"] == 0.0
 
 
+def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
+    """A 0.2385 m step, signal at 3.45 s (the swing foot 0.6 mm above the floor, coming down): with the
+    controller's landing-shift limit the foot lands on its nominal footstep and every criterion is met;
+    the paper's plan sends it 6.6 cm further and the robot falls with no push at all (session-6 campaign,
+    runs 219, 300 and 472)."""
+    import drake_estop.physics.online as online
+
+    pattern = NominalPattern(GaitParameters(step_length=0.2385))
+    limited = run_online(estop_time=3.45, pattern=pattern)
+    assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
+    free = replace(online.CONTROLLER_STOP_PARAMETERS, max_landing_shift_per_height=math.inf)
+    monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
+    dragged = run_online(estop_time=3.45, pattern=pattern)
+    assert not dragged.criteria["no_fall"]
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 
@@ -223,6 +239,28 @@ def test_bad_perturbations_exit_2_naming_the_option(args, option, capsys):
 def test_perturbations_need_physics(capsys):
     assert main(["simulate", "--kinematic", "--mass-scale", "1.1"]) == 2
     assert "--physics" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
+def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
+    import drake_estop.physics.online as online
+
+    seen = {}
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.update(kwargs)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    assert main(["simulate", "--physics", *flag]) == 2
+    assert seen["foot_compliance"] is given
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
+                                  ["--physics", "--controller", "offline-filter", "--no-foot-compliance"]])
+def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    assert "--no-foot-compliance" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, field, value", [

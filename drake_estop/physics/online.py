@@ -133,7 +133,8 @@ from drake_estop.systems.stop_controller import add_stop_controller, connect_ref
 from drake_estop.timing import TickTimer
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s.
-CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5), max_early_landing=0.05)
+CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5), max_early_landing=0.05,
+                                            max_landing_shift_per_height=10.0)
 
 
 #: The whole-body IK keeps the knees bent by at least this much [rad] (a leg-extension limit; the module
@@ -149,13 +150,16 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 
 
 def controller_stop_parameters(params: StopParameters | None = None) -> StopParameters:
-    """``params`` (default: the paper's) with the controller's ZMP margin, halt durations and earliest
-    landing (:data:`CONTROLLER_STOP_PARAMETERS`; a larger margin or a later landing in ``params`` is kept)."""
+    """``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
+    landing and landing-shift limit (:data:`CONTROLLER_STOP_PARAMETERS`; a larger margin, a later landing
+    or a tighter shift limit in ``params`` is kept)."""
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
     return replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
                    halt_durations=controller.halt_durations,
-                   max_early_landing=min(base.max_early_landing, controller.max_early_landing))
+                   max_early_landing=min(base.max_early_landing, controller.max_early_landing),
+                   max_landing_shift_per_height=min(base.max_landing_shift_per_height,
+                                                    controller.max_landing_shift_per_height))
 
 
 @dataclass

@@ -52,6 +52,12 @@ class StopParameters:
         Single support: the landing no earlier than this before the nominal
         touchdown [s] (default inf: the paper's, as early as the other
         limits allow). Re-plans ignore it.
+    max_landing_shift_per_height : float
+        Single support: a swing foot coming down at height z above the floor
+        lands at most z times this from its nominal landing point,
+        sagittally [m/m] (default inf: the paper). A foot a few millimetres above the floor
+        that is sent 7 cm further forward is dragged over the floor instead.
+        Re-plans ignore it.
     min_transition_time, max_transition_time : float
         Double-support ZMP transition [s].
     min_slowdown_time, max_slowdown_time : float
@@ -102,6 +108,9 @@ class StopParameters:
     # the landing no earlier than this before the nominal touchdown [s]; inf: as early as the other
     # limits allow (the paper). Re-plans (:func:`replan_stop`) ignore it: a push may need the early step
     max_early_landing: float = math.inf
+    # a swing foot coming down at height z lands at most z * this from its nominal landing point [m/m];
+    # inf: no limit (the paper). Re-plans ignore it
+    max_landing_shift_per_height: float = math.inf
     min_transition_time: float = 0.1  # minimum double-support ZMP transition [s]
     max_transition_time: float = 0.8
     min_slowdown_time: float = 0.005
@@ -156,6 +165,10 @@ class StopParameters:
                 raise ValueError(f"{low} must be below {high}")
         if not (isinstance(self.max_early_landing, (int, float)) and self.max_early_landing >= 0):
             raise ValueError(f"max_early_landing must be >= 0 (inf for no limit), got {self.max_early_landing!r}")
+        if not (isinstance(self.max_landing_shift_per_height, (int, float))
+                and self.max_landing_shift_per_height > 0):
+            raise ValueError("max_landing_shift_per_height must be > 0 (inf for no limit), "
+                             f"got {self.max_landing_shift_per_height!r}")
         if self.zmp_margin < 0 or self.crouch_depth < 0:
             raise ValueError("zmp_margin and crouch_depth must be >= 0")
         if self.quantisation not in ("resolve", "round"):

@@ -224,6 +224,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         support = state.support_foot
         swing = "right" if support == "left" else "left"
         params = _lateral_reach(pattern, state, params)
+        params = _landing_shift_limit(state, params, swing)
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
         touchdown = pattern.steps[state.step_index]["touchdown"]
@@ -252,6 +253,26 @@ def _earliest_landing(state: PatternState, params: StopParameters, swing: str, t
     descent = descent_time(float(state.feet[swing][2]), params)
     early = touchdown - state.time - params.max_early_landing
     return max(descent, min(early, params.max_landing_time - params.servo_period))
+
+
+#: The least landing shift :func:`_landing_shift_limit` allows [m] (a foot already on the floor keeps
+#: its landing to the millimetre; the step-length bounds must stay an interval).
+MIN_LANDING_SHIFT = 1e-3
+
+
+def _landing_shift_limit(state: PatternState, params: StopParameters, swing: str) -> StopParameters:
+    """``params`` with the step-length bounds narrowed to the nominal step length +- the swing foot's
+    height times ``max_landing_shift_per_height``, for a swing foot coming down (unchanged when that
+    is inf, and for a foot still rising: a foot leaving the floor gets a clearance bump instead,
+    :func:`drake_estop.planning.plan.landing_swing`)."""
+    if not math.isfinite(params.max_landing_shift_per_height) or state.feet_vel[swing][2] >= -1e-9:
+        return params
+    shift = max(float(state.feet[swing][2]) * params.max_landing_shift_per_height, MIN_LANDING_SHIFT)
+    nominal = float(state.next_landing[0] - state.zmp[0])
+    low, high = max(params.min_step_length, nominal - shift), min(params.max_step_length, nominal + shift)
+    if low >= high:  # the nominal step outside the planner's own bounds: those bounds decide
+        return params
+    return replace(params, min_step_length=low, max_step_length=high)
 
 
 LATERAL_REACH_ALLOWANCE = 0.03  # [m] lateral COG-to-landing-ankle offset beyond step_width / 2 that
@@ -704,7 +725,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
     stop exists from that state.
     """
-    params = replace(plan.params, max_early_landing=math.inf)  # a push may need the early step
+    # a push may need the early step, and a landing moved further than a low foot could on its own
+    params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     if plan.x is None or t < plan.start_time:
         return None
     single = plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
