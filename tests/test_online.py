@@ -241,8 +241,8 @@ def test_perturbations_need_physics(capsys):
     assert "--physics" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
-def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
+def _online_run_keywords(monkeypatch, args):
+    """The keyword arguments `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
     import drake_estop.physics.online as online
 
     seen = {}
@@ -252,8 +252,13 @@ def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(online, "run_online", fake_run_online)
-    assert main(["simulate", "--physics", *flag]) == 2
-    assert seen["foot_compliance"] is given
+    assert main(["simulate", "--physics", *args]) == 2
+    return seen
+
+
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
+def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
+    assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given
 
 
 @pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
@@ -278,16 +283,7 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
 def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_path, args, field, value):
     """Every option lands in the Perturbations the online run is given (the modules' own tests show
     each one acting on the plant, the sensors and the push input)."""
-    import drake_estop.physics.online as online
-
-    seen = {}
-
-    def fake_run_online(gait, stop, estop_time, **kwargs):
-        seen.update(kwargs)
-        raise RuntimeError("stop here")
-
-    monkeypatch.setattr(online, "run_online", fake_run_online)
-    assert main(["simulate", "--physics", *args]) == 2
+    seen = _online_run_keywords(monkeypatch, args)
     assert getattr(seen["perturbations"], field) == value
     assert seen["true_state"] is False
 
