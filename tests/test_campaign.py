@@ -307,6 +307,23 @@ def test_a_timeout_becomes_a_row():
     assert row["command"] == params.command() and row["seed"] == params.seed
 
 
+def test_the_row_keeps_the_cop_margin_the_criterion_checks():
+    """``cop_margin_min`` is the least CoP margin in the *planned* support (what ``cop_in_support``
+    checks), not in the soles measured in contact (which physics keeps positive): a CoP 12.4 mm outside
+    the plan shows as -12.4 mm (session 6: the measured-sole margin had been stored, +4.8 mm there)."""
+    numbers = {"time_to_rest_s": 1.0, "rest_after_halt_s": 0.1, "final_cog_offset_m": 0.001,
+               "cog_travel_m": 0.3, "pelvis_z_min_m": 0.6, "torso_tilt_max_rad": 0.02,
+               "cop_margin_plan_min_m": -0.0124, "cop_margin_meas_min_m": 0.0048,
+               "slip_left_m": 0.001, "slip_right_m": 0.002, "realtime_factor": 1.2}
+    criteria = {name: name != "cop_in_support" for name in CRITERIA}
+    summary = {"physics": {"numbers": numbers}, "success": False, "case": "one-step", "support": "single",
+               "criteria": criteria, "replans": 0, "replan_failures": 0, "joint_velocity_violations": 0,
+               "tick_compute": {"p99": 0.002}}
+    row = outcome_from_reply({"returncode": 1, "summary": summary, "stderr": "", "exception": None})
+    assert row["outcome"] == "failure" and row["cop_in_support"] is False
+    assert row["cop_margin_min"] == -0.0124
+
+
 def test_one_real_physics_run_gives_a_complete_row():
     params = sample_run(default_config(), run_seed(0, 0))
     row = guarded_run((simulate_run, params, 600.0))

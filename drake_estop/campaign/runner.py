@@ -40,7 +40,7 @@ REQUIRED_NUMBERS = ("pelvis_z_min", "torso_tilt_max", "final_cog_offset", "cog_t
 _SUMMARY_NUMBERS = {"time_to_rest": "time_to_rest_s", "rest_after_halt": "rest_after_halt_s",
                     "final_cog_offset": "final_cog_offset_m", "cog_travel": "cog_travel_m",
                     "pelvis_z_min": "pelvis_z_min_m", "torso_tilt_max": "torso_tilt_max_rad",
-                    "cop_margin_min": "cop_margin_meas_min_m"}
+                    "cop_margin_min": "cop_margin_plan_min_m"}
 
 
 class RunTimeout(RuntimeError):
