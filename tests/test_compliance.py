@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from drake_estop.model import nominal_standing_configuration
-from drake_estop.physics.compliance import SOLE_OUTER, SOLE_TOE, FootEdgeCompliance
+from drake_estop.model import SOLE, nominal_standing_configuration
+from drake_estop.physics.compliance import FootEdgeCompliance
 from drake_estop.systems.ik import shared_ik
 
 DT = 0.005
@@ -66,7 +66,7 @@ def test_cop_on_the_outer_edge_rolls_the_ankle_with_the_moment(setup):
     ankle roll moves by dt m / damping in one tick, the rest stays (the right foot is off the ground)."""
     plant, q = setup
     system = _system(plant)
-    cop = [0.0, SOLE_OUTER - 0.004]
+    cop = [0.0, SOLE.outer - 0.004]
     context = _context(system, q, _ft(cop), np.zeros(6))
     moments = system.rolling_moments(context)
     np.testing.assert_allclose(moments, [0.006 * FZ, 0.0, 0.0, 0.0], atol=1e-9)
@@ -81,7 +81,7 @@ def test_cop_at_the_right_toe_pitches_the_right_ankle_down(setup):
     pushed up), so the right ankle pitch offset is negative."""
     plant, q = setup
     system = _system(plant)
-    context = _context(system, q, np.zeros(6), _ft([SOLE_TOE - 0.004, 0.0]))
+    context = _context(system, q, np.zeros(6), _ft([SOLE.toe - 0.004, 0.0]))
     np.testing.assert_allclose(system.rolling_moments(context), [0.0, 0.0, 0.0, -0.006 * FZ], atol=1e-9)
 
 
@@ -97,7 +97,7 @@ def test_offsets_return_when_the_foot_is_off_the_ground(setup):
 def test_offsets_are_bounded(setup):
     plant, q = setup
     system = _system(plant, max_offset=0.01)
-    context = _context(system, q, _ft([0.0, SOLE_OUTER], fz=5000.0), np.zeros(6))
+    context = _context(system, q, _ft([0.0, SOLE.outer], fz=5000.0), np.zeros(6))
     for _ in range(50):
         context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
     assert system.offsets_port.Eval(context)[0] == pytest.approx(0.01)

@@ -27,11 +27,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from drake_estop.model import SOLE
 from drake_estop.timing import timed
-
-#: The sole rectangle in its frame [m] (models/humanoid.urdf): x from the heel to the toe; y inner and
-#: outer half-widths.
-SOLE_HEEL, SOLE_TOE, SOLE_INNER, SOLE_OUTER = -0.105, 0.135, 0.055, 0.081
 
 
 class FootEdgeCompliance(LeafSystem):
@@ -68,15 +65,15 @@ class FootEdgeCompliance(LeafSystem):
                             ("max_offset", max_offset)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value!r}")
-        if not (np.isfinite(edge_margin) and 0 <= edge_margin < SOLE_INNER):
-            raise ValueError(f"edge_margin must be in [0, {SOLE_INNER}) m, got {edge_margin!r}")
+        if not (np.isfinite(edge_margin) and 0 <= edge_margin < SOLE.inner):
+            raise ValueError(f"edge_margin must be in [0, {SOLE.inner}) m, got {edge_margin!r}")
         self._dt, self._damping, self._return, self._max = servo_period, damping, return_time, max_offset
         self._min_fz = float(min_normal_force)
         self._ankles = np.array([[plant.GetJointByName(f"{s}_ankle_roll").position_start(),
                                   plant.GetJointByName(f"{s}_ankle_pitch").position_start()] for s in "lr"])
         m = edge_margin  # safe region [x_low, x_high, y_low, y_high] per sole (outer is +y on the left)
-        self._safe = np.array([[SOLE_HEEL + m, SOLE_TOE - m, -SOLE_INNER + m, SOLE_OUTER - m],
-                               [SOLE_HEEL + m, SOLE_TOE - m, -SOLE_OUTER + m, SOLE_INNER - m]])
+        self._safe = np.array([[-SOLE.heel + m, SOLE.toe - m, -SOLE.inner + m, SOLE.outer - m],
+                               [-SOLE.heel + m, SOLE.toe - m, -SOLE.outer + m, SOLE.inner - m]])
         nq = plant.num_positions()
         self.q_in_port = self.DeclareVectorInputPort("q", nq)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)

@@ -225,14 +225,11 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     connect_reference(builder, planner, ik)
-    reference = compliance = ik
+    compliance = None
     if foot_compliance is not False:
         settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))
-        reference = compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
-                                                          **settings)
-    else:
-        compliance = None
-    add_servo_targets(builder, plant, instance, reference, q0, dt,
+        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer, **settings)
+    add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
     loggers = {

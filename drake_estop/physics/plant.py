@@ -233,7 +233,6 @@ class CopEstimator(LeafSystem):
         """[n (3), f (3), count, f_z per body, [n, f] per body] of the ground on the robot, about the
         world origin."""
         moment, force = np.zeros(3), np.zeros(3)
-        per_body = np.zeros(len(self._bodies))
         body_wrench = np.zeros((len(self._bodies), 6))
         count = 0
         points, forces, owners = [], [], []
@@ -247,8 +246,6 @@ class CopEstimator(LeafSystem):
             forces.append(f)
             owners.append(self._bodies.index(body) if body in self._bodies else -1)
             count += 1
-            if body in self._bodies:
-                per_body[self._bodies.index(body)] += f[2]
         if forces:  # one vectorised sum of p x f (a per-contact np.cross cost ~10 % of the physics loop)
             p, f = np.array(points), np.array(forces)
             pxf = np.column_stack([p[:, 1] * f[:, 2] - p[:, 2] * f[:, 1], p[:, 2] * f[:, 0] - p[:, 0] * f[:, 2],
@@ -278,9 +275,8 @@ class CopEstimator(LeafSystem):
             moment += np.cross(p, f) + tau
             count += 1
             if body in self._bodies:
-                per_body[self._bodies.index(body)] += f[2]
                 body_wrench[self._bodies.index(body)] += np.concatenate([np.cross(p, f) + tau, f])
-        return np.concatenate([moment, force, [count], per_body, body_wrench.ravel()])
+        return np.concatenate([moment, force, [count], body_wrench[:, 5], body_wrench.ravel()])
 
     def _calc_sums(self, context, value):
         value.set_value(self.ground_reaction(self.contact_results_port.Eval(context)))

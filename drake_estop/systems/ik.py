@@ -345,16 +345,17 @@ class WholeBodyIkSolver:
             raise ValueError("q_guess contains non-finite values")
         best_q, best = q, self._errors(context, q, targets)
         err, iterations, stalled = best, 0, 0
+        cost = best_cost = self._cost(best)
         while iterations < self.max_iterations and not self._converged(err) and not self._stalled(stalled):
             q_new = self._integrate(q, self._step(err, q))
             iterations += 1
             if not np.all(np.isfinite(q_new)):
                 break
-            previous, err = err, self._errors(context, q_new, targets)
-            q = q_new
-            stalled = 0 if self._cost(err) < self._keep * self._cost(previous) else stalled + 1
-            if self._cost(err) < self._cost(best):
-                best_q, best = q, err
+            q, err, previous_cost = q_new, self._errors(context, q_new, targets), cost
+            cost = self._cost(err)
+            stalled = 0 if cost < self._keep * previous_cost else stalled + 1
+            if cost < best_cost:
+                best_q, best, best_cost = q, err, cost
         return self._result(best_q, best, iterations)
 
     def _stalled(self, stalled):
