@@ -2,6 +2,7 @@
 lateral capture point goes, within the step widths the legs take; unperturbed plans are the paper's."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -80,3 +81,16 @@ def test_capture_stops_what_the_nominal_footstep_cannot(monkeypatch):
     for dvy in (-0.2, 0.1):
         plan = plan_stop(PATTERN, t, PARAMS, measured=_measured(t, dvy))
         assert plan.case == "one-step" and plan.min_zmp_margin >= PARAMS.zmp_margin - 1e-9
+
+
+def test_a_support_zmp_moved_off_the_walks_counts_in_the_capture_step():
+    """A re-plan's ankle strategy moves the support ZMP: with no COG deviation, a ZMP moved out by dp
+    pushes the DCM in by dp (exp(w T) - 1) by the landing (eq. 6-9), and the landing follows it."""
+    t, landing, dp = 3.37, 0.15, 0.03
+    state = PATTERN.state(t)
+    support_y, nominal_y = _support_y(t)
+    outward = math.copysign(1.0, support_y - nominal_y)
+    moved = replace(state, zmp=state.zmp + np.array([0.0, outward * dp]))
+    assert capture.capture_landing_y(PATTERN, state, landing) is None
+    expected = nominal_y - outward * dp * (math.exp(PATTERN.w * landing) - 1.0)
+    assert capture.capture_landing_y(PATTERN, moved, landing) == pytest.approx(expected, abs=1e-12)

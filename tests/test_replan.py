@@ -1,5 +1,6 @@
 """Planning from the measured state and re-planning (planner functions and StopPlannerSystem in isolation)."""
 
+import math
 import os
 from pathlib import Path
 
@@ -9,6 +10,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
 from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
 
@@ -119,6 +121,60 @@ def test_replan_keeps_the_crouch_of_the_plan_it_replaces(pattern, params):
     z_old = plan.com_height([t])[0][0]
     z_new = new.com_height([t])[0][0]
     assert z_new == pytest.approx(z_old, abs=1e-12)
+
+
+def _left_push_state():
+    """The plan of a signal at 2.95 s (the online controller's settings) and the state the robot measured
+    at 3.175 s after a 17 N s push to the left (physics run of session 6): the DCM over the left (support)
+    foot's outer edge."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.175, np.array([0.60612853, 0.0693894]), np.array([0.23707723, 0.10288797])
+
+
+def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
+    from drake_estop.planning import planner
+
+    plan, t, com, vel = _left_push_state()
+    new = replan_stop(plan, t, com, vel)
+    old_zmp = np.array([traj.evaluate_at(t)[3] for traj in (plan.x, plan.y)])
+    start_pos, start_vel, start_zmp = _state_at(new, t)
+    np.testing.assert_allclose(start_pos, com, atol=1e-12)  # eq. 10
+    np.testing.assert_allclose(start_vel, vel, atol=1e-12)  # eq. 11
+    assert start_zmp[1] > old_zmp[1] + 0.03  # the ZMP moved out under the support foot
+    # held there until the landing, inside the support sole less the margin
+    _, _, _, zmp = new.com(np.linspace(t, new.landing_time - 1e-6, 20))
+    np.testing.assert_allclose(zmp, np.tile(start_zmp, (20, 1)), atol=1e-9)
+    sole = plan.pattern.params.sole
+    ankle = plan.feet(t)["left"][:2]
+    margin = new.params.zmp_margin
+    assert -sole.heel + margin - 1e-9 <= start_zmp[0] - ankle[0] <= sole.toe - margin + 1e-9
+    assert -sole.inner + margin - 1e-9 <= start_zmp[1] - ankle[1] <= sole.outer - margin + 1e-9
+    assert new.min_zmp_margin >= margin - 1e-9
+    assert np.all(np.abs(_slowdown_end_velocity(new)) < 1e-6)  # eq. 17
+    monkeypatch.setattr(planner, "ankle_zmp", lambda *args: None)
+    with pytest.raises(InfeasibleStop):
+        replan_stop(plan, t, com, vel)
+
+
+def test_ankle_zmp_brings_the_dcm_back_onto_the_plan_at_the_landing():
+    from drake_estop.planning.planner import ankle_zmp
+
+    plan, t, _, _ = _left_push_state()
+    pos, vel, _ = _state_at(plan, t)
+    assert ankle_zmp(plan, t, pos, vel) is None  # on the plan: nothing to take back
+    w = plan.pattern.w
+    slower = vel - np.array([0.01, 0.0])  # small: the answer lies inside the sole
+    zmp = ankle_zmp(plan, t, pos, slower)
+    grow = math.exp(w * (plan.landing_time - t))
+    xi = zmp + (pos + slower / w - zmp) * grow  # eq. 6-9 with the ZMP held at zmp
+    landing_pos, landing_vel, _ = _state_at(plan, plan.landing_time)
+    np.testing.assert_allclose(xi, landing_pos + landing_vel / w, atol=1e-9)
+    assert zmp[0] < plan.feet(t)["left"][0]  # behind the ankle: the COG is let go forward
+    far = ankle_zmp(plan, t, pos, vel + np.array([0.0, 0.5]))  # clamped to the sole's outer edge less the margin
+    outer = plan.feet(t)["left"][1] + plan.pattern.params.sole.outer - plan.params.zmp_margin
+    assert far[1] == pytest.approx(outer, abs=1e-12)
 
 
 def test_nothing_to_replan_in_the_halt(pattern, params):

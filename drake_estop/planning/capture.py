@@ -38,9 +38,12 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     if state.support != "single" or state.next_landing is None:
         return None
     w = pattern.w
-    nominal_pos, nominal_vel, _, _ = pattern.com([state.time])
+    nominal_pos, nominal_vel, _, nominal_zmp = pattern.com([state.time])
     deviation = (state.com[1] - nominal_pos[0][1]) + (state.com_vel[1] - nominal_vel[0][1]) / w
-    shift = deviation * math.exp(w * max(landing_duration, 0.0))
+    grow = math.exp(w * max(landing_duration, 0.0))
+    # a support ZMP moved off the walk's (a re-plan's ankle strategy) pulls the DCM the other way:
+    # xi(T) = p + (xi(t) - p) exp(w T) for both, so the deviation at T loses (p - p_walk)(exp(w T) - 1)
+    shift = deviation * grow - (float(state.zmp[1]) - float(nominal_zmp[0][1])) * (grow - 1.0)
     if not math.isfinite(shift) or abs(shift) < SHIFT_THRESHOLD:
         return None
     nominal_y = float(pattern.steps[state.step_index]["end"][1])  # the walk's own footstep, not a re-plan's

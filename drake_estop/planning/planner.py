@@ -42,7 +42,7 @@ from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
 from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
-from drake_estop.planning.gait import NominalPattern, PatternState
+from drake_estop.planning.gait import NominalPattern, PatternState, rotation
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.halt import choose_halt
 from drake_estop.planning.heading import solve_turned
@@ -721,6 +721,19 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
       solved again as a double-support stop on the landed feet (III.B,
       eq. 29-31).
 
+    **Ankle strategy.** The paper holds the ZMP still on the support foot until
+    the landing (eq. 19). When no landing stops the measured state that way
+    (a push towards the support foot's side puts the DCM over its outer edge;
+    a forward push needs a step longer than ``max_step_length``), the
+    single-support re-plan moves that ZMP, at rest, to :func:`ankle_zmp` (the
+    point of the support sole, less ``zmp_margin``, that brings the DCM back to
+    the plan's at its landing), then to its lateral part alone, then to its
+    sagittal part alone, and keeps the first that gives a stop. The ZMP
+    steps there at ``t`` (the COG stays continuous: position and velocity;
+    eq. 10-11 hold, eq. 12-13 do not); a physical robot's centre of pressure
+    does the same under a push. Measured on the pushed physics benchmark: see
+    ``benchmarks/ROBUSTNESS.md``.
+
     Returns None where nothing is left to re-plan (the halt, a plan that has
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
     stop exists from that state.
@@ -733,9 +746,67 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     double = plan.landing_time <= t < plan.slowdown_end
     if not (single or double):
         return None
+    try:
+        return _replan(plan, t, com_xy, com_vel_xy, double, params)
+    except InfeasibleStop as error:
+        if double:
+            raise
+        failure = error
+    # the ankle strategy: the support foot's ZMP moved to take back the DCM deviation before the landing
+    ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
+    if ankle is None:
+        raise failure
+    current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
+    for zmp in (ankle, np.array([current[0], ankle[1]]), np.array([ankle[0], current[1]])):
+        if np.max(np.abs(zmp - current)) < 1e-3:
+            continue
+        try:
+            return _replan(plan, t, com_xy, com_vel_xy, double, params, stance_zmp=zmp)
+        except InfeasibleStop as error:
+            failure = error
+    raise failure
+
+
+def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
+    """The support foot's ZMP that brings the measured DCM back onto the plan's at the plan's landing.
+
+    With the ZMP held at ``p`` the DCM ``xi = x + x' / omega`` moves as
+    ``xi(T) = p + (xi(t) - p) exp(omega (T - t))`` (eq. 6-9); this solves for ``p``
+    with ``xi(T)`` the plan's, and clamps it to the support sole less ``zmp_margin``
+    (the sole's frame: toe, heel, inner and outer edges). None when the plan has
+    no landing ahead or ``p`` is the plan's ZMP (within 1 mm).
+    """
+    if plan.landing_foot is None or not t < plan.landing_time:
+        return None
+    w = plan.pattern.w
+    grow = math.exp(w * (plan.landing_time - t))
+    pos, vel, _, _ = plan.com([plan.landing_time])
+    xi_landing = pos[0] + vel[0] / w
+    xi_now = np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w
+    wanted = (xi_landing - xi_now * grow) / (1.0 - grow)
+    support = next(side for side in ("left", "right") if side != plan.landing_foot)
+    ankle = np.asarray(plan.feet(t)[support][:2], float)
+    yaw = float(plan.feet_yaw(t)[0][support])
+    turn = rotation(yaw)
+    sole, margin = plan.pattern.params.sole, plan.params.zmp_margin
+    left_edge, right_edge = (sole.outer, sole.inner) if support == "left" else (sole.inner, sole.outer)
+    local = turn.T @ (wanted - ankle)
+    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
+                      np.clip(local[1], -right_edge + margin, left_edge - margin)])
+    zmp = ankle + turn @ local
+    current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
+    return None if np.max(np.abs(zmp - current)) < 1e-3 else zmp
+
+
+def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
+            stance_zmp=None) -> StopPlan:
+    """:func:`replan_stop`'s plan: the plan's state at ``t`` with the measured COG, solved as a single-
+    or double-support stop; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest."""
     h = 1e-3
     axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
     zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
+    if stance_zmp is not None:
+        zmp, rate, accel = np.asarray(stance_zmp, float)[:2].copy(), np.zeros(2), np.zeros(2)
     before, now, after = plan.feet(t - h), plan.feet(t), plan.feet(t + h)
     if t - h < plan.start_time:  # the plan's own swing start (continuous with what it started from)
         before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
