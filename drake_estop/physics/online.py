@@ -33,6 +33,15 @@ How the controller balances (and what it does not do):
   the COG beyond the rear leg's reach, straightened its knee at twice its
   velocity limit and cost two stops of the stride sweep).
   This is where pushes are absorbed: by stepping and by moving the ZMP.
+  Where no landing stops the measured state with the support foot's ZMP
+  held at its ankle (the paper's landing phase, eq. 19), the single-support
+  re-plan moves that ZMP within the sole first (the ankle strategy,
+  :func:`drake_estop.planning.planner.ankle_zmp`). Measured: every
+  single-support re-plan after a 17 N s push to the left at 2.95 or 3.15 s
+  had failed (the DCM over the support foot's outer edge) and the robot stood
+  on one toe, CoP 27.9 / 5.9 mm outside the planned support; with it both
+  pass, and forward pushes early in single support pass up to 25 N s
+  (15 before).
   The command is blended (0.2 s quintic) from the old plan into the new one,
   so the stiff servos see no step.
 * **The plan leaves the servos room**: :data:`CONTROLLER_STOP_PARAMETERS`

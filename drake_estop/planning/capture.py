@@ -16,6 +16,9 @@ foot is the nominal one:
 
     landing_y = nominal_y + (xi_measured - xi_nominal) * exp(w * landing_duration)
 
+less ``(p - p_nominal) * (exp(w * landing_duration) - 1)`` where a re-plan's ankle
+strategy holds the support ZMP at ``p`` instead of the walk's ``p_nominal``
+(:func:`drake_estop.planning.planner.ankle_zmp`; the same LIPM solution),
 clamped to the step widths the legs can take (:data:`MIN_STEP_WIDTH`, no foot
 collision; :data:`MAX_STEP_WIDTH`, the hip's reach). A deviation whose shift is
 under :data:`SHIFT_THRESHOLD` (sensor noise) keeps the nominal footstep, so an
