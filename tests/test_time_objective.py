@@ -10,7 +10,7 @@ from checks import plan_lipm_error
 
 from drake_estop.cli import main
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, ankle_zmp, plan_stop, replan_stop
 from drake_estop.planning.rollout import stride_ticks
 from drake_estop.scenario import load_scenario
 
@@ -155,10 +155,21 @@ def test_scenario_objective_field(capsys):
 
 def _check_replan(plan, new, t, com, vel):
     assert new.start_time == pytest.approx(t)
-    for old, traj in ((plan.x, new.x), (plan.y, new.y)):
-        a, b = old.evaluate_at(t), traj.evaluate_at(t)
-        assert b[3] == pytest.approx(a[3], abs=1e-9)  # eq. 12: the ZMP continues
-        assert b[4] == pytest.approx(a[4], abs=1e-6) and b[5] == pytest.approx(a[5], abs=1e-4)  # eq. 13
+    start = np.array([traj.evaluate_at(t)[3] for traj in (new.x, new.y)])
+    before = np.array([traj.evaluate_at(t)[3] for traj in (plan.x, plan.y)])
+    if np.max(np.abs(start - before)) > 1e-9:
+        # the ankle strategy (replan_stop's fallback where the plan's ZMP gives no stop): the support ZMP
+        # steps to ankle_zmp's point, or one of its two components (the time objective's brake then moves
+        # it on the sole; the polygon check below covers it)
+        ankle = ankle_zmp(plan, t, com, vel)
+        assert ankle is not None and new.landing_foot is not None
+        choices = [ankle, np.array([before[0], ankle[1]]), np.array([ankle[0], before[1]])]
+        assert min(np.max(np.abs(start - c)) for c in choices) < 1e-9
+    else:
+        for old, traj in ((plan.x, new.x), (plan.y, new.y)):
+            a, b = old.evaluate_at(t), traj.evaluate_at(t)
+            assert b[3] == pytest.approx(a[3], abs=1e-9)  # eq. 12: the ZMP continues
+            assert b[4] == pytest.approx(a[4], abs=1e-6) and b[5] == pytest.approx(a[5], abs=1e-4)  # eq. 13
     pos, v, _, _ = new.com([t])
     np.testing.assert_allclose(pos[0], com, atol=1e-12)  # eq. 10-11: from the measured COG
     np.testing.assert_allclose(v[0], vel, atol=1e-12)
@@ -176,8 +187,8 @@ def _check_replan(plan, new, t, com, vel):
 def test_replan_from_a_pushed_state_is_valid_or_infeasible(pattern, signal):
     """Re-plans (online controller, after a push) of time-objective plans, in the swing (the ZMP
     moving on the support sole, then held) and after the landing: a plan continuous with the old
-    one's ZMP, from the measured COG, inside the polygon, at rest at the midpoint; or InfeasibleStop.
-    Never a NaN."""
+    one's ZMP (or, the ankle strategy, stepped to a point of the support sole and held there), from the
+    measured COG, inside the polygon, at rest at the midpoint; or InfeasibleStop. Never a NaN."""
     plan = plan_stop(pattern, signal, TIME)
     outcomes = {"plan": 0, "infeasible": 0}
     for fraction in (0.05, 0.3, 0.6, 0.9):
