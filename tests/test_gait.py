@@ -55,3 +55,13 @@ def test_other_gaits_build(pattern):
         t = np.arange(0, p.end_time, 0.01)
         pos, _, acc, zmp = p.com(t)
         np.testing.assert_allclose(zmp, pos - acc / p.w**2, atol=1e-9)
+
+
+@pytest.mark.parametrize("side, outer_sign", [("left", 1.0), ("right", -1.0)])
+def test_sole_lateral_edges_put_the_outer_edge_on_the_foots_own_side(side, outer_sign):
+    sole = GaitParameters().sole
+    left_edge, right_edge = sole.lateral_edges(side)
+    corners = sole.corners((0.0, 0.0), side)
+    assert corners[:, 1].max() == pytest.approx(left_edge) and corners[:, 1].min() == pytest.approx(-right_edge)
+    assert (left_edge if outer_sign > 0 else right_edge) == sole.outer
+    assert (right_edge if outer_sign > 0 else left_edge) == sole.inner

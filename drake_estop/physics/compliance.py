@@ -71,9 +71,9 @@ class FootEdgeCompliance(LeafSystem):
         self._min_fz = float(min_normal_force)
         self._ankles = np.array([[plant.GetJointByName(f"{s}_ankle_roll").position_start(),
                                   plant.GetJointByName(f"{s}_ankle_pitch").position_start()] for s in "lr"])
-        m = edge_margin  # safe region [x_low, x_high, y_low, y_high] per sole (outer is +y on the left)
-        self._safe = np.array([[-SOLE.heel + m, SOLE.toe - m, -SOLE.inner + m, SOLE.outer - m],
-                               [-SOLE.heel + m, SOLE.toe - m, -SOLE.outer + m, SOLE.inner - m]])
+        m = edge_margin  # safe region [x_low, x_high, y_low, y_high] per sole, left then right
+        self._safe = np.array([[-SOLE.heel + m, SOLE.toe - m, -right + m, left - m]
+                               for left, right in map(SOLE.lateral_edges, ("left", "right"))])
         nq = plant.num_positions()
         self.q_in_port = self.DeclareVectorInputPort("q", nq)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)

@@ -37,12 +37,16 @@ class Sole:
     inner: float = 0.055
     outer: float = 0.081
 
+    def lateral_edges(self, side: str) -> tuple[float, float]:
+        """Distances [m] from the ankle of the ``side`` ('left'/'right') foot to its sole's edge on the
+        robot's left (+y in the sole frame) and on its right: the outer edge is on the foot's own side."""
+        return (self.outer, self.inner) if side == "left" else (self.inner, self.outer)
+
     def corners(self, ankle_xy, side: str, yaw: float = 0.0) -> np.ndarray:
         """Corners (4, 2) of the sole of the ``side`` ('left'/'right') foot, turned by ``yaw`` [rad]
         about the ankle."""
         x, y = ankle_xy
-        left_edge = self.outer if side == "left" else self.inner
-        right_edge = self.inner if side == "left" else self.outer
+        left_edge, right_edge = self.lateral_edges(side)
         if yaw == 0.0:
             return np.array(
                 [

@@ -104,9 +104,9 @@ def _solve_both_axes(pattern, state, params, zmp_region="fore"):
     sole, w = pattern.params.sole, pattern.w
     fore_side = feet["swing"] if kind == "single" else feet["fore"]
     fore_y = float(state.next_landing[1]) if kind == "single" else float(state.feet[fore_side][1])
-    outer, inner = (sole.outer, sole.inner) if fore_side == "left" else (sole.inner, sole.outer)
-    low = fore_y - inner + params.zmp_margin + _LATERAL_SLACK - float(state.zmp[1])
-    high = fore_y + outer - params.zmp_margin - _LATERAL_SLACK - float(state.zmp[1])
+    left_edge, right_edge = sole.lateral_edges(fore_side)
+    low = fore_y - right_edge + params.zmp_margin + _LATERAL_SLACK - float(state.zmp[1])
+    high = fore_y + left_edge - params.zmp_margin - _LATERAL_SLACK - float(state.zmp[1])
     rate = float(state.zmp_rate[1]) if kind == "double" else 0.0
     accel = float(state.zmp_accel[1]) if kind == "double" else 0.0
     start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
@@ -183,8 +183,8 @@ def _lateral_target(state, solution, fore_xy, fore_side, kind, w, sole, margin, 
         if interval is None:
             raise InfeasibleStop("zmp_margin: the sagittal ZMP target leaves the support polygon")
         return float(np.clip(wanted, *interval))
-    outer, inner = (sole.outer, sole.inner) if fore_side == "left" else (sole.inner, sole.outer)
-    return float(np.clip(wanted, fore_xy[1] - inner + margin, fore_xy[1] + outer - margin))
+    left_edge, right_edge = sole.lateral_edges(fore_side)
+    return float(np.clip(wanted, fore_xy[1] - right_edge + margin, fore_xy[1] + left_edge - margin))
 
 
 def _zmp_segments(state, solution, targets, kind):
@@ -789,7 +789,7 @@ def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
     yaw = float(plan.feet_yaw(t)[0][support])
     turn = rotation(yaw)
     sole, margin = plan.pattern.params.sole, plan.params.zmp_margin
-    left_edge, right_edge = (sole.outer, sole.inner) if support == "left" else (sole.inner, sole.outer)
+    left_edge, right_edge = sole.lateral_edges(support)
     local = turn.T @ (wanted - ankle)
     local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
                       np.clip(local[1], -right_edge + margin, left_edge - margin)])
