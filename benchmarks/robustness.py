@@ -52,7 +52,7 @@ def _run(job):
     from drake_estop.physics.plant import PhysicsParameters
     from drake_estop.planning.gait import NominalPattern
 
-    t, options, planner_options, time_step, foot_compliance = job
+    t, options, planner_options, time_step, foot_compliance, swing_tilt = job
     options = dict(options)
     push = options.pop("push", None)
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
@@ -60,7 +60,7 @@ def _run(job):
     physics = PhysicsParameters() if time_step is None else PhysicsParameters(time_step=time_step)
     try:
         result = run_online(estop_time=t, pattern=NominalPattern(), planner_options=planner_options,
-                            foot_compliance=foot_compliance,
+                            foot_compliance=foot_compliance, swing_tilt=swing_tilt,
                             perturbations=Perturbations(pushes=pushes, **options), physics=physics)
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
@@ -95,6 +95,8 @@ def main(argv=None):
                         help="the plant's discrete step [s] (default: PhysicsParameters' own)")
     parser.add_argument("--no-foot-compliance", action="store_true",
                         help="run without the stance ankles' foot-edge compliance (for comparison)")
+    parser.add_argument("--no-swing-tilt", action="store_true",
+                        help="run without the swing foot's tilt compensation (for comparison)")
     args = parser.parse_args(argv)
     start, end = _stride()
     every = 0.08 if args.quick else 0.02
@@ -106,7 +108,8 @@ def main(argv=None):
     jobs += [(phase_times[p], {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
              for p in PUSH_PHASES for d in DIRECTIONS.values() for i in impulses]
     planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
-    jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance) for t, options in jobs]
+    jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance,
+             not args.no_swing_tilt) for t, options in jobs]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(_run, jobs))
@@ -118,6 +121,8 @@ def main(argv=None):
         text = text.replace("\n\n", f"\n\nPlanner settings changed from the defaults: {planner_options}.\n\n", 1)
     if args.no_foot_compliance:
         text = text.replace("\n\n", "\n\nWithout the foot-edge compliance.\n\n", 1)
+    if args.no_swing_tilt:
+        text = text.replace("\n\n", "\n\nWithout the swing foot's tilt compensation.\n\n", 1)
     if args.time_step is not None:
         text = text.replace("\n\n", f"\n\nPlant time step: {args.time_step * 1e3:g} ms.\n\n", 1)
     Path(args.out).write_text(text)

@@ -135,6 +135,7 @@ from drake_estop.physics.plant import (
     add_servo_targets,
     run_through_stop,
 )
+from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
@@ -156,6 +157,11 @@ FOOT_EDGE_COMPLIANCE = {"edge_margin": 0.015, "damping": 80.0, "return_time": 0.
 #: The servo command's rate limit, as a fraction of the model's joint velocity limits: the stiff PD servo
 #: overshoots a command at the limit by about 1 % (measured 6.08 rad/s on a knee commanded at 6).
 SERVO_VELOCITY_LIMIT_FRACTION = 0.95
+
+#: Settings of the swing foot's tilt compensation (:class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation`):
+#: a 0.01 rad dead band (the walk's own base sway against the command is a few mrad), hrpsys-base's
+#: 10 degree cap, a 0.3 s return after the touchdown, and 50 N of measured force for contact.
+SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
 
 
 def controller_stop_parameters(params: StopParameters | None = None) -> StopParameters:
@@ -186,6 +192,7 @@ class OnlineHandles:
     ik: object
     estimator: object
     compliance: object  # FootEdgeCompliance, or None without it
+    swing_tilt: object  # SwingFootTiltCompensation, or None without it
     push: object
     initial_q: np.ndarray
     timer: TickTimer
@@ -195,7 +202,7 @@ class OnlineHandles:
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
                          true_state: bool = False, planner_options: dict | None = None,
-                         foot_compliance: dict | bool = True) -> OnlineHandles:
+                         foot_compliance: dict | bool = True, swing_tilt: dict | bool = True) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes
@@ -205,7 +212,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     (debugging). ``foot_compliance``: True (default) adds the ankles'
     :class:`drake_estop.physics.compliance.FootEdgeCompliance` with
     :data:`FOOT_EDGE_COMPLIANCE`, a dict overrides some of those settings,
-    False leaves it out (for comparison). ``planner_options`` go to
+    False leaves it out (for comparison). ``swing_tilt`` likewise for the
+    swing foot's :class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation`
+    (:data:`SWING_TILT_COMPENSATION`). ``planner_options`` go to
     :class:`drake_estop.systems.stop_controller.StopPlannerSystem` (``replan_threshold``,
     ``replan_interval``, ...).
     """
@@ -233,7 +242,15 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
-    connect_reference(builder, planner, ik)
+    swing_tilt_system = None
+    if swing_tilt is not False:
+        settings = dict(SWING_TILT_COMPENSATION, **(swing_tilt if isinstance(swing_tilt, dict) else {}))
+        swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
+                                                        estimator=estimator, servo_period=dt, timer=timer, **settings)
+        for name in ("com", "upper_body"):
+            builder.Connect(planner.GetOutputPort(name), ik.GetInputPort(name))
+    else:
+        connect_reference(builder, planner, ik)
     compliance = None
     if foot_compliance is not False:
         settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))
@@ -248,12 +265,14 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         # every servo tick, whatever log_period: its update of tick k is published at tick k + 1
         "one_step_feasible": LogVectorOutput(planner.one_step_feasible_port, builder, dt),
     }
+    if swing_tilt_system is not None:
+        loggers["swing_tilt"] = LogVectorOutput(swing_tilt_system.tilt_port, builder, period)
     if compliance is not None:
         loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         compliance, push, q0, timer, physics)
+                         compliance, swing_tilt_system, push, q0, timer, physics)
 
 
 def _per_tick(log, servo_period: float) -> np.ndarray:
@@ -268,16 +287,18 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               true_state: bool = False, planner_options: dict | None = None, foot_compliance: dict | bool = True):
+               true_state: bool = False, planner_options: dict | None = None, foot_compliance: dict | bool = True,
+               swing_tilt: dict | bool = True):
     """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
 
     ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
-    for the controller's margins, as the CLI does); ``foot_compliance`` as in
+    for the controller's margins, as the CLI does); ``foot_compliance`` and ``swing_tilt`` as in
     :func:`build_online_diagram`. Returns the
     :class:`drake_estop.physics.plant.PhysicsResult` of :func:`drake_estop.physics.plant.analyse`
     with ``online`` added: ``tick_compute`` (median / p99 / max seconds of the
     controller's own work per servo tick after the signal), ``replans``,
     ``ankle_offset_max`` (the foot-edge compliance's largest ankle offset [rad]),
+    ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction [rad]),
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
     over its velocity limit, measured), the estimator's COG log and
     ``one_step_feasible`` (per servo tick ``k * servo_period`` from 0: 1.0 if
@@ -292,7 +313,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern = pattern or NominalPattern(gait_params or GaitParameters())
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, true_state=true_state,
-                                   planner_options=planner_options, foot_compliance=foot_compliance)
+                                   planner_options=planner_options, foot_compliance=foot_compliance,
+                                   swing_tilt=swing_tilt)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     plant_context = handles.plant.GetMyMutableContextFromRoot(context)
@@ -329,5 +351,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         # the largest ankle offset of the foot-edge compliance [rad] (0 without it)
         "ankle_offset_max": float(np.max(np.abs(handles.loggers["ankle_offsets"].FindLog(context).data())))
         if handles.compliance is not None else 0.0,
+        # the largest correction of the swing foot's tilt compensation [rad] (0 without it)
+        "swing_tilt_max": float(np.max(np.linalg.norm(
+            handles.loggers["swing_tilt"].FindLog(context).data().reshape(2, 3, -1), axis=1)))
+        if handles.swing_tilt is not None else 0.0,
     }
     return result
