@@ -168,6 +168,8 @@ def _add_simulate(sub, scenario: Scenario):
     d.add_argument("--no-foot-compliance", dest="foot_compliance", action="store_false",
                    default=scenario.foot_compliance,
                    help="with --physics: leave out the stance ankles' foot-edge compliance (for comparison)")
+    d.add_argument("--no-swing-tilt", dest="swing_tilt", action="store_false", default=scenario.swing_tilt,
+                   help="with --physics: leave out the swing foot's tilt compensation (for comparison)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -217,7 +219,7 @@ def _effective_scenario(args, gait, stop) -> Scenario:
     simulation = "physics" if args.physics else "kinematic" if args.kinematic else "diagram"
     return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
-                   foot_compliance=args.foot_compliance,
+                   foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
                    perturbations=perturbations_from_args(args), after_halt=args.after_halt)
 
 
@@ -236,11 +238,13 @@ def _simulate(args) -> int:
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
     perturbations = perturbations_from_args(args)
     if not args.physics and (perturbations != Perturbations() or args.true_state
-                             or args.controller != "online" or not args.foot_compliance):
-        raise ValueError("perturbations, --true-state, --no-foot-compliance and --controller need --physics")
+                             or args.controller != "online" or not args.foot_compliance or not args.swing_tilt):
+        raise ValueError("perturbations, --true-state, --no-foot-compliance, --no-swing-tilt and --controller "
+                         "need --physics")
     if args.controller == "offline-filter" and (perturbations != Perturbations() or args.true_state
-                                                or not args.foot_compliance):
-        raise ValueError("perturbations, --true-state and --no-foot-compliance need --controller online")
+                                                or not args.foot_compliance or not args.swing_tilt):
+        raise ValueError("perturbations, --true-state, --no-foot-compliance and --no-swing-tilt need "
+                         "--controller online")
     if args.physics:
         args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
         plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations)
@@ -308,10 +312,11 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
 
         result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
-                            physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance)
+                            physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance,
+                            swing_tilt=args.swing_tilt)
         online = {key: result.online[key] for key in
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor",
-                   "ankle_offset_max")}
+                   "ankle_offset_max", "swing_tilt_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2],

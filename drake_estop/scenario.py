@@ -68,6 +68,8 @@ class Scenario:
     foot_compliance : bool
         Physics, online controller only: the stance ankles' foot-edge compliance (default on; off for
         comparison).
+    swing_tilt : bool
+        Physics, online controller only: the swing foot's tilt compensation (default on; off for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -84,6 +86,7 @@ class Scenario:
     controller: str = "online"
     true_state: bool = False
     foot_compliance: bool = True
+    swing_tilt: bool = True
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

@@ -236,6 +236,22 @@ def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypa
     assert not held.criteria["cop_in_support"]
 
 
+def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
+    """17 N s right at 3.15 s (mid single support, left foot supporting, the push towards the swing
+    side), a cell of the issue's matrix. The push rolls the body about 0.04 rad; without the swing foot's
+    tilt compensation the foot comes down rolled and low, strikes the floor early and short on its outer
+    edge, the stance foot unloads and slides and the CoP leaves the planned support (-16.1 mm, session 7);
+    with it every criterion is met."""
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(3.15, 0.0, -170.0, 0.1),))
+    compensated = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes)
+    assert compensated.success, [name for name, ok in compensated.criteria.items() if not ok]
+    assert compensated.online["swing_tilt_max"] > 0.02
+    tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes, swing_tilt=False)
+    assert tilted.online["swing_tilt_max"] == 0.0
+    assert not tilted.criteria["cop_in_support"]
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 
@@ -280,11 +296,23 @@ def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
     assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given
 
 
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-swing-tilt"], False)])
+def test_no_swing_tilt_reaches_the_online_run(monkeypatch, flag, given):
+    assert _online_run_keywords(monkeypatch, flag)["swing_tilt"] is given
+
+
 @pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
                                   ["--physics", "--controller", "offline-filter", "--no-foot-compliance"]])
 def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
     assert main(["simulate", *args]) == 2
     assert "--no-foot-compliance" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],
+                                  ["--physics", "--controller", "offline-filter", "--no-swing-tilt"]])
+def test_no_swing_tilt_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    assert "--no-swing-tilt" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, field, value", [
@@ -320,6 +348,7 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
     assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound
+    assert 0.0 <= data["swing_tilt_max"] <= 0.17  # the swing-tilt compensation's cap
     assert data["perturbations"]["mass_scale"] == 1.1
     header = open(log).readline().strip().split(",")
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
