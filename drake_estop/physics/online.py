@@ -261,10 +261,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         settings = dict(SWING_TILT_COMPENSATION, **(swing_tilt if isinstance(swing_tilt, dict) else {}))
         swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
                                                         estimator=estimator, servo_period=dt, timer=timer, **settings)
-        for name in ("com", "upper_body"):
-            builder.Connect(planner.GetOutputPort(name), ik.GetInputPort(name))
-    else:
-        connect_reference(builder, planner, ik)
+    connect_reference(builder, planner, ik, feet=swing_tilt_system)
     compliance = None
     if foot_compliance is not False:
         settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))

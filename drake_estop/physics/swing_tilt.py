@@ -109,7 +109,7 @@ class SwingFootTiltCompensation(LeafSystem):
         for name, value in (("deadband", deadband), ("contact_force", contact_force)):
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be finite and non-negative, got {value!r}")
-        self._dt, self._deadband, self._max_tilt = servo_period, deadband, max_tilt
+        self._deadband, self._max_tilt = deadband, max_tilt
         self._decay = max(0.0, 1.0 - servo_period / return_time)
         self._contact_force, self._swing_height = contact_force, swing_height
         base = plant.GetBodyByName(FLOATING_BASE).floating_positions_start()
@@ -157,15 +157,14 @@ class SwingFootTiltCompensation(LeafSystem):
 
 def add_swing_tilt_compensation(builder, *, plant, reference, ik, estimator, servo_period, timer=None,
                                 **settings):
-    """A :class:`SwingFootTiltCompensation` between ``reference``'s feet outputs (the planner) and
-    ``ik``'s feet inputs, reading ``estimator.q_port``, ``ik.q_port`` and ``estimator.sensors``' feet
-    force/torque sensors. ``plant`` is the IK's plant (same positions as the estimator's). Returns
-    the system."""
+    """A :class:`SwingFootTiltCompensation` fed ``reference``'s feet outputs (the planner),
+    ``estimator.q_port``, ``ik.q_port`` and ``estimator.sensors``' feet force/torque sensors. ``plant``
+    is the IK's plant (same positions as the estimator's). Returns the system: its feet outputs go to
+    the IK (``connect_reference(..., feet=system)``)."""
     system = builder.AddNamedSystem("swing_tilt_compensation", SwingFootTiltCompensation(
         plant=plant, servo_period=servo_period, timer=timer, **settings))
     for k, side in enumerate(FEET):
         builder.Connect(reference.GetOutputPort(f"{side}_foot"), system.feet_in_ports[k])
-        builder.Connect(system.feet_out_ports[k], ik.GetInputPort(f"{side}_foot"))
     builder.Connect(estimator.q_port, system.measured_q_port)
     builder.Connect(ik.q_port, system.commanded_q_port)
     builder.Connect(estimator.sensors.foot_ft_port, system.foot_ft_port)

@@ -756,7 +756,9 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
     return trigger, planner
 
 
-def connect_reference(builder, source, ik):
-    """Connect a reference source's com / feet / upper_body to WholeBodyIK."""
+def connect_reference(builder, source, ik, *, feet=None):
+    """Connect a reference source's com / feet / upper_body to WholeBodyIK; the feet from ``feet``
+    (a system with ``left_foot`` / ``right_foot`` outputs, e.g. a swing-foot compensation) if given."""
     for name in ("com", "left_foot", "right_foot", "upper_body"):
-        builder.Connect(source.GetOutputPort(name), ik.GetInputPort(name))
+        origin = feet if feet is not None and name.endswith("_foot") else source
+        builder.Connect(origin.GetOutputPort(name), ik.GetInputPort(name))
