@@ -362,6 +362,7 @@ class StateEstimator(LeafSystem):
         - com
         - com_vel
         - stance
+        - feet
 
     Inputs are :class:`RobotSensors`' outputs of the same names (units
     there); ``true_state`` (nq + nv, the plant state) is read only with
@@ -372,6 +373,12 @@ class StateEstimator(LeafSystem):
         pelvis position [m], joints [rad] = the encoders).
       - ``com`` (3) [m], ``com_vel`` (3) [m/s]: COG and its velocity, world.
       - ``stance`` (1): 0 = left, 1 = right (the anchored foot).
+      - ``feet`` (6): the soles' estimated world positions ``[x_left, y_left,
+        x_right, y_right]`` [m] (a loaded sole's averaged since it was loaded,
+        step 2 below; an unloaded one's current) and the ticks each has been
+        loaded, ``[n_left, n_right]`` (0: unloaded, capped at
+        ``foot_window``). Footholds for the planner: where a foot actually
+        landed.
 
     Timing. The filter state is updated by a periodic discrete event at
     every servo tick. The outputs are computed (one cached evaluation) from
@@ -521,6 +528,7 @@ class StateEstimator(LeafSystem):
         self.stance_port = self.DeclareVectorOutputPort(
             "stance", 1, lambda c, o: o.SetAtIndex(0, self._estimate.Eval(c)[_STANCE]),
             prerequisites_of_calc=ticket)
+        self.feet_port = self.DeclareVectorOutputPort("feet", 6, self._calc_feet, prerequisites_of_calc=ticket)
 
     # ---------------------------------------------------------------- state
 
@@ -556,6 +564,24 @@ class StateEstimator(LeafSystem):
         x[_HEADER + self._nq:_HEADER + self._nq + 3] = com
         return x
 
+    def _calc_feet(self, context, output):
+        x = self._estimate.Eval(context)
+        output.SetFromVector([*x[_FOOT[0]][:2], *x[_FOOT[1]][:2], x[_LOADED[0]], x[_LOADED[1]]])
+
+    def _averaged_feet(self, x, feet_world, forces):
+        """Step 2's foot average: each loaded sole's world position averaged over its last
+        ``foot_window`` loaded ticks, an unloaded one's current; returns ``(averages, loaded ticks)``."""
+        foot_avg = [x[_FOOT[0]].copy(), x[_FOOT[1]].copy()]
+        loaded = [x[_LOADED[0]], x[_LOADED[1]]]
+        for side in (0, 1):
+            if forces[side] > self._min_force:
+                loaded[side] = min(loaded[side] + 1.0, self._foot_window)
+                foot_avg[side] += (feet_world[side] - foot_avg[side]) / loaded[side]
+            else:
+                loaded[side] = 0.0
+                foot_avg[side] = feet_world[side].copy()
+        return foot_avg, loaded
+
     def set_initial_pose(self, context, q):
         """Reset ``context``'s (this system's) filter state to the robot at rest in ``q``."""
         context.get_mutable_discrete_state(self._xd).SetFromVector(self.initial_state(q))
@@ -584,6 +610,11 @@ class StateEstimator(LeafSystem):
         y[_T_LAST], y[_UPDATED] = context.get_time(), 1.0
         forces = self.foot_forces_port.Eval(context)
         y[_STANCE] = 0.0 if forces[0] >= forces[1] else 1.0
+        # the footholds, from the true soles
+        soles = [plant.EvalBodyPoseInWorld(scratch, sole).translation() for sole in self._soles]
+        foot_avg, loaded = self._averaged_feet(x, soles, forces)
+        y[_FOOT[0]], y[_FOOT[1]] = foot_avg
+        y[_LOADED[0]], y[_LOADED[1]] = loaded
         out = _HEADER + self._nq
         y[_HEADER:out] = state[:self._nq]
         y[out:out + 3] = plant.CalcCenterOfMassPositionInWorld(scratch)
@@ -628,15 +659,7 @@ class StateEstimator(LeafSystem):
         anchor = x[_ANCHOR].copy()
         base = anchor - feet[stance]
         # the loaded non-stance sole: average its position since it was loaded (noise)
-        foot_avg = [x[_FOOT[0]].copy(), x[_FOOT[1]].copy()]
-        loaded = [x[_LOADED[0]], x[_LOADED[1]]]
-        for side in (0, 1):
-            if forces[side] > self._min_force:
-                loaded[side] = min(loaded[side] + 1.0, self._foot_window)
-                foot_avg[side] += (base + feet[side] - foot_avg[side]) / loaded[side]
-            else:
-                loaded[side] = 0.0
-                foot_avg[side] = base + feet[side]
+        foot_avg, loaded = self._averaged_feet(x, [base + feet[0], base + feet[1]], forces)
         total = forces[0] + forces[1]
         if total > self._min_force:
             other = 1 - stance

@@ -253,6 +253,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                                            timer=timer, **(planner_options or {}))
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
+    builder.Connect(estimator.feet_port, planner.measured_feet_port)
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))

@@ -707,7 +707,7 @@ def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, mea
     return replace(state, com=state.com + d0 * ch + v0 / w * sh, com_vel=state.com_vel + d0 * w * sh + v0 * ch)
 
 
-def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None:
+def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
@@ -734,9 +734,14 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     does the same under a push. Measured on the pushed physics benchmark: see
     ``benchmarks/ROBUSTNESS.md``.
 
+    ``feet`` (after the landing only: ``{side: (x, y)}`` [m], either or both
+    sides) are measured footholds: the double-support stop is solved on them
+    instead of the plan's feet (a pushed swing foot lands centimetres from its
+    target; its support polygon is where it stands). Ignored before the landing.
+
     Returns None where nothing is left to re-plan (the halt, a plan that has
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
-    stop exists from that state.
+    stop exists from that state, ``ValueError`` for non-finite ``feet``.
     """
     # a push may need the early step, and a landing moved further than a low foot could on its own
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
@@ -746,8 +751,9 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy) -> StopPlan | None
     double = plan.landing_time <= t < plan.slowdown_end
     if not (single or double):
         return None
+    footholds = _footholds(feet) if double else None
     try:
-        return _replan(plan, t, com_xy, com_vel_xy, double, params)
+        return _replan(plan, t, com_xy, com_vel_xy, double, params, footholds=footholds)
     except InfeasibleStop as error:
         if double:
             raise
@@ -798,10 +804,26 @@ def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
     return None if np.max(np.abs(zmp - current)) < 1e-3 else zmp
 
 
+def _footholds(feet):
+    """``replan_stop``'s ``feet`` checked: ``{side: xy array}`` (None for none)."""
+    if feet is None:
+        return None
+    out = {}
+    for side, xy in feet.items():
+        if side not in ("left", "right"):
+            raise ValueError(f"feet: sides are 'left' and 'right', got {side!r}")
+        xy = np.asarray(xy, float)[:2]
+        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"feet[{side!r}] must be a finite (x, y), got {feet[side]!r}")
+        out[side] = xy
+    return out
+
+
 def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
-            stance_zmp=None) -> StopPlan:
+            stance_zmp=None, footholds=None) -> StopPlan:
     """:func:`replan_stop`'s plan: the plan's state at ``t`` with the measured COG, solved as a single-
-    or double-support stop; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest."""
+    or double-support stop; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest; ``footholds``
+    (``{side: xy}``, double support) replace the plan's feet, at rest."""
     h = 1e-3
     axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
     zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
@@ -812,6 +834,9 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
         before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
     feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
     feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
+    for side, xy in (footholds or {}).items():
+        now[side] = np.array([xy[0], xy[1], 0.0])
+        feet_vel[side], feet_acc[side] = np.zeros(3), np.zeros(3)
     upper, upper_rate = plan.upper_body(t)
     yaw, yaw_rate = plan.feet_yaw(t)
     changes = dict(time=float(t), feet_yaw=yaw, feet_yaw_rate=yaw_rate, com=np.asarray(com_xy, float)[:2].copy(),

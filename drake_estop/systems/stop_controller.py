@@ -45,6 +45,8 @@ from drake_estop.planning.planner import (
 )
 from drake_estop.timing import timed
 
+SIDES = ("left", "right")
+
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
                     ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
@@ -313,7 +315,7 @@ class _PlanHandle:
         self.plan = plan
         self.last_try = last_try  # time of the last re-plan attempt
         self.history = history if history is not None else ((plan,) if plan is not None else ())
-        self.blend = blend  # (start, dp (2), dv (2), duration): see StopPlannerSystem._blended
+        self.blend = blend  # (start, dp (2), dv (2), duration[, dfeet (2, 3)]): StopPlannerSystem._blended
         self.wall_time = wall_time
         self.replans = replans
         self.replan_failures = replan_failures
@@ -415,6 +417,7 @@ class StopPlannerSystem(_ReferenceSystem):
         - stop
         - measured_com
         - measured_com_vel
+        - measured_feet
         output_ports:
         - com
         - com_vel
@@ -439,6 +442,18 @@ class StopPlannerSystem(_ReferenceSystem):
     ``landed_replan_threshold`` after it; the COG command is blended into a
     plan made from the measured state over ``blend_time``. :meth:`plans`
     returns the plan and its re-plans, :meth:`replans` their count.
+
+    ``measured_feet`` (6, optional: :class:`StateEstimator`'s ``feet``,
+    ``[x_l, y_l, x_r, y_r, loaded ticks l, loaded ticks r]``). When
+    connected, a re-plan after the landing (once the landed sole has been
+    loaded for ``foothold_ticks`` ticks) solves the double-support stop on the
+    soles' estimated positions instead of the plan's feet, and the sole
+    targets are blended onto them with the COG. Measured on a 17 N s push to
+    the right at 2.95 s: the swing foot landed 1.9 cm inside and 7 mm ahead
+    of its target, and the support foot, unloaded by the landing impact, slid
+    9 mm; the estimate put both within 3 mm. Both sides are used: the landing
+    foot alone, relative to the planned support foot, missed the slide and
+    left the CoP 0.6 mm outside the support.
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
@@ -479,6 +494,12 @@ class StopPlannerSystem(_ReferenceSystem):
     landed_replan_threshold : float, optional
         DCM deviation that triggers a re-plan after the landing [m] (default
         0.08).
+    measured_footholds : bool, optional
+        Whether re-plans after the landing use ``measured_feet`` (default
+        True; False keeps the plan's feet, for comparison).
+    foothold_ticks : int, optional
+        Loaded ticks after which a landed sole's measured position is its
+        foothold (default 2).
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
 
@@ -500,7 +521,8 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
-                 replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, timer=None):
+                 replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
+                 foothold_ticks: int = 2, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -508,6 +530,10 @@ class StopPlannerSystem(_ReferenceSystem):
                             ("landed_replan_threshold", landed_replan_threshold)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        if isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, int) or foothold_ticks < 1:
+            raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
+        self._foothold_ticks = foothold_ticks
+        self._measured_footholds = bool(measured_footholds)
         self._pattern = pattern
         self._params = params
         self._replan_threshold = float(replan_threshold)
@@ -519,6 +545,8 @@ class StopPlannerSystem(_ReferenceSystem):
         # optional: the estimated COG; when connected the stop is planned (and re-planned) from it
         self.measured_com_port = self.DeclareVectorInputPort("measured_com", 3)
         self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
+        # optional: the estimated soles; a re-plan after the landing stands on the measured foothold
+        self.measured_feet_port = self.DeclareVectorInputPort("measured_feet", 6)
         # low-passed (measured - reference) COG position and velocity while walking: the servo's
         # steady tracking error, which a plan from the measured state must not turn into a jump
         self._bias_alpha = params.servo_period / (bias_time_constant + params.servo_period)
@@ -678,7 +706,7 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:
-            new = replan_stop(plan, t, *measured)
+            new = replan_stop(plan, t, *measured, feet=self._footholds(context, plan) if landed else None)
         except InfeasibleStop:
             new, failures = None, handle.replan_failures + 1
         else:
@@ -692,6 +720,17 @@ class StopPlannerSystem(_ReferenceSystem):
                               handle.history + ((new,) if new is not None else ()), t)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
+
+    def _footholds(self, context, plan):
+        """``{side: xy}``: both soles' estimated positions, once the plan's landing foot has landed
+        (loaded ``foothold_ticks`` ticks); None without a measurement or a landing."""
+        if (not self._measured_footholds or plan.landing_foot is None
+                or not self.measured_feet_port.HasValue(context)):
+            return None
+        feet = self.measured_feet_port.Eval(context)
+        if not np.all(np.isfinite(feet)) or feet[4 + SIDES.index(plan.landing_foot)] < self._foothold_ticks:
+            return None
+        return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
     def _calc_reference(self, context):
         handle = self._handle(context)
@@ -707,10 +746,13 @@ class StopPlannerSystem(_ReferenceSystem):
         targets (the stiff servos then strike the floor). The COG command is
         the plan plus a quintic that starts at the old command's offset
         ``dp`` and rate ``dv`` and fades to zero, at rest, over ``duration``.
+        A fifth entry ``dfeet`` (2 x 3, left then right) does the same for the
+        sole positions of a plan on measured footholds (a 1-2 cm step of a
+        loaded foot's target kicked the robot off the floor).
         """
         if blend is None:
             return reference
-        start, dp, dv, duration = blend
+        start, dp, dv, duration = blend[:4]
         s = (t - start) / duration
         if not 0.0 <= s < 1.0:
             return reference
@@ -721,6 +763,9 @@ class StopPlannerSystem(_ReferenceSystem):
         out = reference.copy()
         out[REFERENCE_SLICES["com"]][:2] += dp * h0 + dv * duration * h1
         out[REFERENCE_SLICES["com_vel"]][:2] += dp * d0 + dv * d1
+        if len(blend) > 4:  # sole positions moved onto measured footholds: faded the same way, at rest
+            for side, offset in zip(SIDES, blend[4]):
+                out[REFERENCE_SLICES[f"{side}_foot"]][:3] += offset * h0
         return out
 
     def _blend_into(self, context, plan):
@@ -732,9 +777,13 @@ class StopPlannerSystem(_ReferenceSystem):
         pos, vel, _, _ = plan.com([t])
         dp = current[REFERENCE_SLICES["com"]][:2] - pos[0]
         dv = current[REFERENCE_SLICES["com_vel"]][:2] - vel[0]
-        if max(np.max(np.abs(dp)), np.max(np.abs(dv))) < 1e-9:
+        feet = plan.feet(t)
+        dfeet = np.array([current[REFERENCE_SLICES[f"{side}_foot"]][:3] - feet[side] for side in SIDES])
+        if max(np.max(np.abs(dp)), np.max(np.abs(dv)), np.max(np.abs(dfeet))) < 1e-9:
             return None
-        return (t, dp, dv, self._blend_time)
+        if np.max(np.abs(dfeet)) < 1e-9:
+            return (t, dp, dv, self._blend_time)
+        return (t, dp, dv, self._blend_time, dfeet)
 
 
 def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
