@@ -269,6 +269,48 @@ def test_true_state_mode_outputs_the_plant_state(plant, q0):
                        plant.CalcCenterOfMassTranslationalVelocityInWorld(truth))
 
 
+def _sole_xy(plant, q):
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, q)
+    return [plant.EvalBodyPoseInWorld(context, plant.GetBodyByName(name)).translation()[:2]
+            for name in (LEFT_SOLE, RIGHT_SOLE)]
+
+
+def _advance_ticks(estimator, context, ticks):
+    for _ in range(ticks):
+        state = estimator.EvalUniquePeriodicDiscreteUpdate(context)
+        context.SetDiscreteState(state.get_vector().get_value())
+        context.SetTime(context.get_time() + DT)
+
+
+def test_feet_output_gives_the_soles_positions_and_loaded_ticks(plant, q0):
+    """``feet``: [x_l, y_l, x_r, y_r, loaded ticks l, loaded ticks r]; a loaded sole counts its ticks (up to
+    foot_window), an unloaded one is at 0 and starts again when loaded."""
+    estimator = StateEstimator(plant=plant, servo_period=DT, initial_q=q0, foot_window=5)
+    context = _estimator_context(estimator, plant, q0, forces=(500.0, 5.0))
+    left, right = _sole_xy(plant, q0)
+    _advance_ticks(estimator, context, 3)
+    feet = estimator.feet_port.Eval(context)
+    np.testing.assert_allclose(feet[:4], [*left, *right], atol=1e-9)
+    np.testing.assert_array_equal(feet[4:], [4.0, 0.0])  # this tick's estimate counts it too
+    estimator.foot_forces_port.FixValue(context, [300.0, 300.0])
+    _advance_ticks(estimator, context, 8)
+    np.testing.assert_array_equal(estimator.feet_port.Eval(context)[4:], [5.0, 5.0])  # capped at foot_window
+    np.testing.assert_allclose(estimator.feet_port.Eval(context)[:4], [*left, *right], atol=1e-9)
+
+
+def test_feet_output_follows_the_true_soles_in_true_state_mode(plant, q0):
+    estimator = StateEstimator(plant=plant, servo_period=DT, initial_q=q0, true_state=True)
+    context = _estimator_context(estimator, plant, q0, forces=(500.0, 5.0))
+    q = q0.copy()
+    q[4:7] += [0.1, -0.05, 0.0]
+    estimator.true_state_port.FixValue(context, np.concatenate([q, np.zeros(plant.num_velocities())]))
+    left, right = _sole_xy(plant, q)
+    feet = estimator.feet_port.Eval(context)
+    np.testing.assert_allclose(feet[:4], [*left, *right], atol=1e-9)
+    np.testing.assert_array_equal(feet[4:], [1.0, 0.0])
+
+
 def test_bad_options(plant, q0):
     with pytest.raises(ValueError, match="model"):
         StateEstimator(plant=plant, servo_period=DT, model="magic")

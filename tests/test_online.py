@@ -205,7 +205,9 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     """A 0.2385 m step, signal at 3.45 s (the swing foot 0.6 mm above the floor, coming down): with the
     controller's landing-shift limit the foot lands on its nominal footstep and every criterion is met;
     the paper's plan sends it 6.6 cm further and the robot falls with no push at all (session-6 campaign,
-    runs 219, 300 and 472)."""
+    runs 219, 300 and 472). Since session 9 the double-support re-plan on the measured footholds also
+    recovers the dragged landing (the plan then stands where the foot came down); without either the robot
+    falls."""
     import drake_estop.physics.online as online
 
     pattern = NominalPattern(GaitParameters(step_length=0.2385))
@@ -213,8 +215,11 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_landing_shift_per_height=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    dragged = run_online(estop_time=3.45, pattern=pattern)
+    dragged = run_online(estop_time=3.45, pattern=pattern, planner_options={"measured_footholds": False})
     assert not dragged.criteria["no_fall"]
+    rescued = run_online(estop_time=3.45, pattern=pattern)
+    assert rescued.success, [name for name, ok in rescued.criteria.items() if not ok]
+    assert rescued.online["replans"] >= 1
 
 
 def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypatch):
@@ -250,6 +255,24 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes, swing_tilt=False)
     assert tilted.online["swing_tilt_max"] == 0.0
     assert not tilted.criteria["cop_in_support"]
+
+
+def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foot_in_support():
+    """17 N s right at 2.95 s (early single support, left foot supporting), the last failing cell of the
+    issue's matrix in session 8. The swing foot lands 1.9 cm inside and 7 mm ahead of its re-planned
+    target, the landing impact unloads the support foot and it slides 9 mm; the double-support re-plans on
+    the plan's feet put the ZMP at the landed foot's outer edge and the CoP left the planned support by
+    4.2 mm. Re-planned on the estimated footholds (sole targets blended onto them) every criterion is met."""
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(2.95, 0.0, -170.0, 0.1),))
+    measured = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
+    assert measured.success, [name for name, ok in measured.criteria.items() if not ok]
+    assert measured.online["replans"] >= 2
+    landed = measured.plan.final_feet["right"]
+    assert abs(landed[1] - measured.plan.plans[1].final_feet["right"][1]) > 0.01  # re-planned where it landed
+    planned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
+                         planner_options={"measured_footholds": False})
+    assert not planned.criteria["cop_in_support"]
 
 
 # -- command line ----------------------------------------------------------------------------------

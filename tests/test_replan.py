@@ -11,6 +11,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
 from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
 
@@ -361,3 +362,160 @@ def test_an_infeasible_stop_raises_instead_of_crashing_the_simulator():
                           cwd=tests, env={**os.environ, "PYTHONPATH": path})
     assert done.returncode == 0, done.stderr[-2000:]
     assert "raised: stop planning failed at t = 3.10" in done.stdout
+
+
+# -- measured footholds after the landing ----------------------------------------------------------
+
+
+def _inward(side):
+    """The sign of y towards the other foot."""
+    return -1.0 if side == "left" else 1.0
+
+
+def _moved_feet(plan):
+    """The landing foot 7 mm ahead and 15 mm inside its target, the support foot slid 9 mm outward."""
+    landing = plan.landing_foot
+    support = next(s for s in ("left", "right") if s != landing)
+    return {landing: plan.final_feet[landing] + [0.007, 0.015 * _inward(landing)],
+            support: plan.final_feet[support] + [-0.004, -0.009 * _inward(support)]}
+
+
+def test_replan_after_the_landing_stands_on_measured_footholds(pattern, params):
+    plan = plan_stop(pattern, 3.4, params)
+    t = plan.landing_time + 0.02
+    pos, vel, _ = _state_at(plan, t)
+    feet = _moved_feet(plan)
+    new = replan_stop(plan, t, pos, vel + np.array([0.05, 0.0]), feet=feet)
+    assert new.start_support == "double"
+    for side in feet:
+        np.testing.assert_allclose(new.final_feet[side][:2], feet[side], atol=1e-12)
+        np.testing.assert_allclose(new.feet(t)[side][:2], feet[side], atol=1e-12)  # the sole targets
+    # the ZMP stays in the polygon of the feet where they are, with the plan's margin (III.B)
+    assert new.min_zmp_margin >= params.zmp_margin - 1e-9
+    sole = pattern.params.sole
+    polygon = SupportPolygon(np.vstack([sole.corners(feet[s], s, 0.0) for s in feet]))
+    zmp = new.com(np.linspace(t, new.halt_end, 60))[3]
+    assert polygon.margin(zmp).min() >= params.zmp_margin - 1e-6
+    # and the COG comes to rest at their midpoint (eq. 27-28)
+    end_pos, end_vel, _ = _state_at(new, new.halt_end + 0.2)
+    np.testing.assert_allclose(end_pos, 0.5 * (feet["left"] + feet["right"]), atol=1e-6)
+    np.testing.assert_allclose(end_vel, 0.0, atol=1e-6)
+    # without them the re-plan keeps the plan's feet
+    kept = replan_stop(plan, t, pos, vel + np.array([0.05, 0.0]))
+    for side in feet:
+        np.testing.assert_allclose(kept.final_feet[side], plan.final_feet[side], atol=1e-12)
+
+
+def test_measured_footholds_are_ignored_before_the_landing(pattern, params):
+    plan = plan_stop(pattern, 3.1, params)
+    t = 3.15
+    pos, vel, _ = _state_at(plan, t)
+    new = replan_stop(plan, t, pos, vel + np.array([0.02, 0.0]), feet=_moved_feet(plan))
+    plain = replan_stop(plan, t, pos, vel + np.array([0.02, 0.0]))
+    for side in ("left", "right"):
+        np.testing.assert_allclose(new.final_feet[side], plain.final_feet[side], atol=1e-12)
+
+
+@pytest.mark.parametrize("feet, message", [
+    ({"left": (np.nan, 0.1)}, "feet\\['left'\\]"),
+    ({"right": (0.9,)}, "feet\\['right'\\]"),
+    ({"middle": (0.9, 0.0)}, "feet: sides"),
+])
+def test_replan_rejects_bad_footholds(pattern, params, feet, message):
+    plan = plan_stop(pattern, 3.4, params)
+    t = plan.landing_time + 0.05
+    pos, vel, _ = _state_at(plan, t)
+    with pytest.raises(ValueError, match=message):
+        replan_stop(plan, t, pos, vel, feet=feet)
+
+
+def _landed_replan(pattern, params, feet_input, **kwargs):
+    """StopPlannerSystem alone (FixValue inputs, Simulator.AdvanceTo): the stop latched at 3.4 s from the
+    reference, no measurement until 20 ms after the landing, then a COG 5 cm/s faster than the plan's
+    (past a 1 cm threshold) and ``feet_input`` on ``measured_feet``. Returns the planner, its context,
+    the first plan and the re-plan tick."""
+    planner = StopPlannerSystem(pattern=pattern, params=params, filter_time_constant=1e-6, replan_interval=DT,
+                                landed_replan_threshold=0.01, **kwargs)
+    context = planner.CreateDefaultContext()
+    t0 = 3.4
+    pos, vel, _, _ = pattern.com([t0])
+    planner.stop_port.FixValue(context, [1.0, t0])
+    planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
+    context.SetTime(t0)
+    simulator = Simulator(planner, context)
+    simulator.AdvanceTo(t0 + DT / 2)
+    first = planner.plan(context)
+    assert first.start_time == pytest.approx(t0)
+    planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no measurement: no re-plan
+    t = round((first.landing_time + 0.02) / DT) * DT
+    simulator.AdvanceTo(t - DT / 2)
+    assert planner.replans(context) == (0, 0)
+    pos, vel, _ = _state_at(first, t)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*(vel + np.array([0.05, 0.0])), 0.0])
+    if feet_input is not None:
+        planner.measured_feet_port.FixValue(context, feet_input(first))
+    simulator.AdvanceTo(t + DT / 2)
+    assert planner.replans(context) == (1, 0)
+    return planner, context, first, t
+
+
+def _feet_vector(plan, ticks=(40.0, 40.0)):
+    feet = _moved_feet(plan)
+    return [*feet["left"], *feet["right"], *ticks]
+
+
+def test_planner_replans_after_the_landing_on_the_measured_feet_and_blends_the_sole_targets(pattern, params):
+    planner, context, first, t = _landed_replan(pattern, params, _feet_vector)
+    feet = _moved_feet(first)
+    new = planner.plan(context)
+    for side in feet:
+        np.testing.assert_allclose(new.final_feet[side][:2], feet[side], atol=1e-12)
+    # the sole targets start at the old command (a loaded foot's target must not step) and reach the
+    # footholds at rest after blend_time
+    for side in feet:
+        port = planner.GetOutputPort(f"{side}_foot")
+        np.testing.assert_allclose(port.Eval(context)[:2], first.feet(t)[side][:2], atol=1e-6)
+    planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no further re-plan
+    Simulator(planner, context).AdvanceTo(t + 0.2 + DT / 2)
+    assert planner.replans(context) == (1, 0)
+    for side in feet:
+        np.testing.assert_allclose(planner.GetOutputPort(f"{side}_foot").Eval(context)[:2], feet[side],
+                                   atol=1e-9)
+
+
+@pytest.mark.parametrize("feet_input, kwargs", [
+    (None, {}),  # not connected
+    (_feet_vector, {"measured_footholds": False}),
+    (lambda plan: _feet_vector(plan, ticks=(1.0, 1.0)), {}),  # loaded one tick, under foothold_ticks
+    (lambda plan: [np.nan] * 6, {}),
+])
+def test_planner_keeps_the_plans_feet_without_usable_footholds(pattern, params, feet_input, kwargs):
+    planner, context, first, _ = _landed_replan(pattern, params, feet_input, **kwargs)
+    new = planner.plan(context)
+    for side in ("left", "right"):
+        np.testing.assert_allclose(new.final_feet[side], first.final_feet[side], atol=1e-12)
+
+
+@pytest.mark.parametrize("value", [0, -1, 1.5, True, float("nan")])
+def test_planner_rejects_bad_foothold_ticks(pattern, params, value):
+    with pytest.raises(ValueError, match="foothold_ticks"):
+        StopPlannerSystem(pattern=pattern, params=params, foothold_ticks=value)
+
+
+def test_blend_fades_the_sole_offsets_to_the_new_plan_at_rest():
+    from drake_estop.systems.stop_controller import REFERENCE_SIZE, REFERENCE_SLICES
+    reference = np.zeros(REFERENCE_SIZE)
+    dfeet = np.array([[0.01, -0.02, 0.0], [-0.005, 0.015, 0.0]])
+    blend = (1.0, np.zeros(2), np.zeros(2), 0.2, dfeet)
+
+    def feet(t):
+        out = StopPlannerSystem._blended(reference, blend, t)
+        return np.array([out[REFERENCE_SLICES[f"{side}_foot"]][:3] for side in ("left", "right")])
+
+    np.testing.assert_allclose(feet(1.0), dfeet)
+    h = 1e-6
+    np.testing.assert_allclose((feet(1.0 + h) - feet(1.0)) / h, 0.0, atol=1e-4)  # starts at rest
+    np.testing.assert_allclose(feet(1.2 - 1e-9), 0.0, atol=1e-9)
+    assert np.all(np.abs(feet(1.1)) < np.abs(dfeet) + 1e-12)

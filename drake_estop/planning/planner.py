@@ -743,6 +743,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> S
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
     stop exists from that state, ``ValueError`` for non-finite ``feet``.
     """
+    footholds = _footholds(feet)
     # a push may need the early step, and a landing moved further than a low foot could on its own
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     if plan.x is None or t < plan.start_time:
@@ -751,9 +752,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> S
     double = plan.landing_time <= t < plan.slowdown_end
     if not (single or double):
         return None
-    footholds = _footholds(feet) if double else None
     try:
-        return _replan(plan, t, com_xy, com_vel_xy, double, params, footholds=footholds)
+        return _replan(plan, t, com_xy, com_vel_xy, double, params, footholds=footholds if double else None)
     except InfeasibleStop as error:
         if double:
             raise

@@ -530,9 +530,10 @@ class StopPlannerSystem(_ReferenceSystem):
                             ("landed_replan_threshold", landed_replan_threshold)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
-        if isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, int) or foothold_ticks < 1:
+        if (isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, (int, float))
+                or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
-        self._foothold_ticks = foothold_ticks
+        self._foothold_ticks = int(foothold_ticks)
         self._measured_footholds = bool(measured_footholds)
         self._pattern = pattern
         self._params = params
