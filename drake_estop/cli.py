@@ -170,6 +170,10 @@ def _add_simulate(sub, scenario: Scenario):
                    help="with --physics: leave out the stance ankles' foot-edge compliance (for comparison)")
     d.add_argument("--no-swing-tilt", dest="swing_tilt", action="store_false", default=scenario.swing_tilt,
                    help="with --physics: leave out the swing foot's tilt compensation (for comparison)")
+    d.add_argument("--no-measured-footholds", dest="measured_footholds", action="store_false",
+                   default=scenario.measured_footholds,
+                   help="with --physics: re-plan after the landing on the plan's feet instead of the "
+                        "estimated footholds (for comparison)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -220,7 +224,16 @@ def _effective_scenario(args, gait, stop) -> Scenario:
     return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
-                   perturbations=perturbations_from_args(args), after_halt=args.after_halt)
+                   measured_footholds=args.measured_footholds, perturbations=perturbations_from_args(args),
+                   after_halt=args.after_halt)
+
+
+def _online_only_options(args, perturbations) -> list:
+    """The options given that only the online controller's physics run takes."""
+    given = (("perturbations", perturbations != Perturbations()), ("--true-state", args.true_state),
+             ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
+             ("--no-measured-footholds", not args.measured_footholds))
+    return [name for name, on in given if on]
 
 
 def _simulate(args) -> int:
@@ -237,14 +250,12 @@ def _simulate(args) -> int:
     if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
     perturbations = perturbations_from_args(args)
-    if not args.physics and (perturbations != Perturbations() or args.true_state
-                             or args.controller != "online" or not args.foot_compliance or not args.swing_tilt):
-        raise ValueError("perturbations, --true-state, --no-foot-compliance, --no-swing-tilt and --controller "
-                         "need --physics")
-    if args.controller == "offline-filter" and (perturbations != Perturbations() or args.true_state
-                                                or not args.foot_compliance or not args.swing_tilt):
-        raise ValueError("perturbations, --true-state, --no-foot-compliance and --no-swing-tilt need "
-                         "--controller online")
+    online_only = _online_only_options(args, perturbations)
+    physics_only = online_only + (["--controller"] if args.controller != "online" else [])
+    if not args.physics and physics_only:
+        raise ValueError(f"{' and '.join(physics_only)}: only with --physics")
+    if args.controller == "offline-filter" and online_only:
+        raise ValueError(f"{' and '.join(online_only)}: only with --controller online")
     if args.physics:
         args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
         plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations)
@@ -313,7 +324,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
         result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
                             physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance,
-                            swing_tilt=args.swing_tilt)
+                            swing_tilt=args.swing_tilt,
+                            planner_options=None if args.measured_footholds else {"measured_footholds": False})
         online = {key: result.online[key] for key in
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor",
                    "ankle_offset_max", "swing_tilt_max")}

@@ -70,6 +70,9 @@ class Scenario:
         comparison).
     swing_tilt : bool
         Physics, online controller only: the swing foot's tilt compensation (default on; off for comparison).
+    measured_footholds : bool
+        Physics, online controller only: re-plans after the landing stand on the estimated footholds
+        (default on; off re-plans on the plan's feet, for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -87,6 +90,7 @@ class Scenario:
     true_state: bool = False
     foot_compliance: bool = True
     swing_tilt: bool = True
+    measured_footholds: bool = True
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

@@ -331,6 +331,20 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
     assert "--no-foot-compliance" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-measured-footholds"], False)])
+def test_no_measured_footholds_reaches_the_online_run(monkeypatch, flag, given):
+    options = _online_run_keywords(monkeypatch, flag)["planner_options"] or {}
+    assert options.get("measured_footholds", True) is given
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-measured-footholds"],
+                                  ["--physics", "--controller", "offline-filter", "--no-measured-footholds"]])
+def test_no_measured_footholds_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    err = capsys.readouterr().err
+    assert "--no-measured-footholds" in err and "--no-swing-tilt" not in err
+
+
 @pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],
                                   ["--physics", "--controller", "offline-filter", "--no-swing-tilt"]])
 def test_no_swing_tilt_needs_the_online_physics_run(args, capsys):
