@@ -453,7 +453,10 @@ class StopPlannerSystem(_ReferenceSystem):
     of its target, and the support foot, unloaded by the landing impact, slid
     9 mm; the estimate put both within 3 mm. Both sides are used: the landing
     foot alone, relative to the planned support foot, missed the slide and
-    left the CoP 0.6 mm outside the support.
+    left the CoP 0.6 mm outside the support. Only a plan with a landing takes
+    footholds: the first re-plan after the landing does; a later re-plan
+    keeps that re-plan's feet (a double-support plan has no landing foot),
+    and a stop signalled in double support keeps the walk's feet.
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
@@ -724,7 +727,8 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def _footholds(self, context, plan):
         """``{side: xy}``: both soles' estimated positions, once the plan's landing foot has landed
-        (loaded ``foothold_ticks`` ticks); None without a measurement or a landing."""
+        (loaded ``foothold_ticks`` ticks); None without a measurement or a landing foot (a double-support
+        plan: a stop signalled in double support, or an earlier re-plan after the landing)."""
         if (not self._measured_footholds or plan.landing_foot is None
                 or not self.measured_feet_port.HasValue(context)):
             return None
