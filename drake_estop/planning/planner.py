@@ -42,7 +42,7 @@ from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
 from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
-from drake_estop.planning.gait import NominalPattern, PatternState, rotation
+from drake_estop.planning.gait import SIDES, NominalPattern, PatternState, rotation
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.halt import choose_halt
 from drake_estop.planning.heading import solve_turned
@@ -810,7 +810,7 @@ def _footholds(feet):
         return None
     out = {}
     for side, xy in feet.items():
-        if side not in ("left", "right"):
+        if side not in SIDES:
             raise ValueError(f"feet: sides are 'left' and 'right', got {side!r}")
         xy = np.asarray(xy, float)[:2]
         if xy.shape != (2,) or not np.all(np.isfinite(xy)):

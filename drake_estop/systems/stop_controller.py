@@ -32,7 +32,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
+from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.planner import (
     PHASES,
     InfeasibleStop,
@@ -44,8 +44,6 @@ from drake_estop.planning.planner import (
     warm_up,
 )
 from drake_estop.timing import timed
-
-SIDES = ("left", "right")
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
@@ -751,9 +749,10 @@ class StopPlannerSystem(_ReferenceSystem):
         targets (the stiff servos then strike the floor). The COG command is
         the plan plus a quintic that starts at the old command's offset
         ``dp`` and rate ``dv`` and fades to zero, at rest, over ``duration``.
-        A fifth entry ``dfeet`` (2 x 3, left then right) does the same for the
-        sole positions of a plan on measured footholds (a 1-2 cm step of a
-        loaded foot's target kicked the robot off the floor).
+        The fifth entry ``dfeet`` (2 x 3, left then right; optional) does the
+        same for the sole positions, which a plan on measured footholds moves
+        (a 1-2 cm step of a loaded foot's target kicked the robot off the
+        floor).
         """
         if blend is None:
             return reference
@@ -786,8 +785,6 @@ class StopPlannerSystem(_ReferenceSystem):
         dfeet = np.array([current[REFERENCE_SLICES[f"{side}_foot"]][:3] - feet[side] for side in SIDES])
         if max(np.max(np.abs(dp)), np.max(np.abs(dv)), np.max(np.abs(dfeet))) < 1e-9:
             return None
-        if np.max(np.abs(dfeet)) < 1e-9:
-            return (t, dp, dv, self._blend_time)
         return (t, dp, dv, self._blend_time, dfeet)
 
 
