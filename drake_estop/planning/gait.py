@@ -224,6 +224,9 @@ class PatternState:
     feet_yaw: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # side -> heading [rad]
     feet_yaw_rate: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # [rad/s]
     next_landing_yaw: float = 0.0  # heading of the nominal landing [rad]
+    # a recovery step out of a double-support stop (planning/planner.py, replan_stop): its nominal
+    # touchdown [s]; the walk's footstep (steps[step_index]) does not apply to it. None: the walk's step
+    recovery_touchdown: float | None = None
 
 
 class NominalPattern:

@@ -229,6 +229,9 @@ class StopPlan:
         Heading [rad] of the frame the phase parameters were solved in: the
         landing foot's (single support) or the fore foot's (double support);
         the step length and ZMP_max are measured along it.
+    recovery_step : bool
+        A re-plan's step of the rear foot out of a double-support stop
+        (:func:`drake_estop.planning.planner.replan_stop`).
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -271,6 +274,7 @@ class StopPlan:
     crouch_window: tuple | None = None  # (start, end): a re-plan keeps the crouch of the plan it replaces
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
+    recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
 
     @property
     def steps_after_signal(self) -> int:
@@ -338,7 +342,7 @@ class StopPlan:
             s = self.swing_start
             feet[self.landing_foot] = landing_swing(
                 s["pos"], s["vel"], s["acc"], self.landing_position, t - self.start_time,
-                self.landing_time - self.start_time, self.pattern.params.lift_height)
+                self.landing_time - self.start_time, self.pattern.params.lift_height, s.get("clearance"))
         return feet
 
     def feet_yaw(self, t: float):
@@ -445,7 +449,7 @@ class InfeasibleStop(Exception):
     """
 
 
-def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
+def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clearance=None):
     """Swing ankle from its current state to the landing point, at rest, over ``duration``.
 
     Quintic Hermite per axis (zero velocity and acceleration at touchdown); the
@@ -453,7 +457,9 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
     the floor, and a clearance bump when the foot is leaving the floor (low and
     not descending). A foot already coming down is not lifted again: that
     re-lift, squeezed into the last 0.1 s before touchdown, drove the landing
-    knee at up to 15 rad/s (its limit is 6).
+    knee at up to 15 rad/s (its limit is 6). ``clearance`` [m], if given, is
+    the bump's apex above the Hermite part instead (a recovery step lifted
+    from the floor, :func:`drake_estop.planning.planner.replan_stop`).
     """
     s = min(max(elapsed / duration, 0.0), 1.0)
     target = np.array([target_xy[0], target_xy[1], 0.0])
@@ -466,6 +472,8 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height):
     lowest = float(np.min(lipm.poly_eval(unit[2], grid)))
     leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
     apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
+    if clearance is not None:
+        apex = max(apex, float(clearance) - max(lowest, 0.0))
     unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
     return np.array([float(lipm.poly_eval(u, s)) for u in unit])
 

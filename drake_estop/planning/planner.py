@@ -41,7 +41,7 @@ import numpy as np
 from drake_estop.planning import lipm
 from drake_estop.planning.backend import COMPILED
 from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
-from drake_estop.planning.capture import capture_landing_y
+from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH, capture_landing_y
 from drake_estop.planning.gait import SIDES, NominalPattern, PatternState, rotation
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.halt import choose_halt
@@ -112,7 +112,7 @@ def _solve_both_axes(pattern, state, params, zmp_region="fore"):
     start = StopStart.from_state(state.com[1], state.com_vel[1], state.zmp[1], w, rate, accel)
     limits = {}
     if kind == "single":
-        touchdown = pattern.steps[state.step_index]["touchdown"]
+        touchdown = _nominal_touchdown(pattern, state)
         dt = params.servo_period
         nominal_landing = max(snap_to_tick(touchdown - state.time, dt), params.min_landing_time + dt)
     for _ in range(_LATERAL_ROUNDS):
@@ -227,7 +227,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         params = _landing_shift_limit(state, params, swing)
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
-        touchdown = pattern.steps[state.step_index]["touchdown"]
+        touchdown = _nominal_touchdown(pattern, state)
         problem = SingleSupportProblem(start, w, params, float(state.zmp[0]),
                                        state.feet[swing][:2].copy(), float(state.next_landing[1]),
                                        min_landing=_earliest_landing(state, params, swing, touchdown),
@@ -245,6 +245,13 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         raise ValueError(f"zmp_region must be 'fore' or 'polygon', got {zmp_region!r}")
     rear_ankle = state.feet[rear][0] - state.zmp[0]
     return DoubleSupportProblem(start, w, params, low, high, rear_ankle), kind, {"fore": fore}
+
+
+def _nominal_touchdown(pattern: NominalPattern, state: PatternState) -> float:
+    """The swing foot's nominal touchdown [s]: the walk's step's, or a recovery step's own."""
+    if state.recovery_touchdown is not None:
+        return float(state.recovery_touchdown)
+    return float(pattern.steps[state.step_index]["touchdown"])
 
 
 def _earliest_landing(state: PatternState, params: StopParameters, swing: str, touchdown: float) -> float:
@@ -288,6 +295,8 @@ def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> Stop
     the landing knee bent (at +15 deg per step the outer knee otherwise reached 14 rad/s, limit 6).
     Measured on the walk's nominal footstep and COG: a capture-point landing (planning/capture.py)
     moves the foot by the COG's own deviation, which leaves their lateral offset as it was."""
+    if state.recovery_touchdown is not None:  # no walk footstep: the step is aimed from the measured DCM
+        return params
     step = pattern.steps[state.step_index]  # the walk's own footstep: a capture-point shift follows the COG
     lateral = abs(float(step["end"][1]) - float(pattern.com([step["touchdown"]])[0][0][1]))
     allowed = 0.5 * pattern.params.step_width + LATERAL_REACH_ALLOWANCE
@@ -707,7 +716,8 @@ def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, mea
     return replace(state, com=state.com + d0 * ch + v0 / w * sh, com_vel=state.com_vel + d0 * w * sh + v0 * ch)
 
 
-def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> StopPlan | None:
+def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
+                recovery_step: bool = False) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
@@ -739,6 +749,18 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> S
     instead of the plan's feet (a pushed swing foot lands centimetres from its
     target; its support polygon is where it stands). Ignored before the landing.
 
+    **Recovery step** (``recovery_step=True``; after the landing only). Where
+    no double-support stop exists (a forward push puts the DCM past the fore
+    foot's ankle: stopping the COG between the feet then needs a ZMP beyond
+    the toe, or stretches the rear leg past ``max_rear_reach``), the re-plan
+    steps: the rear foot lifts at ``t`` and lands ahead
+    (:func:`_recovery_step`), the stop solved as a single-support stop (III.A,
+    eq. 21-26) on the fore foot from the measured COG. A step out of double
+    support where a stop would end: the paper's plan has no such step (its
+    stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
+    steps towards the capture point. Only forward (the rear foot steps past
+    the fore foot); a DCM outside the feet sideways or behind is not caught.
+
     Returns None where nothing is left to re-plan (the halt, a plan that has
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
     stop exists from that state, ``ValueError`` for non-finite ``feet``.
@@ -748,7 +770,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> S
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     if plan.x is None or t < plan.start_time:
         return None
-    single = plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
+    single = (plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
+              and not plan.recovery_step)  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
     double = plan.landing_time <= t < plan.slowdown_end
     if not (single or double):
         return None
@@ -756,7 +779,9 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None) -> S
         return _replan(plan, t, com_xy, com_vel_xy, double, params, footholds=footholds if double else None)
     except InfeasibleStop as error:
         if double:
-            raise
+            if not recovery_step:
+                raise
+            return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, error)
         failure = error
     # the ankle strategy: the support foot's ZMP moved to take back the DCM deviation before the landing
     ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
@@ -850,6 +875,85 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
     new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
                      zmp_region="polygon" if double else "fore")
     new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    return _finish(new, wall)
+
+
+#: ZMP margin [m] of a recovery step's plan (or the plan's own, if smaller). A recovery step is planned
+#: where the controller's 3 cm stop has no solution; with 3 cm its halt had none either (30 N s forward
+#: push in double support: at most 3.6 mm at the first try), with 1.5 cm it is found 50 ms later.
+RECOVERY_ZMP_MARGIN = 0.015
+
+
+#: Rear-leg reach [m] beyond ``max_rear_reach`` (sagittal, COG to rear ankle) from which a recovery step is
+#: still taken: the stop's crouch lengthens the reach (a 4 cm crouch adds about 5 cm,
+#: :class:`~drake_estop.planning.plan.StopParameters`). Measured: from 0.35 m the rear foot never rose
+#: above 3 cm, touched down mid-swing and the robot fell; from 0.26 m it lifted and the step caught the push.
+RECOVERY_REACH_ALLOWANCE = 0.04
+
+
+def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopParameters, footholds,
+                   failure: InfeasibleStop) -> StopPlan:
+    """:func:`replan_stop`'s recovery step out of a double-support stop at ``t`` (re-raises ``failure``
+    where it does not apply or has no stop either).
+
+    The state: single support on the fore foot (along the feet's mean heading), the rear foot at rest
+    on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
+    where given. The ZMP steps, at rest, to the point of the fore sole nearest the measured DCM, less
+    ``zmp_margin`` (with the ZMP there the DCM runs away least, eq. 6-9; a CoP already on the toe stays
+    there). The landing keeps the rear foot's lateral offset from the fore foot (within the step
+    widths of :mod:`drake_estop.planning.capture`), along the fore foot's heading; its length, the
+    landing time and the phases after it are the single-support solve's (III.A, eq. 21-26), the nominal
+    touchdown one single-support time after ``t``.
+    """
+    feet = plan.feet(t)
+    now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
+           for side in SIDES}
+    yaw, _ = plan.feet_yaw(t)
+    heading = rotation(0.5 * (yaw["left"] + yaw["right"]))
+    along = {side: float((heading.T @ now[side][:2])[0]) for side in SIDES}
+    fore = max(SIDES, key=along.get)
+    rear = next(side for side in SIDES if side != fore)
+    w = plan.pattern.w
+    com, vel = np.asarray(com_xy, float)[:2].copy(), np.asarray(com_vel_xy, float)[:2].copy()
+    dcm = com + vel / w
+    turn = rotation(float(yaw[fore]))
+    if (turn.T @ (dcm - now[fore][:2]))[0] <= 0.0:
+        raise failure  # the DCM is not past the fore ankle: no forward step catches it
+    if float((turn.T @ (com - now[rear][:2]))[0]) > params.max_rear_reach + RECOVERY_REACH_ALLOWANCE:
+        raise failure  # the rear leg is stretched straight: it drags over the floor instead of lifting
+    params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
+    sole, margin = plan.pattern.params.sole, params.zmp_margin
+    left_edge, right_edge = sole.lateral_edges(fore)
+    lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
+    lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
+    local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
+    # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
+    # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
+    soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
+    grow = math.exp(w * soonest)
+    lateral_zmp = (0.5 * lateral - local[1] * grow) / (1.0 - grow)
+    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
+                      np.clip(lateral_zmp, -right_edge + margin, left_edge - margin)])
+    zmp = now[fore][:2] + turn @ local
+    gait = plan.pattern.params
+    zero = np.zeros(3)
+    upper, upper_rate = plan.upper_body(t)
+    state = replace(
+        plan.start_state, time=float(t), support="single", support_foot=fore, com=com, com_vel=vel, zmp=zmp,
+        zmp_rate=np.zeros(2), zmp_accel=np.zeros(2), feet=now, feet_vel={side: zero.copy() for side in SIDES},
+        feet_acc={side: zero.copy() for side in SIDES},
+        next_landing=now[fore][:2] + turn @ np.array([gait.step_length, lateral]), rear_foot=None,
+        upper_body=upper, upper_body_rate=upper_rate, feet_yaw=dict(yaw),
+        feet_yaw_rate={side: 0.0 for side in SIDES}, next_landing_yaw=float(yaw[fore]),
+        recovery_touchdown=float(t) + gait.single_support_time)
+    wall = time.perf_counter()
+    try:
+        new = _plan_from(plan.pattern, state, params, plan.signal_time, plan.case)
+    except InfeasibleStop as error:
+        raise InfeasibleStop(f"{failure}; recovery step: {error}") from error
+    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    new.recovery_step = True
+    new.swing_start = dict(new.swing_start, clearance=plan.pattern.params.lift_height)  # lifted from the floor
     return _finish(new, wall)
 
 

@@ -392,7 +392,13 @@ class PlanSequence:
         # a re-plan after the landing starts in double support: the landing is the last plan that made one
         landed = [p for p in self.plans if p.landing_foot is not None] or self.plans[:1]
         summary["phase_times"]["landing_end"] = landed[-1].landing_time
+        # landings made: a plan's landing counts once no later re-plan replaced it before its touchdown
+        made = [p for p, nxt in zip(self.plans, self.plans[1:] + (None,))
+                if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
+        summary["steps_after_signal"] = self.plans[0].steps_after_signal - (self.plans[0].landing_foot is not None) \
+            + len(made)
         summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
+                       recovery_steps=sum(p.recovery_step for p in made),
                        first_plan={"case": self.plans[0].case, "step_length": self.plans[0].step_length,
                                    "zmp_max": self.plans[0].zmp_max,
                                    "halt_end": self.plans[0].halt_end})
@@ -501,6 +507,11 @@ class StopPlannerSystem(_ReferenceSystem):
     foothold_ticks : int, optional
         Loaded ticks after which a landed sole's measured position is its
         foothold (default 2).
+    recovery_step : bool, optional
+        Whether a re-plan after the landing that finds no double-support
+        stop steps the rear foot forward instead (``replan_stop``'s
+        ``recovery_step``; default True, False keeps the plan, for
+        comparison).
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
 
@@ -523,7 +534,7 @@ class StopPlannerSystem(_ReferenceSystem):
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
-                 foothold_ticks: int = 2, timer=None):
+                 foothold_ticks: int = 2, recovery_step: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -536,6 +547,7 @@ class StopPlannerSystem(_ReferenceSystem):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
         self._measured_footholds = bool(measured_footholds)
+        self._recovery_step = bool(recovery_step)
         self._pattern = pattern
         self._params = params
         self._replan_threshold = float(replan_threshold)
@@ -708,7 +720,8 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:
-            new = replan_stop(plan, t, *measured, feet=self._footholds(context, plan) if landed else None)
+            new = replan_stop(plan, t, *measured, feet=self._footholds(context, handle.history) if landed else None,
+                              recovery_step=self._recovery_step)
         except InfeasibleStop:
             new, failures = None, handle.replan_failures + 1
         else:
@@ -723,15 +736,16 @@ class StopPlannerSystem(_ReferenceSystem):
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
-    def _footholds(self, context, plan):
-        """``{side: xy}``: both soles' estimated positions, once the plan's landing foot has landed
-        (loaded ``foothold_ticks`` ticks); None without a measurement or a landing foot (a double-support
-        plan: a stop signalled in double support, or an earlier re-plan after the landing)."""
-        if (not self._measured_footholds or plan.landing_foot is None
-                or not self.measured_feet_port.HasValue(context)):
+    def _footholds(self, context, history):
+        """``{side: xy}``: both soles' estimated positions, once the stop's last landing foot (of the
+        plans in ``history``) has been loaded ``foothold_ticks`` ticks; None without a measurement or
+        before any landing of the stop (a stop signalled in double support keeps the walk's feet until
+        a recovery step lands)."""
+        landed = [plan.landing_foot for plan in history if plan.landing_foot is not None]
+        if not self._measured_footholds or not landed or not self.measured_feet_port.HasValue(context):
             return None
         feet = self.measured_feet_port.Eval(context)
-        if not np.all(np.isfinite(feet)) or feet[4 + SIDES.index(plan.landing_foot)] < self._foothold_ticks:
+        if not np.all(np.isfinite(feet)) or feet[4 + SIDES.index(landed[-1])] < self._foothold_ticks:
             return None
         return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
