@@ -174,6 +174,10 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.measured_footholds,
                    help="with --physics: re-plan after the landing on the plan's feet instead of the "
                         "estimated footholds (for comparison)")
+    d.add_argument("--no-recovery-step", dest="recovery_step", action="store_false",
+                   default=scenario.recovery_step,
+                   help="with --physics: no recovery step out of a double-support stop that cannot hold "
+                        "(for comparison)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -224,7 +228,8 @@ def _effective_scenario(args, gait, stop) -> Scenario:
     return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
-                   measured_footholds=args.measured_footholds, perturbations=perturbations_from_args(args),
+                   measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
+                   perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
 
 
@@ -232,7 +237,8 @@ def _online_only_options(args, perturbations) -> list:
     """The options given that only the online controller's physics run takes."""
     given = (("perturbations", perturbations != Perturbations()), ("--true-state", args.true_state),
              ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
-             ("--no-measured-footholds", not args.measured_footholds))
+             ("--no-measured-footholds", not args.measured_footholds),
+             ("--no-recovery-step", not args.recovery_step))
     return [name for name, on in given if on]
 
 
@@ -315,6 +321,12 @@ def _fit(values, n):
     return np.concatenate([values, np.full(n - len(values), np.nan)]) if len(values) < n else values
 
 
+def _planner_options(args) -> dict | None:
+    """The online controller's StopPlannerSystem options the command line turned off (None: the defaults)."""
+    options = {name: False for name in ("measured_footholds", "recovery_step") if not getattr(args, name)}
+    return options or None
+
+
 def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
     """Physics run; returns the plan, per-tick measured columns and the summary entry."""
     columns, online = {}, {}
@@ -325,7 +337,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
                             physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance,
                             swing_tilt=args.swing_tilt,
-                            planner_options=None if args.measured_footholds else {"measured_footholds": False})
+                            planner_options=_planner_options(args))
         online = {key: result.online[key] for key in
                   ("tick_compute", "replans", "replan_failures", "joint_velocity_violations", "cpu_realtime_factor",
                    "ankle_offset_max", "swing_tilt_max")}

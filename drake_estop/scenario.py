@@ -73,6 +73,9 @@ class Scenario:
     measured_footholds : bool
         Physics, online controller only: re-plans after the landing stand on the estimated footholds
         (default on; off re-plans on the plan's feet, for comparison).
+    recovery_step : bool
+        Physics, online controller only: a re-plan after the landing that finds no double-support stop
+        steps the rear foot forward (default on; off keeps the plan, for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -91,6 +94,7 @@ class Scenario:
     foot_compliance: bool = True
     swing_tilt: bool = True
     measured_footholds: bool = True
+    recovery_step: bool = True
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

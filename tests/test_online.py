@@ -275,6 +275,23 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     assert not planned.criteria["cop_in_support"]
 
 
+def test_a_recovery_step_catches_a_forward_push_in_double_support():
+    """30 N s forward at 3.55 s (double support, 0.52 m/s): the COG runs past the fore foot, the rear leg
+    reaches its limit and every double-support re-plan is infeasible. Without a recovery step the robot
+    stands on the fore toe, pitches forward and falls; with one the rear foot steps past the fore foot
+    and the robot stops meeting every criterion."""
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(3.55, 300.0, 0.0, 0.1),))
+    stepped = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
+    assert stepped.success, [name for name, ok in stepped.criteria.items() if not ok]
+    summary = stepped.plan.summary()
+    assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
+    assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the rear foot stepped
+    held = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
+                      planner_options={"recovery_step": False})
+    assert not held.criteria["no_fall"]
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 
@@ -343,6 +360,21 @@ def test_no_measured_footholds_needs_the_online_physics_run(args, capsys):
     assert main(["simulate", *args]) == 2
     err = capsys.readouterr().err
     assert "--no-measured-footholds" in err and "--no-swing-tilt" not in err
+
+
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-recovery-step"], False)])
+def test_no_recovery_step_reaches_the_online_run(monkeypatch, flag, given):
+    options = _online_run_keywords(monkeypatch, flag)["planner_options"] or {}
+    assert options.get("recovery_step", True) is given
+    assert options.get("measured_footholds", True) is True
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-recovery-step"],
+                                  ["--physics", "--controller", "offline-filter", "--no-recovery-step"]])
+def test_no_recovery_step_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    err = capsys.readouterr().err
+    assert "--no-recovery-step" in err and "--no-measured-footholds" not in err
 
 
 @pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],

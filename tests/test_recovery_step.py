@@ -1,0 +1,215 @@
+"""The recovery step: a re-plan after the landing that finds no double-support stop steps the rear foot
+forward (planner.replan_stop(recovery_step=True), StopPlannerSystem(recovery_step=...))."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from drake_estop.planning.gait import SIDES
+from drake_estop.planning.plan import landing_swing
+from drake_estop.planning.planner import (
+    RECOVERY_DCM_AHEAD,
+    RECOVERY_ZMP_MARGIN,
+    InfeasibleStop,
+    plan_stop,
+    replan_stop,
+)
+from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
+
+DT = 0.005
+
+
+def _tick(t):
+    return round(t / DT) * DT
+
+
+def _pushed_after_landing(pattern, params, push=0.3, after=0.05):
+    """The paper's 3.4 s stop, ``after`` s past its landing, with the COG ``push`` m/s faster forward than
+    the plan's: its DCM is past the landed (fore) foot's ankle and no double-support stop exists."""
+    plan = plan_stop(pattern, 3.4, params)
+    t = _tick(plan.landing_time + after)
+    pos, vel, _, _ = plan.com([t])
+    return plan, t, pos[0], vel[0] + np.array([push, 0.0])
+
+
+def test_a_forward_push_no_double_support_stop_holds_is_caught_by_a_recovery_step(pattern, params):
+    plan, t, pos, vel = _pushed_after_landing(pattern, params)
+    with pytest.raises(InfeasibleStop):  # the double-support stop alone (the default)
+        replan_stop(plan, t, pos, vel)
+    new = replan_stop(plan, t, pos, vel, recovery_step=True)
+    fore = plan.landing_foot
+    rear = next(side for side in SIDES if side != fore)
+    assert new.recovery_step and new.start_support == "single" and new.start_time == pytest.approx(t)
+    assert new.landing_foot == rear
+    np.testing.assert_allclose(new.final_feet[fore], plan.final_feet[fore], atol=1e-12)  # the fore foot stays
+    assert new.final_feet[rear][0] > plan.final_feet[fore][0]  # the rear foot steps past it
+    # the swing leaves the floor where the rear foot stands and lifts it the gait's full swing height
+    np.testing.assert_allclose(new.feet(t)[rear], [*plan.final_feet[rear], 0.0], atol=1e-9)
+    lift = max(new.feet(s)[rear][2] for s in np.linspace(t, new.landing_time, 41))
+    assert lift == pytest.approx(pattern.params.lift_height, abs=2e-3)
+    # the COG continues from the measured state (eq. 10-11) and ends at rest at the feet's midpoint (eq. 27-28)
+    start_pos, start_vel, _, start_zmp = new.com([t])
+    np.testing.assert_allclose(start_pos[0], pos, atol=1e-9)
+    np.testing.assert_allclose(start_vel[0], vel, atol=1e-9)
+    end_pos, end_vel, _, _ = new.com([new.halt_end + 0.2])
+    np.testing.assert_allclose(end_pos[0], 0.5 * (new.final_feet["left"] + new.final_feet["right"]), atol=1e-6)
+    np.testing.assert_allclose(end_vel[0], 0.0, atol=1e-6)
+    # sagittally the ZMP starts under the measured DCM, on the fore sole (held there until the landing)
+    dcm = pos + vel / pattern.w
+    assert start_zmp[0][0] == pytest.approx(dcm[0], abs=1e-9)
+    # the ZMP stays inside the support polygon of every tick, with the recovery step's margin
+    margin = min(params.zmp_margin, RECOVERY_ZMP_MARGIN)
+    assert new.min_zmp_margin >= margin - 1e-9
+    for s in np.arange(t, new.halt_end, 0.02):
+        assert new.polygon(s).margin(new.com([s])[3])[0] >= margin - 1e-6, s
+    # laterally the ZMP sends the DCM towards the feet's midline: between the feet at the touchdown
+    pos_t, vel_t, _, _ = new.com([new.landing_time])
+    dcm_y = pos_t[0][1] + vel_t[0][1] / pattern.w
+    low, high = sorted(new.final_feet[side][1] for side in SIDES)
+    assert low < dcm_y < high
+
+
+def test_the_recovery_step_lands_as_planned_then_stops_in_double_support(pattern, params):
+    plan, t, pos, vel = _pushed_after_landing(pattern, params)
+    step = replan_stop(plan, t, pos, vel, recovery_step=True)
+    later = _tick(t + 0.1)
+    pos2, vel2, _, _ = step.com([later])
+    # before its touchdown a deviation does not hurry it (a hurried recovery landing struck at 2.3 kN)
+    assert replan_stop(step, later, pos2[0], vel2[0] + np.array([0.1, 0.0]), recovery_step=True) is None
+    # after the touchdown the re-plan is a double-support stop on the new feet
+    landed = _tick(step.landing_time + 0.02)
+    pos3, vel3, _, _ = step.com([landed])
+    stop = replan_stop(step, landed, pos3[0], vel3[0] + np.array([0.02, 0.0]), recovery_step=True)
+    assert stop.start_support == "double" and not stop.recovery_step
+    for side in SIDES:
+        np.testing.assert_allclose(stop.final_feet[side], step.final_feet[side], atol=1e-12)
+
+
+def test_no_recovery_step_where_it_cannot_help(pattern, params):
+    plan, t, pos, vel = _pushed_after_landing(pattern, params)
+    # a backward push: the DCM is behind the fore ankle, a forward step cannot catch it
+    with pytest.raises(InfeasibleStop) as backward:
+        replan_stop(plan, t, pos, vel - np.array([3.3, 0.0]), recovery_step=True)
+    assert "recovery step" not in str(backward.value)
+    # a DCM short of RECOVERY_DCM_AHEAD past the fore ankle: the stop's own limits failed, not the feet
+    fore_x = plan.final_feet[plan.landing_foot][0]
+    short = vel.copy()
+    short[0] = (fore_x + RECOVERY_DCM_AHEAD - 0.01 - pos[0]) * pattern.w
+    with pytest.raises(InfeasibleStop):
+        replan_stop(plan, t, pos, short)
+    with pytest.raises(InfeasibleStop) as near:
+        replan_stop(plan, t, pos, short, recovery_step=True)
+    assert "recovery step" not in str(near.value)
+    # the COG so far ahead of the rear ankle that the rear leg is straight: it would drag, not lift
+    rear = next(side for side in SIDES if side != plan.landing_foot)
+    stretched = pos.copy()
+    stretched[0] = plan.final_feet[rear][0] + params.max_rear_reach + 0.01
+    with pytest.raises(InfeasibleStop) as straight:
+        replan_stop(plan, t, stretched, vel, recovery_step=True)
+    assert "recovery step" not in str(straight.value)
+    # a push no step within the limits catches: the message names both failures
+    with pytest.raises(InfeasibleStop, match="recovery step: .*single-support"):
+        replan_stop(plan, t, pos, vel + np.array([2.5, 0.0]), recovery_step=True)
+
+
+def test_landing_swing_clearance_lifts_a_foot_from_the_floor_to_it():
+    rest = np.zeros(3)
+    heights = {clearance: max(landing_swing(rest, rest, rest, (0.4, 0.0), s, 1.0, 0.05, clearance)[2]
+                              for s in np.linspace(0.0, 1.0, 101))
+               for clearance in (None, 0.05)}
+    assert heights[None] == pytest.approx(0.025, abs=1e-3)  # a leaving foot's default bump: half the lift
+    assert heights[0.05] == pytest.approx(0.05, abs=1e-3)
+
+
+def test_plan_sequence_summary_counts_the_landings_and_recovery_steps(pattern, params):
+    plan, t, pos, vel = _pushed_after_landing(pattern, params)
+    step = replan_stop(plan, t, pos, vel, recovery_step=True)
+    summary = PlanSequence([plan, step]).summary()
+    assert summary["steps_after_signal"] == 2 and summary["recovery_steps"] == 1
+    assert summary["phase_times"]["landing_end"] == step.landing_time
+    plain = PlanSequence([plan]).summary()
+    assert plain["steps_after_signal"] == 1 and plain["recovery_steps"] == 0
+    # a landing re-planned before its touchdown is made once, by the re-plan
+    early = plan_stop(pattern, 3.1, params)
+    before = _tick(3.15)
+    early_pos, early_vel, _, _ = early.com([before])
+    moved = replan_stop(early, before, early_pos[0], early_vel[0] + np.array([0.02, 0.0]))
+    assert moved.landing_foot == early.landing_foot
+    assert PlanSequence([early, moved]).summary()["steps_after_signal"] == 1
+
+
+# -- StopPlannerSystem alone ------------------------------------------------------------------------
+
+
+def _pushed_planner(pattern, params, push, feet=None, after=0.05, **kwargs):
+    """StopPlannerSystem (FixValue inputs, Simulator.AdvanceTo) latched at 3.4 s from the reference; no
+    measurement until ``after`` s past the landing, then the plan's COG ``push`` m/s faster forward and, if
+    given, ``feet`` (6) on ``measured_feet``. Returns the planner, its context, the first plan and that tick."""
+    planner = StopPlannerSystem(pattern=pattern, params=params, filter_time_constant=1e-6, replan_interval=DT,
+                                **kwargs)
+    context = planner.CreateDefaultContext()
+    t0 = 3.4
+    pos, vel, _, _ = pattern.com([t0])
+    planner.stop_port.FixValue(context, [1.0, t0])
+    planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
+    context.SetTime(t0)
+    simulator = Simulator(planner, context)
+    simulator.AdvanceTo(t0 + DT / 2)
+    first = planner.plan(context)
+    planner.measured_com_port.FixValue(context, [np.nan] * 3)
+    t = _tick(first.landing_time + after)
+    simulator.AdvanceTo(t - DT / 2)
+    pos, vel, _, _ = first.com([t])
+    planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*(vel[0] + np.array([push, 0.0])), 0.0])
+    if feet is not None:
+        planner.measured_feet_port.FixValue(context, feet)
+    simulator.AdvanceTo(t + DT / 2)
+    return planner, context, first, t
+
+
+def test_planner_takes_a_recovery_step_after_a_forward_push(pattern, params):
+    planner, context, first, t = _pushed_planner(pattern, params, 0.3)
+    assert planner.replans(context) == (1, 0)
+    step = planner.plan(context)
+    assert step.recovery_step and step.start_time == pytest.approx(t)
+    rear = next(side for side in SIDES if side != first.landing_foot)
+    # the sole target of the rear foot starts where it stands and rises
+    port = planner.GetOutputPort(f"{rear}_foot")
+    np.testing.assert_allclose(port.Eval(context)[:2], first.final_feet[rear], atol=1e-6)
+    Simulator(planner, context).AdvanceTo(t + 0.1)
+    assert port.Eval(context)[2] > 0.01
+    # without it the re-plan fails and the plan stays
+    planner, context, _, _ = _pushed_planner(pattern, params, 0.3, recovery_step=False)
+    assert planner.replans(context) == (0, 1)
+    kept = planner.plan(context)
+    assert not kept.recovery_step and kept.start_time == pytest.approx(first.start_time)
+
+
+def test_every_replan_after_a_landing_stands_on_the_measured_feet(pattern, params):
+    """Not only the first: a double-support re-plan (no landing foot of its own) takes the feet again."""
+    first = plan_stop(pattern, 3.4, params)
+    fore, rear = first.landing_foot, next(side for side in SIDES if side != first.landing_foot)
+
+    def vector(slide):
+        feet = {fore: first.final_feet[fore] + [slide, 0.0], rear: first.final_feet[rear]}
+        return [*feet["left"], *feet["right"], 40.0, 40.0]
+
+    planner, context, _, t = _pushed_planner(pattern, params, 0.05, feet=vector(0.004), after=0.02,
+                                             landed_replan_threshold=0.01)
+    assert planner.replans(context) == (1, 0)
+    assert planner.plan(context).final_feet[fore][0] == pytest.approx(first.final_feet[fore][0] + 0.004)
+    # the fore foot slides 5 mm more; a second deviation re-plans on it
+    planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no measurement until then
+    later = _tick(t + 0.1)
+    Simulator(planner, context).AdvanceTo(later - DT / 2)
+    planner.measured_feet_port.FixValue(context, vector(0.009))
+    plan = planner.plan(context)
+    pos, vel, _, _ = plan.com([later])
+    planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
+    planner.measured_com_port.FixValue(context, [*(pos[0] + np.array([0.0, 0.012])), 0.8])  # 1.2 cm aside
+    Simulator(planner, context).AdvanceTo(later + DT / 2)
+    assert planner.replans(context) == (2, 0)
+    assert planner.plan(context).landing_foot is None
+    assert planner.plan(context).final_feet[fore][0] == pytest.approx(first.final_feet[fore][0] + 0.009)
