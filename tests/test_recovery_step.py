@@ -3,6 +3,7 @@ forward (planner.replan_stop(recovery_step=True), StopPlannerSystem(recovery_ste
 
 import numpy as np
 import pytest
+from planner_helpers import latched_stop_planner
 from pydrake.systems.analysis import Simulator
 
 from drake_estop.planning.gait import SIDES
@@ -14,7 +15,7 @@ from drake_estop.planning.planner import (
     plan_stop,
     replan_stop,
 )
-from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
+from drake_estop.systems.stop_controller import PlanSequence
 
 DT = 0.005
 
@@ -145,19 +146,7 @@ def _pushed_planner(pattern, params, push, feet=None, after=0.05, **kwargs):
     """StopPlannerSystem (FixValue inputs, Simulator.AdvanceTo) latched at 3.4 s from the reference; no
     measurement until ``after`` s past the landing, then the plan's COG ``push`` m/s faster forward and, if
     given, ``feet`` (6) on ``measured_feet``. Returns the planner, its context, the first plan and that tick."""
-    planner = StopPlannerSystem(pattern=pattern, params=params, filter_time_constant=1e-6, replan_interval=DT,
-                                **kwargs)
-    context = planner.CreateDefaultContext()
-    t0 = 3.4
-    pos, vel, _, _ = pattern.com([t0])
-    planner.stop_port.FixValue(context, [1.0, t0])
-    planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
-    planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
-    context.SetTime(t0)
-    simulator = Simulator(planner, context)
-    simulator.AdvanceTo(t0 + DT / 2)
-    first = planner.plan(context)
-    planner.measured_com_port.FixValue(context, [np.nan] * 3)
+    planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
     t = _tick(first.landing_time + after)
     simulator.AdvanceTo(t - DT / 2)
     pos, vel, _, _ = first.com([t])

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from planner_helpers import latched_stop_planner
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
@@ -434,20 +435,8 @@ def _landed_replan(pattern, params, feet_input, **kwargs):
     reference, no measurement until 20 ms after the landing, then a COG 5 cm/s faster than the plan's
     (past a 1 cm threshold) and ``feet_input`` on ``measured_feet``. Returns the planner, its context,
     the first plan and the re-plan tick."""
-    planner = StopPlannerSystem(pattern=pattern, params=params, filter_time_constant=1e-6, replan_interval=DT,
-                                landed_replan_threshold=0.01, **kwargs)
-    context = planner.CreateDefaultContext()
-    t0 = 3.4
-    pos, vel, _, _ = pattern.com([t0])
-    planner.stop_port.FixValue(context, [1.0, t0])
-    planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
-    planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
-    context.SetTime(t0)
-    simulator = Simulator(planner, context)
-    simulator.AdvanceTo(t0 + DT / 2)
-    first = planner.plan(context)
-    assert first.start_time == pytest.approx(t0)
-    planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no measurement: no re-plan
+    planner, context, simulator, first = latched_stop_planner(pattern, params, landed_replan_threshold=0.01,
+                                                              **kwargs)
     t = round((first.landing_time + 0.02) / DT) * DT
     simulator.AdvanceTo(t - DT / 2)
     assert planner.replans(context) == (0, 0)

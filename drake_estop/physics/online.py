@@ -51,6 +51,13 @@ How the controller balances (and what it does not do):
   its target and the unloaded support foot slid 9 mm; re-planned on the
   plan's feet the ZMP ran 3 mm from the real foot's outer edge and the CoP
   left the planned support by 4.2 mm; on the footholds it passes (+1.2 mm).
+  Where no double-support stop exists after the landing (a forward push
+  sends the DCM 5 cm or more past the fore foot's ankle), the re-plan takes a
+  **recovery step** (``replan_stop(recovery_step=True)``): the rear foot lifts
+  and lands ahead, the ZMP under the DCM on the fore sole meanwhile. Measured:
+  a 25 or 30 N s forward push in double support (3.55 s) stood on the fore
+  toe, pitched over and fell (or ended 22.7 mm outside the support); with the
+  step both meet every criterion.
   The command is blended (0.2 s quintic) from the old plan into the new one,
   the COG and the sole targets alike, so the stiff servos see no step (a
   stepped sole target of 1-2 cm kicked the robot off the floor).
