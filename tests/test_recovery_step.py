@@ -1,6 +1,8 @@
 """The recovery step: a re-plan after the landing that finds no double-support stop steps the rear foot
 forward (planner.replan_stop(recovery_step=True), StopPlannerSystem(recovery_step=...))."""
 
+import math
+
 import numpy as np
 import pytest
 from planner_helpers import latched_stop_planner
@@ -101,6 +103,16 @@ def test_no_recovery_step_where_it_cannot_help(pattern, params):
     with pytest.raises(InfeasibleStop) as near:
         replan_stop(plan, t, pos, short, recovery_step=True)
     assert "recovery step" not in str(near.value)
+    # a DCM heading for the rear foot's side, past the fore sole's inner edge less the margin: lifting the
+    # rear foot would drop the robot onto that side
+    fore_y = plan.final_feet[plan.landing_foot][1]
+    rear_y = plan.final_feet[next(side for side in SIDES if side != plan.landing_foot)][1]
+    inward = vel.copy()
+    inner = pattern.params.sole.inner - min(params.zmp_margin, RECOVERY_ZMP_MARGIN)
+    inward[1] = (fore_y + math.copysign(inner + 0.01, rear_y - fore_y) - pos[1]) * pattern.w
+    with pytest.raises(InfeasibleStop) as sideways:
+        replan_stop(plan, t, pos, inward, recovery_step=True)
+    assert "recovery step" not in str(sideways.value)
     # the COG so far ahead of the rear ankle that the rear leg is straight: it would drag, not lift
     rear = next(side for side in SIDES if side != plan.landing_foot)
     stretched = pos.copy()

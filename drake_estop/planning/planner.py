@@ -887,7 +887,10 @@ RECOVERY_ZMP_MARGIN = 0.015
 #: A recovery step needs the measured DCM at least this far [m] past the fore ankle (sagittally). Measured
 #: on the robustness benchmark: steps taken from DCMs 2.5-3.5 cm past the ankle (a left push late in single
 #: support, a backward push in double support whose rebound failed a double-support re-plan) failed two
-#: runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past.
+#: runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past. Laterally the
+#: DCM may lie no further towards the rear foot than the fore sole's inner edge less the margin (the step
+#: lifts that foot): in the campaign, steps from DCMs 4.6-9.9 cm towards it (pushes forward-left and left)
+#: made a run that passed fall, another fail by 0.4 mm and a third, failing already, fall.
 RECOVERY_DCM_AHEAD = 0.05
 
 
@@ -927,6 +930,8 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
     lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
     local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
+    if math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
+        raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
     # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
     # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
     soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
