@@ -759,7 +759,10 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
     support where a stop would end: the paper's plan has no such step (its
     stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
     steps towards the capture point. Only forward (the rear foot steps past
-    the fore foot); a DCM outside the feet sideways or behind is not caught.
+    the fore foot), from a DCM at least ``RECOVERY_DCM_AHEAD`` past the fore
+    ankle, not heading laterally past the fore sole's inner edge, with the
+    rear leg within ``max_rear_reach``; a DCM outside the feet sideways or
+    behind is not caught.
 
     Returns None where nothing is left to re-plan (the halt, a plan that has
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no

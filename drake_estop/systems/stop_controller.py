@@ -464,8 +464,9 @@ class StopPlannerSystem(_ReferenceSystem):
     double support keeps the walk's feet until a recovery step lands.
 
     ``recovery_step`` (default True): a re-plan after the landing that finds
-    no double-support stop (the DCM 5 cm or more past the fore foot's ankle,
-    the rear leg within reach) steps the rear foot past the fore foot
+    no double-support stop (the DCM 5 cm or more past the fore foot's ankle
+    and not heading for the rear foot's side, the rear leg within reach)
+    steps the rear foot past the fore foot
     (:func:`drake_estop.planning.planner.replan_stop`). The step is not
     re-planned before its touchdown (a re-plan that hurried it struck the
     floor at 2.3 kN and the robot bounced for 75 ms); after it the re-plans
