@@ -348,33 +348,24 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
     assert "--no-foot-compliance" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-measured-footholds"], False)])
-def test_no_measured_footholds_reaches_the_online_run(monkeypatch, flag, given):
-    options = _online_run_keywords(monkeypatch, flag)["planner_options"] or {}
-    assert options.get("measured_footholds", True) is given
+#: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
+PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step"}
 
 
-@pytest.mark.parametrize("args", [["--kinematic", "--no-measured-footholds"],
-                                  ["--physics", "--controller", "offline-filter", "--no-measured-footholds"]])
-def test_no_measured_footholds_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
+@pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
+def test_planner_flags_reach_the_online_run(monkeypatch, flag):
+    options = _online_run_keywords(monkeypatch, [flag] if flag else [])["planner_options"] or {}
+    for other, name in PLANNER_FLAGS.items():
+        assert options.get(name, True) is (other != flag), name
+
+
+@pytest.mark.parametrize("flag", PLANNER_FLAGS)
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_planner_flags_need_the_online_physics_run(flag, mode, capsys):
+    assert main(["simulate", *mode, flag]) == 2
     err = capsys.readouterr().err
-    assert "--no-measured-footholds" in err and "--no-swing-tilt" not in err
-
-
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-recovery-step"], False)])
-def test_no_recovery_step_reaches_the_online_run(monkeypatch, flag, given):
-    options = _online_run_keywords(monkeypatch, flag)["planner_options"] or {}
-    assert options.get("recovery_step", True) is given
-    assert options.get("measured_footholds", True) is True
-
-
-@pytest.mark.parametrize("args", [["--kinematic", "--no-recovery-step"],
-                                  ["--physics", "--controller", "offline-filter", "--no-recovery-step"]])
-def test_no_recovery_step_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
-    err = capsys.readouterr().err
-    assert "--no-recovery-step" in err and "--no-measured-footholds" not in err
+    assert flag in err and "--no-swing-tilt" not in err
+    assert all(other not in err for other in PLANNER_FLAGS if other != flag)
 
 
 @pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],

@@ -817,19 +817,28 @@ def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
     pos, vel, _, _ = plan.com([plan.landing_time])
     xi_landing = pos[0] + vel[0] / w
     xi_now = np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w
-    wanted = (xi_landing - xi_now * grow) / (1.0 - grow)
-    support = next(side for side in ("left", "right") if side != plan.landing_foot)
+    wanted = _zmp_to_reach(xi_now, xi_landing, grow)
+    support = next(side for side in SIDES if side != plan.landing_foot)
     ankle = np.asarray(plan.feet(t)[support][:2], float)
-    yaw = float(plan.feet_yaw(t)[0][support])
-    turn = rotation(yaw)
-    sole, margin = plan.pattern.params.sole, plan.params.zmp_margin
-    left_edge, right_edge = sole.lateral_edges(support)
-    local = turn.T @ (wanted - ankle)
-    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
-                      np.clip(local[1], -right_edge + margin, left_edge - margin)])
-    zmp = ankle + turn @ local
+    turn = rotation(float(plan.feet_yaw(t)[0][support]))
+    zmp = _on_sole(plan.pattern.params.sole, support, ankle, turn, turn.T @ (wanted - ankle), plan.params.zmp_margin)
     current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
     return None if np.max(np.abs(zmp - current)) < 1e-3 else zmp
+
+
+def _zmp_to_reach(xi_now, xi_target, grow):
+    """The ZMP ``p`` that, held while the DCM grows by ``grow = exp(w T)``, takes it from ``xi_now`` to
+    ``xi_target``: ``xi(T) = p + (xi_now - p) grow`` (eq. 6-9) solved for ``p``."""
+    return (xi_target - xi_now * grow) / (1.0 - grow)
+
+
+def _on_sole(sole, side: str, ankle, turn, local, margin: float):
+    """``local`` (a point in the frame of the ``side`` sole: ankle ``ankle``, rotation ``turn``) clamped to
+    the sole less ``margin`` (toe, heel, inner and outer edges), in world axes."""
+    left_edge, right_edge = sole.lateral_edges(side)
+    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
+                      np.clip(local[1], -right_edge + margin, left_edge - margin)])
+    return ankle + turn @ local
 
 
 def _footholds(feet):
@@ -883,7 +892,8 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
 
 #: ZMP margin [m] of a recovery step's plan (or the plan's own, if smaller). A recovery step is planned
 #: where the controller's 3 cm stop has no solution; with 3 cm its halt had none either (30 N s forward
-#: push in double support: at most 3.6 mm at the first try), with 1.5 cm it is found 50 ms later.
+#: push in double support: at most 3.6 mm at the first try; measured before the step's lateral aim, with
+#: which 1.5 cm finds it at that first try).
 RECOVERY_ZMP_MARGIN = 0.015
 
 
@@ -904,12 +914,12 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
 
     The state: single support on the fore foot (along the feet's mean heading), the rear foot at rest
     on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
-    where given. The ZMP steps, at rest, to the point of the fore sole nearest the measured DCM, less
-    ``zmp_margin`` (with the ZMP there the DCM runs away least, eq. 6-9; a CoP already on the toe stays
-    there). The landing keeps the rear foot's lateral offset from the fore foot (within the step
-    widths of :mod:`drake_estop.planning.capture`), along the fore foot's heading; its length, the
-    landing time and the phases after it are the single-support solve's (III.A, eq. 21-26), the nominal
-    touchdown one single-support time after ``t``.
+    where given. The ZMP steps, at rest, onto the fore sole less ``zmp_margin``: sagittally under the
+    measured DCM (holding it, eq. 6-9; a CoP already on the toe stays there), laterally where it sends the
+    DCM to the feet's midline by the soonest touchdown the swing speed allows. The landing keeps the rear
+    foot's lateral offset from the fore foot (within the step widths of :mod:`drake_estop.planning.capture`),
+    along the fore foot's heading; its length, the landing time and the phases after it are the
+    single-support solve's (III.A, eq. 21-26), the nominal touchdown one single-support time after ``t``.
     """
     feet = plan.feet(t)
     now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
@@ -923,26 +933,22 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     com, vel = np.asarray(com_xy, float)[:2].copy(), np.asarray(com_vel_xy, float)[:2].copy()
     dcm = com + vel / w
     turn = rotation(float(yaw[fore]))
-    if (turn.T @ (dcm - now[fore][:2]))[0] < RECOVERY_DCM_AHEAD:
+    local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
+    if local[0] < RECOVERY_DCM_AHEAD:
         raise failure  # the DCM is not far past the fore ankle: the stop's own limits failed, not the feet
     if float((turn.T @ (com - now[rear][:2]))[0]) > params.max_rear_reach:
         raise failure  # the rear leg is stretched straight: it drags over the floor instead of lifting
     params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
     sole, margin = plan.pattern.params.sole, params.zmp_margin
-    left_edge, right_edge = sole.lateral_edges(fore)
     lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
     lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
-    local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
     if math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
         raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
     # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
     # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
     soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
-    grow = math.exp(w * soonest)
-    lateral_zmp = (0.5 * lateral - local[1] * grow) / (1.0 - grow)
-    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
-                      np.clip(lateral_zmp, -right_edge + margin, left_edge - margin)])
-    zmp = now[fore][:2] + turn @ local
+    lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, math.exp(w * soonest))
+    zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)
     gait = plan.pattern.params
     zero = np.zeros(3)
     upper, upper_rate = plan.upper_body(t)
