@@ -5,12 +5,17 @@
 and adds each callback's wall time to the servo tick it ran on. It is a
 profiler, like Drake's own timing statistics: it observes the run from
 outside the Context and changes nothing in it.
+
+:func:`frozen_heap` keeps Python's cyclic garbage collector off the servo
+loop's long-lived heap, as real-time Python control loops do.
 """
 
 from __future__ import annotations
 
+import gc
 import time
 from collections import defaultdict
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -50,3 +55,23 @@ class TickTimer:
 def timed(callback, timer: TickTimer | None):
     """``callback`` wrapped by ``timer``, or unchanged without one."""
     return callback if timer is None else timer.wrap(callback)
+
+
+@contextmanager
+def frozen_heap():
+    """Collect once, then freeze every live object out of the cyclic collector (``gc.freeze``)
+    for the block; unfrozen after it.
+
+    A full (generation-2) collection walks the whole heap of the loaded plant,
+    solvers and modules: 25-40 ms measured here, several servo periods. Where
+    one fell inside a tick it would be that run's largest tick time. Frozen, a
+    collection walks only what the loop itself allocated (well under 1 ms
+    measured). Reference counting still frees everything as before; only
+    reference cycles made inside the block wait for a collection.
+    """
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()

@@ -396,3 +396,19 @@ def test_the_online_controller_stops_a_turning_walk_in_physics():
     assert result.plan.heading != 0.0 and result.plan.landing_foot is not None
     assert result.success, result.criteria
     assert result.online["joint_velocity_violations"] == 0
+
+
+def test_touchdown_com_offset_is_the_step_less_the_cog_at_touchdown_and_turns_with_the_frame():
+    """The lateral-reach rule's per-step lookup: computed once per step, and a vector (turned, not moved)
+    in a heading frame."""
+    from drake_estop.planning.heading import FramedPattern, HeadingFrame
+
+    pattern = NominalPattern(GaitParameters(turn=15.0))
+    for index, step in enumerate(pattern.steps):
+        expected = np.asarray(step["end"], float)[:2] - pattern.com([step["touchdown"]])[0][0]
+        assert np.allclose(pattern.touchdown_com_offset(index), expected, atol=1e-12)
+    assert pattern.touchdown_com_offset(2) is pattern.touchdown_com_offset(2)  # cached
+    framed = FramedPattern(pattern, HeadingFrame(math.radians(30.0)))
+    step = framed.steps[2]
+    assert np.allclose(framed.touchdown_com_offset(2),
+                       np.asarray(step["end"], float)[:2] - framed.com([step["touchdown"]])[0][0], atol=1e-12)

@@ -344,6 +344,15 @@ class NominalPattern:
         step = self.steps[step_index]
         return step["liftoff"], step["step_end"]
 
+    def touchdown_com_offset(self, step_index: int) -> np.ndarray:
+        """Step ``step_index``'s landing ankle less the COG at its touchdown (x, y) [m]; computed once
+        per step (the planner asks on every solve: :func:`drake_estop.planning.planner._lateral_reach`)."""
+        cache = self.__dict__.setdefault("_touchdown_com_offsets", {})
+        if step_index not in cache:
+            step = self.steps[step_index]
+            cache[step_index] = np.asarray(step["end"], float)[:2] - self.com([step["touchdown"]])[0][0]
+        return cache[step_index]
+
     def com(self, t):
         """COG x, y position, velocity, acceleration and ZMP at times ``t``: 4 arrays (n, 2)."""
         out = [traj.evaluate(t) for traj in self.trajectories]

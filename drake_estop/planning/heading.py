@@ -74,8 +74,8 @@ class HeadingFrame:
 
 class FramedPattern:
     """A :class:`~drake_estop.planning.gait.NominalPattern` seen in a :class:`HeadingFrame`: the
-    queries the planner makes (``com``, ``steps``, ``state``, ``feet_at``, ``feet_yaw_at``) in local
-    axes; times, parameters and everything else are the pattern's own."""
+    queries the planner makes (``com``, ``steps``, ``touchdown_com_offset``, ``state``, ``feet_at``,
+    ``feet_yaw_at``) in local axes; times, parameters and everything else are the pattern's own."""
 
     def __init__(self, pattern: NominalPattern, frame: HeadingFrame):
         self._pattern = pattern
@@ -93,6 +93,9 @@ class FramedPattern:
 
     def com(self, times):
         return tuple(self._frame.local(value) for value in self._pattern.com(times))
+
+    def touchdown_com_offset(self, step_index):
+        return self._frame.local(self._pattern.touchdown_com_offset(step_index))  # a vector: turned only
 
     def state(self, t):
         return self._frame.state(self._pattern.state(t))

@@ -297,8 +297,8 @@ def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> Stop
     moves the foot by the COG's own deviation, which leaves their lateral offset as it was."""
     if state.recovery_touchdown is not None:  # no walk footstep: the step is aimed from the measured DCM
         return params
-    step = pattern.steps[state.step_index]  # the walk's own footstep: a capture-point shift follows the COG
-    lateral = abs(float(step["end"][1]) - float(pattern.com([step["touchdown"]])[0][0][1]))
+    # the walk's own footstep: a capture-point shift follows the COG
+    lateral = abs(float(pattern.touchdown_com_offset(state.step_index)[1]))
     allowed = 0.5 * pattern.params.step_width + LATERAL_REACH_ALLOWANCE
     if lateral <= allowed:
         return params

@@ -1,0 +1,82 @@
+"""The controller's per-tick timing instrumentation and the frozen heap of the servo loop."""
+
+import gc
+
+import numpy as np
+import pytest
+
+from drake_estop.timing import TickTimer, frozen_heap
+
+
+class _Context:
+    def __init__(self, t):
+        self._t = t
+
+    def get_time(self):
+        return self._t
+
+
+def test_tick_timer_sums_callbacks_per_tick_and_summarises_after_since():
+    timer = TickTimer(0.005)
+    calls = []
+    callback = timer.wrap(lambda context, *args: calls.append(args) or "status")
+    for t in (0.0, 0.005, 0.005, 0.010):
+        assert callback(_Context(t), "state") == "status"
+    assert calls == [("state",)] * 4
+    assert len(timer.per_tick()) == 3  # two callbacks of tick 1 summed into one entry
+    assert len(timer.per_tick(since=0.005)) == 2
+    summary = timer.summary(since=0.005)
+    assert summary["ticks"] == 2 and 0.0 <= summary["median"] <= summary["p99"] <= summary["max"]
+    assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "ticks": 0}
+    with pytest.raises(ValueError, match="servo_period"):
+        TickTimer(0.0)
+
+
+def test_frozen_heap_freezes_the_live_objects_for_the_block_and_unfreezes_after():
+    assert gc.get_freeze_count() == 0
+    kept = [np.zeros(3) for _ in range(10)]
+    with frozen_heap():
+        assert gc.get_freeze_count() > len(kept)  # everything alive at entry, these lists included
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(RuntimeError), frozen_heap():
+        raise RuntimeError("the block failed")
+    assert gc.get_freeze_count() == 0  # unfrozen on the error path too
+
+
+def test_run_through_stop_advances_inside_the_frozen_heap():
+    """The servo loop (``Simulator.AdvanceTo``) runs with the heap frozen; unfrozen afterwards."""
+    from drake_estop.physics.plant import run_through_stop
+
+    seen = {}
+
+    class Plan:
+        halt_end, signal_time = 0.1, 0.05
+
+    class Simulator:
+        def get_mutable_context(self):
+            return self
+
+        def get_system(self):
+            return self
+
+        def get_time(self):
+            return seen.get("time", 0.0)
+
+        def set_monitor(self, monitor):
+            pass
+
+        def clear_monitor(self):
+            pass
+
+        def AdvanceTo(self, t):
+            seen["frozen"] = gc.get_freeze_count()
+            seen["time"] = t
+
+    class Planner:
+        def GetMyContextFromRoot(self, context):
+            return context
+
+    plan, wall = run_through_stop(Simulator(), Planner(), 0.05, 0.005, 0.2, lambda context: Plan())
+    assert isinstance(plan, Plan) and wall >= 0.0
+    assert seen["frozen"] > 0
+    assert gc.get_freeze_count() == 0
