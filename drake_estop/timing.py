@@ -2,7 +2,7 @@
 
 :class:`TickTimer` wraps event callbacks when a system declares them
 (``DeclarePeriodicDiscreteUpdateEvent(period, 0, timer.wrap(self._update))``)
-and adds each callback's wall time to the servo tick it ran on. It is a
+and adds each callback's wall time and CPU time to the servo tick it ran on. It is a
 profiler, like Drake's own timing statistics: it observes the run from
 outside the Context and changes nothing in it.
 
@@ -21,31 +21,45 @@ import numpy as np
 
 
 class TickTimer:
-    """Wall time [s] of wrapped callbacks, summed per servo tick."""
+    """Time of wrapped callbacks, summed per servo tick: wall-clock [s] and the thread's CPU [s].
+
+    The wall clock is what a servo deadline sees on this machine, preemption by
+    other processes included; the thread's CPU time (``time.thread_time``) is the
+    controller's own work alone, what a core of its own would take.
+    """
+
+    CLOCKS = ("wall", "cpu")
 
     def __init__(self, servo_period: float):
         if not servo_period > 0:
             raise ValueError(f"servo_period must be positive, got {servo_period!r}")
         self._period = float(servo_period)
-        self._totals = defaultdict(float)
+        self._totals = {clock: defaultdict(float) for clock in self.CLOCKS}
 
     def wrap(self, callback):
         """``callback(context, *args)`` timed into the tick of ``context.get_time()``."""
+        wall_totals, cpu_totals = self._totals["wall"], self._totals["cpu"]
+
         def timed(context, *args):
-            start = time.perf_counter()
+            wall, cpu = time.perf_counter(), time.thread_time()
             status = callback(context, *args)
-            self._totals[round(context.get_time() / self._period)] += time.perf_counter() - start
+            cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+            tick = round(context.get_time() / self._period)
+            wall_totals[tick] += wall
+            cpu_totals[tick] += cpu
             return status
         return timed
 
-    def per_tick(self, since: float = -np.inf) -> np.ndarray:
-        """Compute time of each tick at or after ``since`` [s]."""
+    def per_tick(self, since: float = -np.inf, clock: str = "wall") -> np.ndarray:
+        """Compute time of each tick at or after ``since`` [s], by ``clock`` ("wall" or "cpu")."""
+        if clock not in self.CLOCKS:
+            raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
         first = round(since / self._period) if np.isfinite(since) else None
-        return np.array([v for k, v in sorted(self._totals.items()) if first is None or k >= first])
+        return np.array([v for k, v in sorted(self._totals[clock].items()) if first is None or k >= first])
 
-    def summary(self, since: float = -np.inf) -> dict:
+    def summary(self, since: float = -np.inf, clock: str = "wall") -> dict:
         """``{median, p99, max, ticks}`` of :meth:`per_tick` (seconds)."""
-        values = self.per_tick(since)
+        values = self.per_tick(since, clock)
         if len(values) == 0:
             return {"median": None, "p99": None, "max": None, "ticks": 0}
         return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),

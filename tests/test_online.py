@@ -56,6 +56,8 @@ def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
     # one entry per servo tick from the signal on: the estimator, planner and IK run every tick
     assert tick["ticks"] == pytest.approx(span / dt, abs=2)
     assert 0 < tick["median"] <= tick["p99"] <= tick["max"]
+    cpu = online["tick_compute_cpu"]  # the same ticks in the thread's CPU time
+    assert cpu["ticks"] == tick["ticks"] and 0 < cpu["median"] <= cpu["p99"] <= cpu["max"]
     assert online["replans"] >= 0 and online["replan_failures"] >= 0
     assert online["joint_velocity_violations"] == 0
     assert paper_stop.criteria["joint_speed_within_limits"]  # the criterion is that count being 0
@@ -405,6 +407,7 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert set(data["criteria"]) == set(CRITERIA)
     assert set(data["tick_compute"]) >= {"median", "p99", "max"}
     assert data["tick_compute"]["median"] > 0
+    assert set(data["tick_compute_cpu"]) >= {"median", "p99", "max"} and data["tick_compute_cpu"]["median"] > 0
     assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
     assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound

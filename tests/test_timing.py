@@ -28,6 +28,23 @@ def test_tick_timer_sums_callbacks_per_tick_and_summarises_after_since():
     summary = timer.summary(since=0.005)
     assert summary["ticks"] == 2 and 0.0 <= summary["median"] <= summary["p99"] <= summary["max"]
     assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "ticks": 0}
+    with pytest.raises(ValueError, match="clock"):
+        timer.per_tick(clock="gpu")
+
+
+def test_tick_timer_cpu_clock_leaves_out_time_the_thread_did_not_run():
+    """A callback that sleeps (the thread descheduled, as when another process preempts it) counts on the
+    wall clock, not in the CPU time; one that computes counts on both."""
+    import time
+
+    timer = TickTimer(0.005)
+    sleeping = timer.wrap(lambda context: time.sleep(0.02))
+    working = timer.wrap(lambda context: sum(i * i for i in range(200000)))
+    sleeping(_Context(0.0))
+    working(_Context(0.005))
+    wall, cpu = timer.per_tick(clock="wall"), timer.per_tick(clock="cpu")
+    assert wall[0] >= 0.02 and cpu[0] < 0.005
+    assert cpu[1] > 0.0 and cpu[1] <= wall[1] * 1.05 + 1e-4
     with pytest.raises(ValueError, match="servo_period"):
         TickTimer(0.0)
 
