@@ -45,6 +45,12 @@ from drake_estop.planning.planner import (
 )
 from drake_estop.timing import timed
 
+#: A measured foothold this far [m] from the plan's foot re-plans the stop on the measured feet after the
+#: landing, with the DCM on the plan (StopPlannerSystem's ``foothold_tolerance``). The estimate is good to
+#: 3 mm (a 17 N s push: both soles within 3 mm); the planned-polygon CoP failures of the robustness
+#: benchmark stood on feet 5-20 mm from the plan's, with the CoP inside the measured soles.
+FOOTHOLD_TOLERANCE = 0.005
+
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
                     ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
@@ -306,12 +312,14 @@ class _PlanHandle:
     """
 
     __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
-                 "last_try")
+                 "last_try", "footholds_of")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None, last_try=-math.inf):
+                 blend=None, history=None, last_try=-math.inf, footholds_of=None):
         self.plan = plan
         self.last_try = last_try  # time of the last re-plan attempt
+        # the landing (the plan of history that made it) whose measured footholds a re-plan has tried
+        self.footholds_of = footholds_of
         self.history = history if history is not None else ((plan,) if plan is not None else ())
         self.blend = blend  # (start, dp (2), dv (2), duration[, dfeet (2, 3)]): StopPlannerSystem._blended
         self.wall_time = wall_time
@@ -462,6 +470,11 @@ class StopPlannerSystem(_ReferenceSystem):
     ``foothold_ticks`` ticks: a re-plan on the touchdown tick itself keeps
     the plan's feet, and the next one picks them up); a stop signalled in
     double support keeps the walk's feet until a recovery step lands.
+    A foot measured more than ``foothold_tolerance`` from the plan's makes
+    such a re-plan on its own, with the DCM on the plan (a foothold re-plan,
+    before the halt, without a recovery step), unless a re-plan has already
+    taken that landing's measured feet: once a landing, so that a sliding
+    foot is not chased.
 
     ``recovery_step`` (default True): a re-plan after the landing that finds
     no double-support stop (the DCM 5 cm or more past the fore foot's ankle
@@ -517,6 +530,11 @@ class StopPlannerSystem(_ReferenceSystem):
     foothold_ticks : int, optional
         Loaded ticks after which a landed sole's measured position is its
         foothold (default 2).
+    foothold_tolerance : float or None, optional
+        Distance [m] between a measured foothold and the plan's foot that
+        makes a re-plan on the measured feet after the landing even with the
+        DCM within ``landed_replan_threshold`` (default
+        :data:`FOOTHOLD_TOLERANCE`; None: only a deviating DCM re-plans).
     recovery_step : bool, optional
         Whether a re-plan after the landing that finds no double-support
         stop steps the rear foot forward instead (``replan_stop``'s
@@ -544,7 +562,8 @@ class StopPlannerSystem(_ReferenceSystem):
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
-                 foothold_ticks: int = 2, recovery_step: bool = True, timer=None):
+                 foothold_ticks: int = 2, foothold_tolerance: float | None = FOOTHOLD_TOLERANCE,
+                 recovery_step: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -556,6 +575,9 @@ class StopPlannerSystem(_ReferenceSystem):
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
+        if foothold_tolerance is not None and not (math.isfinite(foothold_tolerance) and foothold_tolerance > 0):
+            raise ValueError(f"foothold_tolerance must be positive and finite, or None, got {foothold_tolerance!r}")
+        self._foothold_tolerance = None if foothold_tolerance is None else float(foothold_tolerance)
         self._measured_footholds = bool(measured_footholds)
         self._recovery_step = bool(recovery_step)
         self._pattern = pattern
@@ -726,12 +748,15 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
         threshold = self._landed_threshold if landed else self._replan_threshold
-        if self._deviation(plan, t, measured) <= threshold:
+        feet = self._footholds(context, handle.history) if landed else None
+        landing = self._last_landing(handle.history) if feet is not None else None
+        deviated = self._deviation(plan, t, measured) > threshold
+        if not deviated and (landing is None or handle.footholds_of is landing or t >= plan.slowdown_end
+                             or not self._feet_moved(plan, t, feet)):
             return EventStatus.DidNothing()
         start = time.perf_counter()
-        try:
-            new = replan_stop(plan, t, *measured, feet=self._footholds(context, handle.history) if landed else None,
-                              recovery_step=self._recovery_step)
+        try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
+            new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated)
         except InfeasibleStop:
             new, failures = None, handle.replan_failures + 1
         else:
@@ -742,20 +767,34 @@ class StopPlannerSystem(_ReferenceSystem):
         updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
                               max(handle.max_wall_time, wall),
                               self._blend_into(context, new) if new is not None else handle.blend,
-                              handle.history + ((new,) if new is not None else ()), t)
+                              handle.history + ((new,) if new is not None else ()), t,
+                              landing if landing is not None else handle.footholds_of)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
+
+    def _feet_moved(self, plan, t, feet) -> bool:
+        """Whether a measured sole of ``feet`` (:meth:`_footholds`) lies more than ``foothold_tolerance``
+        from where ``plan`` has it at ``t`` (False without a measurement or a tolerance)."""
+        if feet is None or self._foothold_tolerance is None:
+            return False
+        planned = plan.feet(t)
+        return any(np.hypot(*(xy - planned[side][:2])) > self._foothold_tolerance for side, xy in feet.items())
+
+    @staticmethod
+    def _last_landing(history):
+        """The last plan of ``history`` with a landing (None for none)."""
+        return next((plan for plan in reversed(history) if plan.landing_foot is not None), None)
 
     def _footholds(self, context, history):
         """``{side: xy}``: both soles' estimated positions, once the stop's last landing foot (of the
         plans in ``history``) has been loaded ``foothold_ticks`` ticks; None without a measurement or
         before any landing of the stop (a stop signalled in double support keeps the walk's feet until
         a recovery step lands)."""
-        landed = [plan.landing_foot for plan in history if plan.landing_foot is not None]
-        if not self._measured_footholds or not landed or not self.measured_feet_port.HasValue(context):
+        landing = self._last_landing(history)
+        if not self._measured_footholds or landing is None or not self.measured_feet_port.HasValue(context):
             return None
         feet = self.measured_feet_port.Eval(context)
-        if not np.all(np.isfinite(feet)) or feet[4 + SIDES.index(landed[-1])] < self._foothold_ticks:
+        if not np.all(np.isfinite(feet)) or feet[4 + SIDES.index(landing.landing_foot)] < self._foothold_ticks:
             return None
         return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
