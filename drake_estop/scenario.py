@@ -76,6 +76,9 @@ class Scenario:
     recovery_step : bool
         Physics, online controller only: a re-plan after the landing that finds no double-support stop
         steps the rear foot forward (default on; off keeps the plan, for comparison).
+    foothold_replan : bool
+        Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
+        stop on the measured feet (default on; off re-plans only for a deviating DCM, for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -95,6 +98,7 @@ class Scenario:
     swing_tilt: bool = True
     measured_footholds: bool = True
     recovery_step: bool = True
+    foothold_replan: bool = True
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

@@ -277,6 +277,23 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     assert not planned.criteria["cop_in_support"]
 
 
+def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
+    """15 N s left at 2.95 s (early single support): the DCM stays within the landed re-plan threshold,
+    so no DCM re-plan comes, but the pushed swing foot lands off its target. Without a re-plan the CoP,
+    inside the measured soles, left the planned ones by 0.2 mm; the foothold re-plan makes the stop
+    on the measured feet and every criterion is met."""
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(2.95, 0.0, 150.0, 0.1),))
+    replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
+    assert replanned.success, [name for name, ok in replanned.criteria.items() if not ok]
+    first, replan = replanned.plan.plans
+    assert replanned.online["replans"] == 1 and replan.start_time > first.landing_time  # after the landing
+    kept = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
+                      planner_options={"foothold_replan": False})
+    assert kept.online["replans"] == 0
+    assert not kept.criteria["cop_in_support"]
+
+
 def test_a_recovery_step_catches_a_forward_push_in_double_support():
     """30 N s forward at 3.55 s (double support, 0.52 m/s): the COG runs past the fore foot, the rear leg
     reaches its limit and every double-support re-plan is infeasible. Without a recovery step the robot
@@ -351,7 +368,8 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
 
 
 #: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
-PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step"}
+PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
+                 "--no-foothold-replan": "foothold_replan"}
 
 
 @pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])

@@ -300,7 +300,7 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
 
 
 @pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
-                                  "replan_interval", "landed_replan_threshold"])
+                                  "replan_interval", "landed_replan_threshold", "foothold_tolerance"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
 def test_planner_rejects_bad_settings(pattern, params, name, value):
     with pytest.raises(ValueError, match=name):
@@ -508,3 +508,51 @@ def test_blend_fades_the_sole_offsets_to_the_new_plan_at_rest():
     np.testing.assert_allclose((feet(1.0 + h) - feet(1.0)) / h, 0.0, atol=1e-4)  # starts at rest
     np.testing.assert_allclose(feet(1.2 - 1e-9), 0.0, atol=1e-9)
     assert np.all(np.abs(feet(1.1)) < np.abs(dfeet) + 1e-12)
+
+
+def _feet_at_the_plan(pattern, params, shift, **kwargs):
+    """StopPlannerSystem alone: the stop latched at 3.4 s; 20 ms after the landing the measured COG is the
+    plan's (the DCM on the plan) and the measured soles are the plan's feet moved by ``shift`` (side ->
+    (dx, dy)), loaded 40 ticks. Returns the planner, its context, the simulator, the first plan and t."""
+    planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
+    t = round((first.landing_time + 0.02) / DT) * DT
+    simulator.AdvanceTo(t - DT / 2)
+    pos, vel, _ = _state_at(first, t)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    feet = {side: first.final_feet[side] + np.asarray(shift.get(side, (0.0, 0.0))) for side in ("left", "right")}
+    planner.measured_feet_port.FixValue(context, [*feet["left"], *feet["right"], 40.0, 40.0])
+    simulator.AdvanceTo(t + DT / 2)
+    return planner, context, simulator, first, t, feet
+
+
+def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landing(pattern, params):
+    """With the DCM on the plan, a sole measured 1 cm from the plan's foot (more than foothold_tolerance)
+    re-plans the stop on the measured feet; a foot that keeps sliding is not chased."""
+    planner, context, simulator, first, t, feet = _feet_at_the_plan(pattern, params, {"left": (0.0, -0.01)})
+    assert planner.replans(context) == (1, 0)
+    new = planner.plan(context)
+    assert new.start_time == pytest.approx(t) and new.recovery_step is False
+    for side in feet:
+        np.testing.assert_allclose(new.final_feet[side][:2], feet[side], atol=1e-12)
+    # the foot slides on by another centimetre: that landing's feet were taken once, no second re-plan
+    slid = feet["left"] + [0.0, -0.01]
+    planner.measured_feet_port.FixValue(context, [*slid, *feet["right"], 40.0, 40.0])
+    pos, vel, _ = _state_at(new, t + 0.1)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    simulator.AdvanceTo(t + 0.1 + DT / 2)
+    assert planner.replans(context) == (1, 0)
+
+
+@pytest.mark.parametrize("shift, kwargs", [
+    ({"left": (0.0, -0.003)}, {}),  # within the 5 mm tolerance
+    ({"left": (0.0, -0.01)}, {"foothold_replan": False}),  # the foothold re-plan turned off
+    ({"left": (0.0, -0.01)}, {"foothold_tolerance": 0.02}),  # a wider tolerance
+])
+def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs):
+    planner, context, _, first, _, _ = _feet_at_the_plan(pattern, params, shift, **kwargs)
+    assert planner.replans(context) == (0, 0)
+    assert planner.plan(context) is first
+
+

@@ -530,11 +530,12 @@ class StopPlannerSystem(_ReferenceSystem):
     foothold_ticks : int, optional
         Loaded ticks after which a landed sole's measured position is its
         foothold (default 2).
-    foothold_tolerance : float or None, optional
-        Distance [m] between a measured foothold and the plan's foot that
-        makes a re-plan on the measured feet after the landing even with the
-        DCM within ``landed_replan_threshold`` (default
-        :data:`FOOTHOLD_TOLERANCE`; None: only a deviating DCM re-plans).
+    foothold_replan : bool, optional
+        Whether a measured foothold more than ``foothold_tolerance`` from the
+        plan's foot re-plans after the landing on its own (default True;
+        False: only a deviating DCM re-plans, for comparison).
+    foothold_tolerance : float, optional
+        That distance [m] (default :data:`FOOTHOLD_TOLERANCE`).
     recovery_step : bool, optional
         Whether a re-plan after the landing that finds no double-support
         stop steps the rear foot forward instead (``replan_stop``'s
@@ -562,22 +563,21 @@ class StopPlannerSystem(_ReferenceSystem):
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
-                 foothold_ticks: int = 2, foothold_tolerance: float | None = FOOTHOLD_TOLERANCE,
-                 recovery_step: bool = True, timer=None):
+                 foothold_ticks: int = 2, foothold_replan: bool = True,
+                 foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
                             ("replan_interval", replan_interval),
-                            ("landed_replan_threshold", landed_replan_threshold)):
+                            ("landed_replan_threshold", landed_replan_threshold),
+                            ("foothold_tolerance", foothold_tolerance)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         if (isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, (int, float))
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
-        if foothold_tolerance is not None and not (math.isfinite(foothold_tolerance) and foothold_tolerance > 0):
-            raise ValueError(f"foothold_tolerance must be positive and finite, or None, got {foothold_tolerance!r}")
-        self._foothold_tolerance = None if foothold_tolerance is None else float(foothold_tolerance)
+        self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
         self._measured_footholds = bool(measured_footholds)
         self._recovery_step = bool(recovery_step)
         self._pattern = pattern
