@@ -58,12 +58,18 @@ class TickTimer:
         return np.array([v for k, v in sorted(self._totals[clock].items()) if first is None or k >= first])
 
     def summary(self, since: float = -np.inf, clock: str = "wall") -> dict:
-        """``{median, p99, max, ticks}`` of :meth:`per_tick` (seconds)."""
-        values = self.per_tick(since, clock)
-        if len(values) == 0:
-            return {"median": None, "p99": None, "max": None, "ticks": 0}
+        """``{median, p99, max, ticks, max_at}`` of :meth:`per_tick` (seconds; ``max_at``: the time
+        [s] of the slowest tick, to find it in the run's log)."""
+        if clock not in self.CLOCKS:
+            raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
+        first = round(since / self._period) if np.isfinite(since) else None
+        ticks = sorted(k for k in self._totals[clock] if first is None or k >= first)
+        if not ticks:
+            return {"median": None, "p99": None, "max": None, "ticks": 0, "max_at": None}
+        values = np.array([self._totals[clock][k] for k in ticks])
+        slowest = int(np.argmax(values))
         return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),
-                "max": float(values.max()), "ticks": int(len(values))}
+                "max": float(values[slowest]), "ticks": len(values), "max_at": ticks[slowest] * self._period}
 
 
 def timed(callback, timer: TickTimer | None):

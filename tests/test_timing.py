@@ -27,7 +27,11 @@ def test_tick_timer_sums_callbacks_per_tick_and_summarises_after_since():
     assert len(timer.per_tick(since=0.005)) == 2
     summary = timer.summary(since=0.005)
     assert summary["ticks"] == 2 and 0.0 <= summary["median"] <= summary["p99"] <= summary["max"]
-    assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "ticks": 0}
+    slow = TickTimer(0.005)
+    for t, work in ((0.0, 0), (0.005, 300000), (0.010, 0)):
+        slow.wrap(lambda context, n=work: sum(range(n)))(_Context(t))
+    assert slow.summary(clock="cpu")["max_at"] == pytest.approx(0.005)  # the slowest tick's time
+    assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "ticks": 0, "max_at": None}
     with pytest.raises(ValueError, match="clock"):
         timer.per_tick(clock="gpu")
 
