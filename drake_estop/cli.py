@@ -178,10 +178,10 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.recovery_step,
                    help="with --physics: no recovery step out of a double-support stop that cannot hold "
                         "(for comparison)")
-    d.add_argument("--no-foothold-replan", dest="foothold_replan", action="store_false",
+    d.add_argument("--foothold-replan", dest="foothold_replan", action="store_true",
                    default=scenario.foothold_replan,
-                   help="with --physics: no re-plan for a foot that landed off the plan's foothold while the "
-                        "COG follows the plan (for comparison)")
+                   help="with --physics: re-plan for a foot that landed off the plan's foothold while the COG "
+                        "follows the plan (off by default: net neutral on the campaign, see the README)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -243,7 +243,7 @@ def _online_only_options(args, perturbations) -> list:
     given = (("perturbations", perturbations != Perturbations()), ("--true-state", args.true_state),
              ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
              ("--no-measured-footholds", not args.measured_footholds),
-             ("--no-recovery-step", not args.recovery_step), ("--no-foothold-replan", not args.foothold_replan))
+             ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan))
     return [name for name, on in given if on]
 
 
@@ -327,9 +327,10 @@ def _fit(values, n):
 
 
 def _planner_options(args) -> dict | None:
-    """The online controller's StopPlannerSystem options the command line turned off (None: the defaults)."""
-    options = {name: False for name in ("measured_footholds", "recovery_step", "foothold_replan")
-               if not getattr(args, name)}
+    """The online controller's StopPlannerSystem options the command line changed (None: the defaults)."""
+    options = {name: False for name in ("measured_footholds", "recovery_step") if not getattr(args, name)}
+    if args.foothold_replan:
+        options["foothold_replan"] = True
     return options or None
 
 

@@ -78,7 +78,7 @@ class Scenario:
         steps the rear foot forward (default on; off keeps the plan, for comparison).
     foothold_replan : bool
         Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
-        stop on the measured feet (default on; off re-plans only for a deviating DCM, for comparison).
+        stop on the measured feet (default off: net neutral on the campaign; on for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -98,7 +98,7 @@ class Scenario:
     swing_tilt: bool = True
     measured_footholds: bool = True
     recovery_step: bool = True
-    foothold_replan: bool = True
+    foothold_replan: bool = False
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0

@@ -279,17 +279,17 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
 
 def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     """15 N s left at 2.95 s (early single support): the DCM stays within the landed re-plan threshold,
-    so no DCM re-plan comes, but the pushed swing foot lands off its target. Without a re-plan the CoP,
-    inside the measured soles, left the planned ones by 0.2 mm; the foothold re-plan makes the stop
-    on the measured feet and every criterion is met."""
+    so no DCM re-plan comes, but the pushed swing foot lands off its target. Without a re-plan (the
+    default) the CoP, inside the measured soles, leaves the planned ones by 0.2 mm; the foothold re-plan
+    option makes the stop on the measured feet and every criterion is met."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 0.0, 150.0, 0.1),))
-    replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
+    replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
+                           planner_options={"foothold_replan": True})
     assert replanned.success, [name for name, ok in replanned.criteria.items() if not ok]
     first, replan = replanned.plan.plans
     assert replanned.online["replans"] == 1 and replan.start_time > first.landing_time  # after the landing
-    kept = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                      planner_options={"foothold_replan": False})
+    kept = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert kept.online["replans"] == 0
     assert not kept.criteria["cop_in_support"]
 
@@ -368,8 +368,7 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
 
 
 #: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
-PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
-                 "--no-foothold-replan": "foothold_replan"}
+PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step"}
 
 
 @pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
@@ -377,6 +376,18 @@ def test_planner_flags_reach_the_online_run(monkeypatch, flag):
     options = _online_run_keywords(monkeypatch, [flag] if flag else [])["planner_options"] or {}
     for other, name in PLANNER_FLAGS.items():
         assert options.get(name, True) is (other != flag), name
+
+
+def test_foothold_replan_flag_turns_the_option_on(monkeypatch):
+    assert (_online_run_keywords(monkeypatch, [])["planner_options"] or {}).get("foothold_replan", False) is False
+    options = _online_run_keywords(monkeypatch, ["--foothold-replan"])["planner_options"]
+    assert options == {"foothold_replan": True}  # and leaves the other options at their defaults
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_foothold_replan_flag_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--foothold-replan"]) == 2
+    assert "--foothold-replan" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag", PLANNER_FLAGS)

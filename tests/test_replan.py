@@ -529,7 +529,8 @@ def _feet_at_the_plan(pattern, params, shift, **kwargs):
 def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landing(pattern, params):
     """With the DCM on the plan, a sole measured 1 cm from the plan's foot (more than foothold_tolerance)
     re-plans the stop on the measured feet; a foot that keeps sliding is not chased."""
-    planner, context, simulator, first, t, feet = _feet_at_the_plan(pattern, params, {"left": (0.0, -0.01)})
+    planner, context, simulator, first, t, feet = _feet_at_the_plan(pattern, params, {"left": (0.0, -0.01)},
+                                                                    foothold_replan=True)
     assert planner.replans(context) == (1, 0)
     new = planner.plan(context)
     assert new.start_time == pytest.approx(t) and new.recovery_step is False
@@ -546,9 +547,9 @@ def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landin
 
 
 @pytest.mark.parametrize("shift, kwargs", [
-    ({"left": (0.0, -0.003)}, {}),  # within the 5 mm tolerance
-    ({"left": (0.0, -0.01)}, {"foothold_replan": False}),  # the foothold re-plan turned off
-    ({"left": (0.0, -0.01)}, {"foothold_tolerance": 0.02}),  # a wider tolerance
+    ({"left": (0.0, -0.003)}, {"foothold_replan": True}),  # within the 5 mm tolerance
+    ({"left": (0.0, -0.01)}, {}),  # the foothold re-plan off (the default)
+    ({"left": (0.0, -0.01)}, {"foothold_replan": True, "foothold_tolerance": 0.02}),  # a wider tolerance
 ])
 def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs):
     planner, context, _, first, _, _ = _feet_at_the_plan(pattern, params, shift, **kwargs)
