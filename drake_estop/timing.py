@@ -50,23 +50,25 @@ class TickTimer:
             return status
         return timed
 
-    def per_tick(self, since: float = -np.inf, clock: str = "wall") -> np.ndarray:
-        """Compute time of each tick at or after ``since`` [s], by ``clock`` ("wall" or "cpu")."""
+    def _ticks(self, since: float, clock: str):
+        """``(tick indices, compute times)`` of the ticks at or after ``since`` [s], by ``clock``."""
         if clock not in self.CLOCKS:
             raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
         first = round(since / self._period) if np.isfinite(since) else None
-        return np.array([v for k, v in sorted(self._totals[clock].items()) if first is None or k >= first])
+        totals = self._totals[clock]
+        ticks = sorted(k for k in totals if first is None or k >= first)
+        return ticks, np.array([totals[k] for k in ticks])
+
+    def per_tick(self, since: float = -np.inf, clock: str = "wall") -> np.ndarray:
+        """Compute time of each tick at or after ``since`` [s], by ``clock`` ("wall" or "cpu")."""
+        return self._ticks(since, clock)[1]
 
     def summary(self, since: float = -np.inf, clock: str = "wall") -> dict:
         """``{median, p99, max, ticks, max_at}`` of :meth:`per_tick` (seconds; ``max_at``: the time
         [s] of the slowest tick, to find it in the run's log)."""
-        if clock not in self.CLOCKS:
-            raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
-        first = round(since / self._period) if np.isfinite(since) else None
-        ticks = sorted(k for k in self._totals[clock] if first is None or k >= first)
+        ticks, values = self._ticks(since, clock)
         if not ticks:
             return {"median": None, "p99": None, "max": None, "ticks": 0, "max_at": None}
-        values = np.array([self._totals[clock][k] for k in ticks])
         slowest = int(np.argmax(values))
         return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),
                 "max": float(values[slowest]), "ticks": len(values), "max_at": ticks[slowest] * self._period}

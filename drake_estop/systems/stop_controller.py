@@ -750,11 +750,15 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
         threshold = self._landed_threshold if landed else self._replan_threshold
-        feet = self._footholds(context, handle.history) if landed else None
-        landing = self._last_landing(handle.history) if feet is not None else None
         deviated = self._deviation(plan, t, measured) > threshold
-        if not deviated and (landing is None or handle.footholds_of is landing or t >= plan.slowdown_end
-                             or not self._feet_moved(plan, t, feet)):
+        # the measured feet: for a re-plan after the landing, and (option) to see whether they left the plan's
+        landing = self._last_landing(handle.history) if landed else None
+        wanted = deviated or (self._foothold_tolerance is not None and t < plan.slowdown_end
+                              and landing is not None and handle.footholds_of is not landing)
+        feet = self._footholds(context, landing) if wanted else None
+        if feet is None:
+            landing = None
+        if not deviated and not self._feet_moved(plan, t, feet):
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
@@ -787,12 +791,11 @@ class StopPlannerSystem(_ReferenceSystem):
         """The last plan of ``history`` with a landing (None for none)."""
         return next((plan for plan in reversed(history) if plan.landing_foot is not None), None)
 
-    def _footholds(self, context, history):
-        """``{side: xy}``: both soles' estimated positions, once the stop's last landing foot (of the
-        plans in ``history``) has been loaded ``foothold_ticks`` ticks; None without a measurement or
-        before any landing of the stop (a stop signalled in double support keeps the walk's feet until
-        a recovery step lands)."""
-        landing = self._last_landing(history)
+    def _footholds(self, context, landing):
+        """``{side: xy}``: both soles' estimated positions, once the foot of ``landing`` (the stop's last
+        plan with a landing, :meth:`_last_landing`) has been loaded ``foothold_ticks`` ticks; None
+        without a measurement or before any landing of the stop (``landing`` None: a stop signalled in
+        double support keeps the walk's feet until a recovery step lands)."""
         if not self._measured_footholds or landing is None or not self.measured_feet_port.HasValue(context):
             return None
         feet = self.measured_feet_port.Eval(context)
