@@ -311,6 +311,24 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     assert not held.criteria["no_fall"]
 
 
+def test_a_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
+    """29 N s forward at 2.95 s (0.5 m/s, issue 13's target; early single support, the swing foot 0.57 m
+    from its landing). By default a re-plan 0.175 s before the touchdown hurries the landing and the foot
+    skims the floor: it strikes it at 2.4 kN, the robot leaves the ground for 25 ms and the CoP leaves the
+    planned support. The braked-landing option (BRAKED_LANDING) meets every criterion."""
+    from drake_estop.physics.online import BRAKED_LANDING
+    from drake_estop.planning.planner import StopParameters
+
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(2.95, 290.0, 0.0, 0.1),))
+    braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
+    stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked)
+    assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
+    hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
+    assert not hurried.criteria["cop_in_support"]
+    assert hurried.online["replans"] > stopped.online["replans"]
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 

@@ -66,6 +66,15 @@ class StopParameters:
         Mean swing-ankle speed to the landing point [m/s].
     max_swing_descent_speed : float
         Fastest descent of the landing foot [m/s].
+    max_swing_acceleration : float
+        Re-plans before the landing: the landing no sooner than the landing
+        swing can reach its point with at most this horizontal acceleration
+        [m/s^2] (default inf: no limit).
+    landing_approach_slope, landing_approach_height : float
+        Landing swing: over its second half the foot stays at least
+        ``landing_approach_slope`` times its horizontal distance to the
+        landing point above the floor [m/m], up to ``landing_approach_height``
+        [m] (default slope 0: the quintic alone).
     zmp_margin : float
         ZMP distance kept from the sole edges [m].
     crouch : bool
@@ -125,6 +134,23 @@ class StopParameters:
     # down while the landing leg is nearly straight (knee speed = leg-extension rate / sin(knee)).
     # The nominal swing descends at up to 0.27 m/s (64 h s^3 (1-s)^3 over the single support).
     max_swing_descent_speed: float = 0.30
+    # re-plans before the landing: the landing no sooner than the swing from the foot's state to the plan's
+    # landing point can get there with at most this horizontal acceleration [m/s^2] (inf: no limit; the
+    # controller uses 15). The nominal swing peaks at 9.6. Measured on a 29 N s forward push at 2.95 s: a
+    # re-plan 0.175 s before the touchdown landed 50 ms sooner and 4 cm further, a swing braking the foot
+    # from 1 m/s at up to 27 m/s^2; the servo lagged, the foot struck the floor still moving at 0.8 m/s
+    # (2.4 kN) and the robot left the ground for 25 ms. Bounded by the foot's present acceleration, never
+    # below it (a swing cannot start slower than it is)
+    max_swing_acceleration: float = math.inf
+    # the landing foot comes down no flatter than this slope [m/m] towards its landing point over the
+    # second half of the swing, up to landing_approach_height above the floor; 0: the quintic alone. A
+    # swing re-planned while the foot descends keeps its descent rate and skims the floor at 1-4 mm while
+    # still moving 0.8 m/s forward: the sole caught the floor 60-90 ms early (2.3 kN, the robot airborne for
+    # 40 ms, the rear foot slid 2.4 cm). The nominal swing lands at a slope of about 0.9. The height cap
+    # (1 cm, about twice the servo's lag in height) keeps the bump from re-lifting a foot that must go far
+    # sideways: capped at half the lift height (2.5 cm), a 17 N s push to the right slid the stance foot 12 mm
+    landing_approach_slope: float = 0.0
+    landing_approach_height: float = 0.01
     zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
     crouch: bool = True
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
@@ -163,6 +189,15 @@ class StopParameters:
                           ("min_step_length", "max_step_length")):
             if getattr(self, low) >= getattr(self, high):
                 raise ValueError(f"{low} must be below {high}")
+        slope = self.landing_approach_slope
+        if not (isinstance(slope, (int, float)) and math.isfinite(slope) and slope >= 0):
+            raise ValueError(f"landing_approach_slope must be a finite number >= 0, got {slope!r}")
+        for name in ("landing_approach_height", "max_swing_acceleration"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not math.isnan(value) and value > 0):
+                raise ValueError(f"{name} must be > 0 (max_swing_acceleration: inf for no limit), got {value!r}")
+        if not math.isfinite(self.landing_approach_height):
+            raise ValueError(f"landing_approach_height must be finite, got {self.landing_approach_height!r}")
         if not (isinstance(self.max_early_landing, (int, float)) and self.max_early_landing >= 0):
             raise ValueError(f"max_early_landing must be >= 0 (inf for no limit), got {self.max_early_landing!r}")
         if not (isinstance(self.max_landing_shift_per_height, (int, float))
@@ -275,6 +310,8 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
+    # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
+    _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def steps_after_signal(self) -> int:
@@ -339,11 +376,21 @@ class StopPlan:
             return self.pattern.feet_at(t)[0]
         feet = {side: np.array([*xy[:2], 0.0]) for side, xy in self.final_feet.items()}
         if self.landing_foot is not None and t < self.landing_time:
-            s = self.swing_start
-            feet[self.landing_foot] = landing_swing(
-                s["pos"], s["vel"], s["acc"], self.landing_position, t - self.start_time,
-                self.landing_time - self.start_time, self.pattern.params.lift_height, s.get("clearance"))
+            duration = self.landing_time - self.start_time
+            s = min(max((t - self.start_time) / duration, 0.0), 1.0)
+            feet[self.landing_foot] = np.array([float(lipm.poly_eval(u, s)) for u in self._swing_polynomials()])
         return feet
+
+    def _swing_polynomials(self) -> list:
+        """:func:`landing_swing_polynomials` of this plan's landing swing, computed once (cached)."""
+        key = (id(self.swing_start), self.start_time, self.landing_time, id(self.landing_position))
+        if self._swing_cache is None or self._swing_cache[0] != key:
+            s = self.swing_start
+            self._swing_cache = key, landing_swing_polynomials(
+                s["pos"], s["vel"], s["acc"], self.landing_position, self.landing_time - self.start_time,
+                self.pattern.params.lift_height, s.get("clearance"), self.params.landing_approach_slope,
+                self.params.landing_approach_height)
+        return self._swing_cache[1]
 
     def feet_yaw(self, t: float):
         """Heading [rad] and heading rate [rad/s] of each foot at ``t``: the landing foot turns
@@ -449,7 +496,8 @@ class InfeasibleStop(Exception):
     """
 
 
-def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clearance=None):
+def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clearance=None, approach_slope=0.0,
+                  approach_height=0.01):
     """Swing ankle from its current state to the landing point, at rest, over ``duration``.
 
     Quintic Hermite per axis (zero velocity and acceleration at touchdown); the
@@ -460,22 +508,48 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clea
     knee at up to 15 rad/s (its limit is 6). ``clearance`` [m], if given, is
     the bump's apex above the Hermite part instead (a recovery step lifted
     from the floor, :func:`drake_estop.planning.planner.replan_stop`).
+    ``approach_slope`` [m/m] (:attr:`StopParameters.landing_approach_slope`):
+    over the second half of the swing the bump also keeps the foot at least
+    this times its horizontal distance to the landing point above the floor,
+    up to ``approach_height`` [m], so that it comes down onto the landing
+    point instead of skimming the floor towards it.
     """
+    unit = landing_swing_polynomials(pos, vel, acc, target_xy, duration, lift_height, clearance, approach_slope,
+                                     approach_height)
     s = min(max(elapsed / duration, 0.0), 1.0)
+    return np.array([float(lipm.poly_eval(u, s)) for u in unit])
+
+
+_SWING_GRID = np.linspace(0, 1, 41)
+_APPROACH_GRID = _SWING_GRID[20:-1]  # the second half, touchdown left out (there both sides are 0)
+_BUMP = 64.0 * lipm.pad(lipm.BUMP_A)  # s^3 (1 - s)^3, 1 at s = 1/2
+_BUMP_ON_APPROACH = lipm.poly_eval(_BUMP, _APPROACH_GRID)
+
+
+def landing_swing_polynomials(pos, vel, acc, target_xy, duration, lift_height, clearance=None,
+                              approach_slope=0.0, approach_height=0.01) -> list:
+    """The x, y and lift polynomials of :func:`landing_swing` in the normalised time ``s`` in [0, 1]
+    (coefficients, lowest order first)."""
     target = np.array([target_xy[0], target_xy[1], 0.0])
     unit = [
         np.eye(6)[0] * pos[i] + (target[i] - pos[i]) * lipm.SMOOTHSTEP
         + vel[i] * duration * lipm.HERMITE_D1 + acc[i] * duration**2 * lipm.HERMITE_D2
         for i in range(3)
     ]
-    grid = np.linspace(0, 1, 41)
-    lowest = float(np.min(lipm.poly_eval(unit[2], grid)))
+    lowest = float(np.min(lipm.poly_eval(unit[2], _SWING_GRID)))
     leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
     apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
     if clearance is not None:
         apex = max(apex, float(clearance) - max(lowest, 0.0))
-    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
-    return np.array([float(lipm.poly_eval(u, s)) for u in unit])
+    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)  # the same bump as _BUMP, as before it
+    if approach_slope > 0:
+        distance = np.hypot(lipm.poly_eval(unit[0], _APPROACH_GRID) - target[0],
+                            lipm.poly_eval(unit[1], _APPROACH_GRID) - target[1])
+        wanted = np.minimum(approach_slope * distance, approach_height)
+        extra = float(np.max((wanted - lipm.poly_eval(unit[2], _APPROACH_GRID)) / _BUMP_ON_APPROACH))
+        if extra > 0:
+            unit[2] = unit[2] + extra * _BUMP
+    return unit
 
 
 def snap_to_tick(t: float, servo_period: float) -> float:

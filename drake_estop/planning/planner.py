@@ -856,6 +856,35 @@ def _footholds(feet):
     return out
 
 
+def swing_braking_time(pos, vel, acc, target_xy, params: StopParameters) -> float:
+    """Shortest time to touchdown [s], on the servo grid from ``params.min_landing_time``, in which the
+    landing swing (:func:`landing_swing`: quintic Hermite from the ankle's ``pos``, ``vel``, ``acc`` to
+    ``target_xy`` at rest) keeps its horizontal acceleration within ``params.max_swing_acceleration``.
+    ``params.min_landing_time`` without a limit, or where no duration up to ``params.max_landing_time``
+    keeps it (the ankle already accelerates harder than the limit: the swing starts there)."""
+    if not math.isfinite(params.max_swing_acceleration):
+        return params.min_landing_time
+    dt = params.servo_period
+    durations = np.arange(params.min_landing_time, params.max_landing_time - dt + 1e-9, dt)
+    if len(durations) == 0:
+        return params.min_landing_time
+    distance = np.asarray(target_xy, float)[:2] - np.asarray(pos, float)[:2]
+    vel, acc = np.asarray(vel, float)[:2], np.asarray(acc, float)[:2]
+    limit = params.max_swing_acceleration
+    # ankle acceleration of the Hermite at s on the grid, for every duration T (eq. of landing_swing):
+    # (S''(s) D + H1''(s) v T + H2''(s) a T^2) / T^2
+    terms = [lipm.poly_eval(c, _BRAKING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
+    T = durations[:, None, None]
+    swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel * T
+             + terms[2][None, :, None] * acc * T**2) / T**2
+    peak = np.max(np.linalg.norm(swing, axis=2), axis=1)
+    within = np.flatnonzero(peak <= limit + 1e-9)
+    return float(durations[within[0]]) if len(within) else params.min_landing_time
+
+
+_BRAKING_GRID = np.linspace(0.0, 1.0, 41)
+
+
 def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
             stance_zmp=None, footholds=None) -> StopPlan:
     """:func:`replan_stop`'s plan: the plan's state at ``t`` with the measured COG, solved as a single-
@@ -883,6 +912,10 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
         rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
                 else plan.start_state.rear_foot)
         changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
+    elif plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
+        side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
+        soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
+        params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
     wall = time.perf_counter()
     new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
                      zmp_region="polygon" if double else "fore")

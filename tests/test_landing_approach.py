@@ -1,0 +1,160 @@
+"""The controller's landing settings: a re-planned landing no sooner than its swing can brake
+(``max_swing_acceleration``), and the landing foot coming down onto its landing point instead of skimming
+the floor towards it (``landing_approach_slope``, ``landing_approach_height``)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from drake_estop.planning import lipm
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.plan import landing_swing, landing_swing_polynomials
+from drake_estop.planning.planner import StopParameters, plan_stop, replan_stop, swing_braking_time
+
+DT = 0.005
+NOMINAL = NominalPattern()
+# a swing re-planned while the foot comes down fast and low (29 N s forward push at 2.95 s, re-planned at
+# 3.315 s): 2.7 cm up, descending at 0.26 m/s, 1.2 m/s forward, 15 cm and 0.205 s from its landing point
+DESCENDING = (np.array([0.836, -0.095, 0.027]), np.array([1.186, 0.0, -0.257]), np.array([-7.07, 0.0, 0.08]),
+              (0.988, -0.095), 0.205)
+LIFT = 0.05
+HEIGHT = 0.01  # StopParameters.landing_approach_height
+
+
+def _swing(slope, samples=83):
+    pos, vel, acc, target, duration = DESCENDING
+    times = np.linspace(0.0, duration, samples)
+    path = np.array([landing_swing(pos, vel, acc, target, t, duration, LIFT, approach_slope=slope,
+                                   approach_height=HEIGHT) for t in times])
+    distance = np.hypot(path[:, 0] - target[0], path[:, 1] - target[1])
+    return times / duration, path, distance
+
+
+def test_without_an_approach_slope_a_descending_swing_skims_the_floor():
+    """The quintic alone (the paper's planner) keeps the descent rate: the foot is 4 mm or lower while still
+    2 cm or more from its landing point, where the servo's few millimetres of lag put it on the floor."""
+    _, path, distance = _swing(0.0)
+    assert np.any((path[:, 2] < 0.004) & (distance > 0.02))
+
+
+@pytest.mark.parametrize("slope", [0.3, 0.6, 1.0])
+def test_the_approach_slope_keeps_the_foot_above_its_glide_line(slope):
+    s, path, distance = _swing(slope)
+    second_half = s >= 0.5
+    wanted = np.minimum(slope * distance, HEIGHT)
+    # held on landing_swing's grid of 1/40 of the swing; between its points within a few tenths of a mm
+    assert np.all(path[second_half, 2] >= wanted[second_half] - 3e-4)
+    assert not np.any((path[:, 2] < 0.004) & (distance > 0.004 / slope + 1e-6))
+    # the same start and landing: the swing continues from the foot's state and lands at rest on its point
+    pos, vel, _, target, duration = DESCENDING
+    np.testing.assert_allclose(path[0], pos, atol=1e-12)
+    np.testing.assert_allclose(path[-1], [*target, 0.0], atol=1e-12)
+    unit = landing_swing_polynomials(*DESCENDING[:4], duration, LIFT, approach_slope=slope, approach_height=HEIGHT)
+    for axis in range(3):  # position, velocity and acceleration continuous at the start, zero at touchdown
+        assert lipm.poly_eval(unit[axis], 1.0, 1) == pytest.approx(0.0, abs=1e-9)
+        assert lipm.poly_eval(unit[axis], 1.0, 2) == pytest.approx(0.0, abs=1e-9)
+        assert lipm.poly_eval(unit[axis], 0.0, 1) / duration == pytest.approx(vel[axis], abs=1e-9)
+    assert np.all(path[:, 2] >= -1e-12)
+
+
+def test_the_approach_height_caps_the_bump():
+    """The bump holds the glide line up to landing_approach_height only: a swing that must still go far (here
+    15 cm) is not lifted to slope x distance, and a descending foot never rises above where it was; with the
+    controller's 1 cm it rises again by 1 mm at most on this swing (a 2 cm re-lift of a descending foot
+    once drove a knee at 15 rad/s: test_joint_velocity)."""
+    _, path, _ = _swing(0.6)
+    low = int(np.argmin(path[: len(path) // 2, 2]))
+    assert path[low:, 2].max() - path[low, 2] < 0.001
+    assert path[:, 2].max() <= path[0, 2] + 1e-12
+
+
+def test_a_swing_that_already_comes_down_steeply_is_left_alone():
+    """A swing that lands steeper than the slope keeps its quintic: the nominal stop's landing."""
+    pos, vel, acc = np.array([0.59, -0.095, 0.04]), np.array([0.05, 0.0, -0.1]), np.zeros(3)
+    for t in np.linspace(0.0, 0.4, 17):
+        np.testing.assert_allclose(landing_swing(pos, vel, acc, (0.6, -0.095), t, 0.4, LIFT, approach_slope=0.6,
+                                                 approach_height=HEIGHT),
+                                   landing_swing(pos, vel, acc, (0.6, -0.095), t, 0.4, LIFT), atol=1e-12)
+
+
+def test_a_plan_caches_its_swing_and_follows_the_slope(pattern):
+    plan = plan_stop(pattern, 3.3, StopParameters(landing_approach_slope=0.6))
+    times = np.arange(plan.start_time, plan.landing_time, DT)
+    feet = [plan.feet(float(t))[plan.landing_foot] for t in times]
+    assert plan._swing_cache is not None
+    again = [plan.feet(float(t))[plan.landing_foot] for t in times]
+    np.testing.assert_array_equal(feet, again)
+    s = (times - plan.start_time) / (plan.landing_time - plan.start_time)
+    distance = np.array([np.hypot(*(f[:2] - plan.landing_position)) for f in feet])
+    heights = np.array([f[2] for f in feet])
+    wanted = np.minimum(0.6 * distance, 0.01)
+    assert np.all(heights[s >= 0.5] >= wanted[s >= 0.5] - 3e-4)
+
+
+# the landing foot of the paper's stop at 3.1 s, 0.15 s before its touchdown: 6 cm from its landing point,
+# 1.07 m/s forward, braking at 9.1 m/s^2
+def _late_replan(limit):
+    base = plan_stop(NOMINAL, 3.1, StopParameters())
+    t = round((base.landing_time - 0.15) / DT) * DT
+    h = 1e-3
+    foot = [base.feet(t + d)[base.landing_foot] for d in (-h, 0.0, h)]
+    state = (foot[1], (foot[2] - foot[0]) / (2 * h), (foot[2] - 2 * foot[1] + foot[0]) / h**2)
+    params = StopParameters(max_swing_acceleration=limit)
+    plan = plan_stop(NOMINAL, 3.1, params)
+    pos, vel, _, _ = plan.com([t])
+    new = replan_stop(plan, t, pos[0], vel[0] + np.array([0.1, 0.0]))  # pushed forward 0.1 m/s
+    return t, state, plan, new, params
+
+
+def _peak_acceleration(state, target, duration):
+    unit = landing_swing_polynomials(*state, target, duration, LIFT)
+    s = np.linspace(0.0, 1.0, 401)
+    return float(np.max(np.hypot(lipm.poly_eval(unit[0], s, 2), lipm.poly_eval(unit[1], s, 2)))) / duration**2
+
+
+def test_swing_braking_time_is_the_soonest_landing_within_the_limit():
+    t, state, plan, _, params = _late_replan(10.0)
+    soonest = swing_braking_time(*state, plan.landing_position, params)
+    assert soonest > params.min_landing_time
+    assert _peak_acceleration(state, plan.landing_position, soonest) <= 10.0 + 1e-6
+    assert _peak_acceleration(state, plan.landing_position, soonest - DT) > 10.0
+    # no limit (the paper), or a limit under the ankle's present 9.1 m/s^2: min_landing_time
+    assert swing_braking_time(*state, plan.landing_position, StopParameters()) == StopParameters().min_landing_time
+    assert swing_braking_time(*state, plan.landing_position, StopParameters(max_swing_acceleration=8.0)) \
+        == pytest.approx(StopParameters().min_landing_time)
+
+
+def test_a_replanned_landing_waits_for_the_swing_to_brake():
+    """Pushed 0.15 s before the touchdown, the paper's re-plan lands 25 ms sooner; with a 10 m/s^2 limit the
+    landing is no sooner than the swing can brake to the plan's landing point."""
+    t, state, _, free, _ = _late_replan(math.inf)
+    assert free.landing_time - t == pytest.approx(0.125, abs=1e-9)
+    t, state, plan, limited, params = _late_replan(10.0)
+    soonest = swing_braking_time(*state, plan.landing_position, params)
+    assert limited.landing_time - t >= soonest - 1e-9
+    assert limited.landing_time > free.landing_time
+    assert abs(limited.com([limited.slowdown_end])[1][0][0]) < 1e-6  # it still stops (eq. 17)
+
+
+@pytest.mark.parametrize(("name", "value"), [
+    ("landing_approach_slope", -0.1), ("landing_approach_slope", math.nan), ("landing_approach_slope", math.inf),
+    ("landing_approach_slope", "0.6"), ("landing_approach_height", 0.0), ("landing_approach_height", -0.01),
+    ("landing_approach_height", math.nan), ("landing_approach_height", math.inf),
+    ("max_swing_acceleration", 0.0), ("max_swing_acceleration", -1.0), ("max_swing_acceleration", math.nan),
+    ("max_swing_acceleration", "15")])
+def test_bad_landing_settings_raise_naming_them(name, value):
+    with pytest.raises(ValueError, match=name):
+        StopParameters(**{name: value})
+
+
+def test_the_braked_landing_is_an_option_over_the_controllers_settings():
+    from dataclasses import replace
+
+    from drake_estop.physics.online import BRAKED_LANDING, controller_stop_parameters
+    default = controller_stop_parameters()
+    assert default.max_swing_acceleration == math.inf and default.landing_approach_slope == 0.0  # off by default
+    braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
+    assert braked.max_swing_acceleration == pytest.approx(15.0)
+    assert braked.landing_approach_slope == pytest.approx(0.6)
+    assert braked.zmp_margin == default.zmp_margin  # the controller's own settings stay
