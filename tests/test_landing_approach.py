@@ -85,6 +85,14 @@ def test_a_plan_caches_its_swing_and_follows_the_slope(pattern):
     assert plan._swing_cache is not None
     again = [plan.feet(float(t))[plan.landing_foot] for t in times]
     np.testing.assert_array_equal(feet, again)
+    # a new swing start is a new swing (the cache follows the values)
+    moved = dict(plan.swing_start, pos=plan.swing_start["pos"] + np.array([0.01, 0.0, 0.0]))
+    before = plan.feet(float(times[1]))[plan.landing_foot]
+    plan.swing_start = moved
+    assert plan.feet(float(times[1]))[plan.landing_foot][0] > before[0]
+    plan.swing_start = {key: value for key, value in moved.items()}
+    plan.swing_start["pos"] = moved["pos"] - np.array([0.01, 0.0, 0.0])
+    np.testing.assert_allclose(plan.feet(float(times[1]))[plan.landing_foot], before, atol=1e-12)
     s = (times - plan.start_time) / (plan.landing_time - plan.start_time)
     distance = np.array([np.hypot(*(f[:2] - plan.landing_position)) for f in feet])
     heights = np.array([f[2] for f in feet])

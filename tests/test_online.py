@@ -368,6 +368,27 @@ def _online_run_keywords(monkeypatch, args):
     return seen
 
 
+def test_the_braked_landing_settings_reach_the_online_run_as_options(monkeypatch):
+    """BRAKED_LANDING from the command line: the generated StopParameters options reach run_online's stop
+    parameters, over the controller's (its margin stays); without them the landing is the paper's."""
+    import drake_estop.physics.online as online
+
+    seen = []
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.append(stop)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    args = [f"--{name.replace('_', '-')}={value}" for name, value in online.BRAKED_LANDING.items()]
+    assert main(["simulate", "--physics", *args]) == 2
+    assert main(["simulate", "--physics"]) == 2
+    braked, default = seen
+    assert braked.max_swing_acceleration == 15.0 and braked.landing_approach_slope == 0.6
+    assert braked.zmp_margin == default.zmp_margin == pytest.approx(0.03)
+    assert default.max_swing_acceleration == math.inf and default.landing_approach_slope == 0.0
+
+
 @pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
 def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
     assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given

@@ -186,8 +186,10 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
 #: An option, off by default: StopParameters overrides for a braked landing. Re-planned landing swings brake
 #: at up to 15 m/s^2 and come down onto their landing point at a slope of 0.6 (up to 1 cm above the floor;
 #: StopParameters says why). ``run_online(stop_params=controller_stop_parameters(replace(StopParameters(),
-#: **BRAKED_LANDING)))``; ``benchmarks/robustness.py --stop-parameter``. Measured (README): the 0.5 m/s
-#: forward push early in single support passes, the 17 N s one there fails by 0.4 mm, 136/156 runs (137).
+#: **BRAKED_LANDING)))``; ``simulate --physics --max-swing-acceleration 15 --landing-approach-slope 0.6``;
+#: ``benchmarks/robustness.py --stop-parameter``. Measured (README): 0.5 m/s forward and backward passes at
+#: every phase benchmarked, but the 17 N s forward push early in single support fails by 0.4 mm; 136 of the
+#: 156 runs (137 by default).
 BRAKED_LANDING = {"max_swing_acceleration": 15.0, "landing_approach_slope": 0.6}
 
 #: The whole-body IK keeps the knees bent by at least this much [rad] (a leg-extension limit; the module

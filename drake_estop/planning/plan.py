@@ -136,11 +136,11 @@ class StopParameters:
     max_swing_descent_speed: float = 0.30
     # re-plans before the landing: the landing no sooner than the swing from the foot's state to the plan's
     # landing point can get there with at most this horizontal acceleration [m/s^2] (inf: no limit; the
-    # controller uses 15). The nominal swing peaks at 9.6. Measured on a 29 N s forward push at 2.95 s: a
-    # re-plan 0.175 s before the touchdown landed 50 ms sooner and 4 cm further, a swing braking the foot
-    # from 1 m/s at up to 27 m/s^2; the servo lagged, the foot struck the floor still moving at 0.8 m/s
-    # (2.4 kN) and the robot left the ground for 25 ms. Bounded by the foot's present acceleration, never
-    # below it (a swing cannot start slower than it is)
+    # braked-landing option, physics.online.BRAKED_LANDING, uses 15). The nominal swing peaks at 9.6.
+    # Measured on a 29 N s forward push at 2.95 s: a re-plan 0.175 s before the touchdown landed 50 ms
+    # sooner and 4 cm further, a swing braking the foot from 1 m/s at up to 27 m/s^2; the servo lagged, the
+    # foot struck the floor still moving at 0.8 m/s (2.4 kN) and the robot left the ground for 25 ms. An
+    # ankle already accelerating harder than this gets no limit (planner.swing_braking_time)
     max_swing_acceleration: float = math.inf
     # the landing foot comes down no flatter than this slope [m/m] towards its landing point over the
     # second half of the swing, up to landing_approach_height above the floor; 0: the quintic alone. A
@@ -383,9 +383,11 @@ class StopPlan:
 
     def _swing_polynomials(self) -> list:
         """:func:`landing_swing_polynomials` of this plan's landing swing, computed once (cached)."""
-        key = (id(self.swing_start), self.start_time, self.landing_time, id(self.landing_position))
+        s = self.swing_start  # the key holds the values (not the objects' ids, which a new object may reuse)
+        key = (self.start_time, self.landing_time, *np.ravel(self.landing_position), *np.ravel(s["pos"]),
+               *np.ravel(s["vel"]), *np.ravel(s["acc"]), s.get("clearance"), self.params.landing_approach_slope,
+               self.params.landing_approach_height, self.pattern.params.lift_height)
         if self._swing_cache is None or self._swing_cache[0] != key:
-            s = self.swing_start
             self._swing_cache = key, landing_swing_polynomials(
                 s["pos"], s["vel"], s["acc"], self.landing_position, self.landing_time - self.start_time,
                 self.pattern.params.lift_height, s.get("clearance"), self.params.landing_approach_slope,
@@ -541,7 +543,8 @@ def landing_swing_polynomials(pos, vel, acc, target_xy, duration, lift_height, c
     apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
     if clearance is not None:
         apex = max(apex, float(clearance) - max(lowest, 0.0))
-    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)  # the same bump as _BUMP, as before it
+    # _BUMP, written as before it existed: the default's foot targets stay the same to the last bit
+    unit[2] = lipm.pad(unit[2]) + 64.0 * apex * lipm.pad(lipm.BUMP_A)
     if approach_slope > 0:
         distance = np.hypot(lipm.poly_eval(unit[0], _APPROACH_GRID) - target[0],
                             lipm.poly_eval(unit[1], _APPROACH_GRID) - target[1])

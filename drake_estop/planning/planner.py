@@ -63,7 +63,7 @@ from drake_estop.planning.stop_condition import StopStart, slowdown_time, target
 __all__ = [  # the planner's interface, including the names other modules import from here
     "COMPILED", "PHASES", "InfeasibleStop", "PhaseSolution", "StopParameters", "StopPlan", "descent_time",
     "landing_swing", "one_step_feasible", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon",
-    "solve_continuous", "solve_phases", "stop_problem", "warm_up",
+    "solve_continuous", "solve_phases", "stop_problem", "swing_braking_time", "warm_up",
 ]
 
 
