@@ -120,10 +120,8 @@ def main(argv=None):
     jobs = [(t, {}) for t in sweep_times]
     jobs += [(t, options) for options in MATRIX_CELLS.values() for t in phase_times.values()]
     impulses = [10.0, 20.0, 30.0] if args.quick else [10.0, 15.0, 20.0, 25.0, 30.0, 35.0]
-    jobs += [(phase_times[p], {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
-             for p in PUSH_PHASES for d in DIRECTIONS.values() for i in impulses]
-    jobs += [(phase_times[p], {"push": (d[0] * TARGET_IMPULSE / PUSH_DURATION, d[1] * TARGET_IMPULSE / PUSH_DURATION)})
-             for p in PUSH_PHASES for d in DIRECTIONS.values()]
+    jobs += [(phase_times[p], _push(d, i)) for p in PUSH_PHASES for d in DIRECTIONS.values()
+             for i in [*impulses, TARGET_IMPULSE]]
     planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
     stop_overrides = {k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)}
     jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance,
@@ -147,6 +145,11 @@ def main(argv=None):
         text = text.replace("\n\n", f"\n\nPlant time step: {args.time_step * 1e3:g} ms.\n\n", 1)
     Path(args.out).write_text(text)
     print(Path(args.out).read_text())
+
+
+def _push(direction, impulse) -> dict:
+    """The perturbation options of a ``PUSH_DURATION`` push of ``impulse`` [N s] along ``direction``."""
+    return {"push": (direction[0] * impulse / PUSH_DURATION, direction[1] * impulse / PUSH_DURATION)}
 
 
 def _find(rows, t, options):
@@ -202,7 +205,7 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
         for d in DIRECTIONS.values():
             best = 0.0
             for i in impulses:
-                r = _find(rows, t, {"push": (d[0] * i / PUSH_DURATION, d[1] * i / PUSH_DURATION)})
+                r = _find(rows, t, _push(d, i))
                 if not r["success"]:
                     break
                 best = i
@@ -214,9 +217,7 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
               "| phase | " + " | ".join(DIRECTIONS) + " |", "| --- |" + " --- |" * len(DIRECTIONS)]
     for phase in PUSH_PHASES:
         t = phase_times[phase]
-        cells = [_cell(_find(rows, t, {"push": (d[0] * TARGET_IMPULSE / PUSH_DURATION,
-                                                d[1] * TARGET_IMPULSE / PUSH_DURATION)}))
-                 for d in DIRECTIONS.values()]
+        cells = [_cell(_find(rows, t, _push(d, TARGET_IMPULSE))) for d in DIRECTIONS.values()]
         lines.append(f"| {phase} ({t:.2f} s) | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
