@@ -35,14 +35,27 @@ class TickTimer:
             raise ValueError(f"servo_period must be positive, got {servo_period!r}")
         self._period = float(servo_period)
         self._totals = {clock: defaultdict(float) for clock in self.CLOCKS}
+        self._active = [False]  # a timed callback is running (nested ones are not added twice)
 
     def wrap(self, callback):
-        """``callback(context, *args)`` timed into the tick of ``context.get_time()``."""
+        """``callback(context, *args)`` timed into the tick of ``context.get_time()``.
+
+        Also for cache entries and output ports whose work is the controller's (the state
+        estimate): Drake computes those where first evaluated, which may be a logger's publish
+        outside every update. A wrapped callback run inside another one is counted once, in the
+        outer one."""
         wall_totals, cpu_totals = self._totals["wall"], self._totals["cpu"]
+        active = self._active
 
         def timed(context, *args):
+            if active[0]:  # inside another timed callback (a cache it evaluates): counted there
+                return callback(context, *args)
+            active[0] = True
             wall, cpu = time.perf_counter(), time.thread_time()
-            status = callback(context, *args)
+            try:
+                status = callback(context, *args)
+            finally:
+                active[0] = False
             cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
             tick = round(context.get_time() / self._period)
             wall_totals[tick] += wall

@@ -53,6 +53,29 @@ def test_tick_timer_cpu_clock_leaves_out_time_the_thread_did_not_run():
         TickTimer(0.0)
 
 
+def test_tick_timer_counts_a_timed_callback_run_inside_another_once():
+    """A timed cache computation evaluated inside a timed update adds to the tick once (in the outer
+    callback), and on its own when something untimed (a logger's publish) evaluates it first."""
+    import time
+
+    timer = TickTimer(0.005)
+    inner = timer.wrap(lambda context: time.sleep(0.01))
+    outer = timer.wrap(lambda context: inner(context))
+    outer(_Context(0.0))
+    inner(_Context(0.005))
+    wall = timer.per_tick(clock="wall")
+    assert len(wall) == 2
+    assert 0.01 <= wall[0] < 0.02  # once, not twice (two sleeps would be >= 0.02)
+    assert wall[1] >= 0.01
+
+    def failing(context):
+        raise RuntimeError("boom")
+    with pytest.raises(RuntimeError, match="boom"):
+        timer.wrap(failing)(_Context(0.010))
+    outer(_Context(0.015))  # the failure left the timer usable: this tick is counted
+    assert len(timer.per_tick()) == 3
+
+
 def test_frozen_heap_freezes_the_live_objects_for_the_block_and_unfreezes_after():
     assert gc.get_freeze_count() == 0
     kept = [np.zeros(3) for _ in range(10)]

@@ -511,7 +511,7 @@ class StateEstimator(LeafSystem):
         self._xd = self.DeclareDiscreteState(self.initial_state(initial_q))
         self._estimate = self.DeclareCacheEntry(
             "estimate", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_HEADER + self._nq + 6)),
-                                      calc=self._calc_estimate),
+                                      calc=timed(self._calc_estimate, timer)),
             {self.time_ticket(), self.all_input_ports_ticket(), self.xd_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._update, timer))
         ticket = {self._estimate.ticket()}
