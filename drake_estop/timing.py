@@ -36,6 +36,8 @@ class TickTimer:
         self._period = float(servo_period)
         self._totals = {clock: defaultdict(float) for clock in self.CLOCKS}
         self._active = [False]  # a timed callback is running (nested ones are not added twice)
+        self._excluded = [0.0, 0.0]  # wall, CPU [s] of excluded callbacks inside the running one
+        self._excluding = [False]  # an excluded callback is running
 
     def wrap(self, callback):
         """``callback(context, *args)`` timed into the tick of ``context.get_time()``.
@@ -45,23 +47,44 @@ class TickTimer:
         outside every update. A wrapped callback run inside another one is counted once, in the
         outer one."""
         wall_totals, cpu_totals = self._totals["wall"], self._totals["cpu"]
-        active = self._active
+        active, excluded = self._active, self._excluded
 
         def timed(context, *args):
             if active[0]:  # inside another timed callback (a cache it evaluates): counted there
                 return callback(context, *args)
-            active[0] = True
+            active[0], excluded[:] = True, [0.0, 0.0]
             wall, cpu = time.perf_counter(), time.thread_time()
             try:
                 status = callback(context, *args)
             finally:
                 active[0] = False
-            cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+            cpu = time.thread_time() - cpu - excluded[1]
+            wall = time.perf_counter() - wall - excluded[0]
             tick = round(context.get_time() / self._period)
             wall_totals[tick] += wall
             cpu_totals[tick] += cpu
             return status
         return timed
+
+    def exclude(self, callback):
+        """``callback`` with its time left out of the timed callback it runs inside: the simulated
+        robot's own work that a controller's evaluation pulls in (its sensors: contact forces
+        summed into the feet's force/torque readings, noise), which a real controller receives
+        instead of computing. Outside a timed callback it is simply called."""
+        active, excluded, excluding = self._active, self._excluded, self._excluding
+
+        def untimed(context, *args):
+            if not active[0] or excluding[0]:  # not timed, or already inside an excluded callback
+                return callback(context, *args)
+            excluding[0] = True
+            wall, cpu = time.perf_counter(), time.thread_time()
+            try:
+                return callback(context, *args)
+            finally:
+                excluding[0] = False
+                excluded[0] += time.perf_counter() - wall
+                excluded[1] += time.thread_time() - cpu
+        return untimed
 
     def _ticks(self, since: float, clock: str):
         """``(tick indices, compute times)`` of the ticks at or after ``since`` [s], by ``clock``."""
@@ -90,6 +113,11 @@ class TickTimer:
 def timed(callback, timer: TickTimer | None):
     """``callback`` wrapped by ``timer``, or unchanged without one."""
     return callback if timer is None else timer.wrap(callback)
+
+
+def untimed(callback, timer: TickTimer | None):
+    """``callback`` excluded from ``timer``'s ticks (:meth:`TickTimer.exclude`), or unchanged without one."""
+    return callback if timer is None else timer.exclude(callback)
 
 
 @contextmanager

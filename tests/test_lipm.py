@@ -136,6 +136,31 @@ def test_per_tick_evaluation_equals_vectorised_one_everywhere():
     assert step.evaluate([-0.1])[3][0] == pytest.approx(0.0) and step.evaluate([0.7])[3][0] == pytest.approx(0.1)
 
 
+def test_one_instant_evaluates_to_the_same_bits_as_the_array_path():
+    """``evaluate`` at one instant (every servo tick asks the pattern and the plan so) takes a plain-float
+    path; it must give the array path's results bit for bit (a different rounding would change every
+    physics run), in every segment, on the breaks and outside the chain; so must a plan's COG height."""
+    from drake_estop.physics.online import controller_stop_parameters
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.planning.planner import plan_stop
+
+    pattern = NominalPattern()
+    plan = plan_stop(pattern, 3.4, controller_stop_parameters())
+    rng = np.random.default_rng(0)
+    for traj in (*pattern.trajectories, plan.x, plan.y):
+        times = np.concatenate([traj.breaks, rng.uniform(traj.breaks[0] - 0.5, traj.breaks[-1] + 0.5, 400)])
+        many = traj.evaluate(times)
+        for i, t in enumerate(times):
+            for one, row in zip(traj.evaluate(t), many):
+                assert one.shape == (1,) and one[0] == row[i], (t, one[0] - row[i])
+            assert [v[0] for v in traj.evaluate([t])] == [v[i] for v in many]
+    times = np.linspace(3.2, plan.halt_end + 0.3, 300)
+    many = plan.com_height(times)
+    for i, t in enumerate(times):
+        assert [v[0] for v in plan.com_height([t])] == [v[i] for v in many], t
+    assert plan.com_height([plan.halt_end - 0.3])[1][0] != 0.0  # crouching: the test sees a moving height
+
+
 def test_poly_eval_past_the_degree_and_chain_bvp_defaults_to_rest():
     assert lipm.poly_eval([1.0, 2.0], np.array([0.1, 0.2]), 2).tolist() == [0.0, 0.0]
     w = lipm.omega(0.814)

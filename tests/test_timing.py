@@ -76,6 +76,29 @@ def test_tick_timer_counts_a_timed_callback_run_inside_another_once():
     assert len(timer.per_tick()) == 3
 
 
+def test_tick_timer_leaves_excluded_work_out_of_the_tick():
+    """The simulated sensors' work that a timed update pulls in is left out of the tick (wall and CPU),
+    once even when nested; outside a timed callback an excluded one simply runs."""
+    import time
+
+    timer = TickTimer(0.005)
+
+    def spin(seconds):
+        end = time.thread_time() + seconds
+        while time.thread_time() < end:
+            pass
+    sensors = timer.exclude(lambda context: spin(0.02))
+    nested = timer.exclude(lambda context: sensors(context))
+    update = timer.wrap(lambda context: (spin(0.005), nested(context)) and "status")
+    assert update(_Context(0.0)) == "status"
+    cpu, wall = timer.per_tick(clock="cpu"), timer.per_tick(clock="wall")
+    assert 0.004 <= cpu[0] < 0.015 and 0.004 <= wall[0] < 0.015  # the 5 ms update, not the 20 ms sensors
+    nested(_Context(0.005))  # alone: runs, adds no tick
+    assert len(timer.per_tick()) == 1
+    update(_Context(0.005))  # the exclusion of one tick does not carry into the next
+    assert 0.004 <= timer.per_tick(clock="cpu")[1] < 0.015
+
+
 def test_frozen_heap_freezes_the_live_objects_for_the_block_and_unfreezes_after():
     assert gc.get_freeze_count() == 0
     kept = [np.zeros(3) for _ in range(10)]

@@ -65,7 +65,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
 from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
-from drake_estop.timing import timed
+from drake_estop.timing import timed, untimed
 
 #: Noise standard deviations of ``--sensor-noise`` (issue 13).
 ENCODER_NOISE = 1e-3  # [rad]
@@ -222,7 +222,7 @@ class RobotSensors(LeafSystem):
         self.foot_ft_in_port = self.DeclareVectorInputPort("foot_ft_in", 12)
         self._sample = self.DeclareCacheEntry(
             "current sample", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(self._size)),
-                                            calc=self._calc_sample),
+                                            calc=untimed(self._calc_sample, timer)),
             {self.time_ticket(), self.all_input_ports_ticket()})
         if self._latency:
             self._buffer = self.DeclareDiscreteState(self._latency * self._size)

@@ -65,6 +65,24 @@ def poly_eval(coeffs: np.ndarray, tau, derivative: int = 0):
     return np.polynomial.polynomial.polyval(tau, c)
 
 
+_EXPONENTS = np.arange(N_COEFFS)
+
+
+def _sum(terms) -> float:
+    """``np.sum`` of a short row in numpy's own order (bit for bit): sequential from 0.0 below 8
+    terms, and 8 terms summed as a pairwise tree (numpy's unrolled pairwise summation)."""
+    terms = list(terms)
+    if len(terms) == 8:
+        a = terms
+        return ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
+    if len(terms) > 8:
+        return float(np.sum(terms))
+    total = 0.0
+    for term in terms:
+        total += term
+    return total
+
+
 def horner(terms, x: float) -> float:
     """``sum_i terms[i] x^i`` in numpy polyval's operation order, on plain floats."""
     value = terms[-1] + x * 0.0
@@ -211,6 +229,8 @@ class LipmTrajectory:
 
     def evaluate(self, t):
         """COG position, velocity, acceleration and ZMP at times ``t`` (eq. 4, 6, 9)."""
+        if np.ndim(t) == 0 or np.size(t) == 1:  # one instant (every servo tick asks): plain floats
+            return self._evaluate_one(float(np.asarray(t, dtype=float).reshape(-1)[0]))
         k, tau = self._locate(t)
         w = self.w
         ch, sh = np.cosh(w * tau), np.sinh(w * tau)
@@ -227,6 +247,30 @@ class LipmTrajectory:
         )
         zmp = np.sum(self.zmp[k] * powers, axis=1)
         return pos, vel, acc, zmp
+
+    def _evaluate_one(self, t: float):
+        """:meth:`evaluate` at one instant, in plain floats with numpy's operation order (the same
+        bits as the array path, without its array overhead); 1-element arrays."""
+        segments = self.__dict__.get("_segments")
+        if segments is None:  # per segment: break, V, W, the COG polynomial and the ZMP's, as lists
+            segments = self.__dict__["_segments"] = (
+                self.breaks.tolist(), self.cosh_coef.tolist(), self.sinh_coef.tolist(),
+                self.cog_poly.tolist(), self.zmp.tolist())
+        breaks, cosh_coef, sinh_coef, cog_poly, zmp = segments
+        k = min(max(bisect.bisect_right(breaks, t) - 1, 0), len(zmp) - 1)
+        tau = np.array([t - breaks[k]])
+        w = self.w
+        # numpy's cosh, sinh and power (its SIMD loops round differently from libm's)
+        ch, sh = np.cosh(w * tau).item(), np.sinh(w * tau).item()
+        powers = (tau ** _EXPONENTS).tolist()
+        poly = cog_poly[k]
+        big_v, big_w = cosh_coef[k], sinh_coef[k]
+        pos = big_v * ch + big_w * sh + _sum(c * p for c, p in zip(poly, powers))
+        vel = w * (big_v * sh + big_w * ch) + _sum(poly[i] * i * powers[i - 1] for i in range(1, N_COEFFS))
+        acc = w * w * (big_v * ch + big_w * sh) + _sum(
+            poly[i] * (i * (i - 1)) * powers[i - 2] for i in range(2, N_COEFFS))
+        zmp_value = _sum(c * p for c, p in zip(zmp[k], powers))
+        return np.array([pos]), np.array([vel]), np.array([acc]), np.array([zmp_value])
 
     def evaluate_at(self, t: float):
         """:meth:`evaluate` at one instant in plain floats (position, velocity,

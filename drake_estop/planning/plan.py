@@ -363,6 +363,13 @@ class StopPlan:
             return z0 + zeros, zeros, zeros.copy()
         start, end = self.crouch_window or (self.start_time, self.halt_end)
         duration = end - start
+        if times.shape == (1,):  # one instant (every servo tick): plain floats, the same bits
+            t = float(times[0])
+            s = min(max((t - start) / duration, 0.0), 1.0)
+            inside = 1.0 if start < t < end else 0.0
+            return (np.array([z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)]),
+                    np.array([-depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside]),
+                    np.array([-depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside]))
         s = np.clip((times - start) / duration, 0.0, 1.0)
         inside = (times > start) & (times < end)
         z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
