@@ -349,21 +349,13 @@ class PhysicsHandles:
 def plant_config(params: PhysicsParameters) -> MultibodyPlantConfig:
     """Drake's ``MultibodyPlantConfig`` of the humanoid's plant: ``params.time_step``, the
     contact model (``"point"`` or ``"hydroelastic_with_fallback"``) and SAP's lagged
-    discrete contact approximation (what the plant's implicit PD servos need).
-
-    The plant's output ports are not sampled (``use_sampled_output_ports=False``): Drake's default
-    keeps them in abstract state, refreshed by an *unrestricted* update every plant step, and
-    unrestricted updates are applied before the discrete ones. The controller's blocks (discrete
-    updates at the servo tick) then read the robot one plant step after the tick, while the stop
-    planner (the one unrestricted update, its plan being abstract state) read it at the tick, so
-    every tick's state estimate and contact sums were computed twice, from two different states.
-    Unsampled, every block of tick ``t`` reads the robot at ``t`` (sensors at the tick, the command
-    in force from the next plant step: one plant step of latency, as on a real servo loop) and the
-    estimate is computed once per tick."""
+    discrete contact approximation (what the plant's implicit PD servos need). Drake's default
+    sampled output ports: the plant's step is an unrestricted update, applied before the servo
+    tick's discrete updates, so those read the robot one plant step after the tick and their
+    command acts from that step on (no latency beyond the servo's own; ``--latency`` adds ticks)."""
     return MultibodyPlantConfig(
         time_step=params.time_step, discrete_contact_approximation="lagged",
-        contact_model="point" if params.contact == "point" else "hydroelastic_with_fallback",
-        use_sampled_output_ports=False)
+        contact_model="point" if params.contact == "point" else "hydroelastic_with_fallback")
 
 
 def add_physics_plant(builder, params: PhysicsParameters):
