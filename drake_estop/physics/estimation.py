@@ -380,19 +380,12 @@ class StateEstimator(LeafSystem):
         ``foot_window``). Footholds for the planner: where a foot actually
         landed.
 
-    Timing. The filter state is updated by a periodic event at every servo
-    tick. The outputs are computed (one cached evaluation) from the state of
-    the previous tick and the inputs at the context time, so a controller
-    that samples ``com`` in its own update at tick k gets the estimate that
-    includes the measurements of tick k, with no added tick of delay (the
-    only delay is RobotSensors' latency). The event is an unrestricted
-    update, like the stop planner's (its plan is abstract state): Drake
-    computes every unrestricted update of a tick from the same Context,
-    before the plant's step is applied, so the planner's measured COG and
-    the estimator's stored state are one evaluation of the same sensor
-    readings. (As a discrete update it ran after the plant's step, which
-    Drake's sampled plant outputs apply as an unrestricted update too: the
-    estimate was computed twice a tick, from two states 1 ms apart.)
+    Timing. The filter state is updated by a periodic discrete event at
+    every servo tick. The outputs are computed (one cached evaluation) from
+    the state of the previous tick and the inputs at the context time, so a
+    controller that samples ``com`` in its own discrete update at tick k
+    gets the estimate that includes the measurements of tick k, with no
+    added tick of delay (the only delay is RobotSensors' latency).
 
     Per tick (dt = time since the last update):
 
@@ -520,7 +513,7 @@ class StateEstimator(LeafSystem):
             "estimate", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(_HEADER + self._nq + 6)),
                                       calc=timed(self._calc_estimate, timer)),
             {self.time_ticket(), self.all_input_ports_ticket(), self.xd_ticket()})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, 0.0, timed(self._update, timer))
+        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._update, timer))
         ticket = {self._estimate.ticket()}
         out = _HEADER + self._nq
         self.q_port = self.DeclareVectorOutputPort(
@@ -595,9 +588,9 @@ class StateEstimator(LeafSystem):
 
     # ---------------------------------------------------------------- update
 
-    def _update(self, context, state):
+    def _update(self, context, discrete_state):
         x = self._estimate.Eval(context)
-        state.get_mutable_discrete_state(self._xd).SetFromVector(x)
+        discrete_state.get_mutable_vector(self._xd).SetFromVector(x)
         return EventStatus.Succeeded()
 
     def _calc_estimate(self, context, value):

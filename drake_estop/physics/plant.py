@@ -349,10 +349,18 @@ class PhysicsHandles:
 def plant_config(params: PhysicsParameters) -> MultibodyPlantConfig:
     """Drake's ``MultibodyPlantConfig`` of the humanoid's plant: ``params.time_step``, the
     contact model (``"point"`` or ``"hydroelastic_with_fallback"``) and SAP's lagged
-    discrete contact approximation (what the plant's implicit PD servos need). Drake's default
-    sampled output ports: the plant's step is an unrestricted update, applied before the servo
-    tick's discrete updates, so those read the robot one plant step after the tick and their
-    command acts from that step on (no latency beyond the servo's own; ``--latency`` adds ticks)."""
+    discrete contact approximation (what the plant's implicit PD servos need).
+
+    Drake's default sampled output ports: the plant's step is an unrestricted update, applied
+    before the servo tick's discrete updates, so those (estimator, IK, compliance, swing tilt)
+    read the robot one plant step after the tick and their command acts from that step on (no
+    latency; ``--latency`` adds ticks). The stop planner's update is unrestricted too (its plan
+    is abstract state): it reads the estimate of the robot at the tick, before the step, so the
+    estimate is computed twice a tick (both counted in the tick's compute time). Measured
+    (session 13, the robustness benchmark's 208 runs): unsampled outputs (every block reading
+    the robot at the tick: one estimate, but 1 ms from reading to command) passed 182 against
+    184, the estimator's update made unrestricted (one estimate, from the readings before the
+    step) 180; both lose the 17 N s right push at 2.95 s of the acceptance matrix."""
     return MultibodyPlantConfig(
         time_step=params.time_step, discrete_contact_approximation="lagged",
         contact_model="point" if params.contact == "point" else "hydroelastic_with_fallback")
