@@ -52,10 +52,10 @@ def _skew(w):
 
 def rotation_log(rot):
     """Rotation vector (axis * angle) of the 3x3 rotation matrix ``rot``."""
-    cos_angle = min(1.0, max(-1.0, 0.5 * (np.trace(rot) - 1.0)))
+    r = rot.tolist() if isinstance(rot, np.ndarray) else np.asarray(rot).tolist()  # plain floats: same bits, faster
+    cos_angle = min(1.0, max(-1.0, 0.5 * ((r[0][0] + r[1][1] + r[2][2]) - 1.0)))
     angle = math.acos(cos_angle)
-    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0],
-                     rot[1, 0] - rot[0, 1]])
+    axis = np.array([r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]])
     if angle < 1e-6:
         return 0.5 * axis
     if math.pi - angle > 1e-4:
@@ -64,6 +64,11 @@ def rotation_log(rot):
     k = int(np.argmax(np.diag(sym)))
     axis = sym[:, k] / math.sqrt(max(sym[k, k], 1e-12))
     return angle * axis / np.linalg.norm(axis)
+
+
+def _norm(v):
+    """``np.linalg.norm`` of a 1-D vector (its own formula, sqrt of the dot product) without its overhead."""
+    return math.sqrt(v.dot(v))
 
 
 def rotation_exp(w):
@@ -77,7 +82,7 @@ def rotation_exp(w):
 
 def quaternion_to_matrix(quat):
     """3x3 rotation of the (w, x, y, z) quaternion (normalised here)."""
-    w, x, y, z = quat / np.linalg.norm(quat)
+    w, x, y, z = (quat / np.linalg.norm(quat)).tolist()  # plain floats: the same bits, faster
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -265,14 +270,14 @@ class WholeBodyIkSolver:
                 p_t - pose.translation()])
             jac[rows] = plant.CalcJacobianSpatialVelocity(
                 context, kv, frame, np.zeros(3), world, world)
-            rot_err = max(rot_err, np.linalg.norm(e[rows][:3]))
-            pos_err = max(pos_err, np.linalg.norm(e[rows][3:]))
+            rot_err = max(rot_err, _norm(e[rows][:3]))
+            pos_err = max(pos_err, _norm(e[rows][3:]))
         rot_base = quaternion_to_matrix(q[self._base_q:self._base_q + 4])
         e[15:18] = rotation_log(rot_base_t @ rot_base.T)
         jac[15:18] = plant.CalcJacobianAngularVelocity(
             context, kv, self._base_frame, world, world)
-        return _Errors(e, jac[:, self._v_sel], np.linalg.norm(e[0:3]),
-                       pos_err, rot_err, np.linalg.norm(e[15:18]))
+        return _Errors(e, jac[:, self._v_sel], _norm(e[0:3]),
+                       pos_err, rot_err, _norm(e[15:18]))
 
     # -- stepping -----------------------------------------------------------
 
