@@ -170,7 +170,9 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
                      f"{_cell(r)} |")
     ticks = [r["tick_compute"] for r in rows if r.get("tick_compute", {}).get("median")]
     if ticks:
-        lines += ["", "Controller work per servo tick over all runs (median of the runs' medians / worst p99 / "
+        lines += ["", "Controller work per servo tick (the tick's two state estimates, the stop planner, the IK, "
+                  "the foot-edge compliance and the swing-tilt compensation; not the simulated sensors' "
+                  "readings) over all runs (median of the runs' medians / worst p99 / "
                   f"worst max), wall clock: {_tick_line(ticks)} (two runs share the two cores, and a run "
                   "preempted by another process counts the wait)."]
         cpu = [r["tick_compute_cpu"] for r in rows if r.get("tick_compute_cpu", {}).get("median")]
