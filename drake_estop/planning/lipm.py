@@ -69,14 +69,13 @@ _EXPONENTS = np.arange(N_COEFFS)
 
 
 def _sum(terms) -> float:
-    """``np.sum`` of a short row in numpy's own order (bit for bit): sequential from 0.0 below 8
-    terms, and 8 terms summed as a pairwise tree (numpy's unrolled pairwise summation)."""
+    """``np.sum`` of a row of at most ``N_COEFFS`` (8) terms in numpy's own order (bit for bit):
+    sequential from 0.0 below 8 terms, and 8 terms summed as a pairwise tree (numpy's unrolled
+    pairwise summation)."""
     terms = list(terms)
     if len(terms) == 8:
         a = terms
         return ((a[0] + a[1]) + (a[2] + a[3])) + ((a[4] + a[5]) + (a[6] + a[7]))
-    if len(terms) > 8:
-        return float(np.sum(terms))
     total = 0.0
     for term in terms:
         total += term
@@ -248,16 +247,26 @@ class LipmTrajectory:
         zmp = np.sum(self.zmp[k] * powers, axis=1)
         return pos, vel, acc, zmp
 
+    def _segments(self):
+        """Per segment, as plain-float lists: breaks, V, W, the COG polynomial and the ZMP's.
+        Made once per trajectory (a trajectory is not changed after it is built)."""
+        segments = self.__dict__.get("_segment_lists")
+        if segments is None:
+            segments = self.__dict__["_segment_lists"] = (
+                self.breaks.tolist(), self.cosh_coef.tolist(), self.sinh_coef.tolist(),
+                self.cog_poly.tolist(), self.zmp.tolist())
+        return segments
+
+    def _segment_at(self, t: float) -> int:
+        """Index of the segment that holds ``t`` (the first / last outside the chain; a break
+        belongs to the later segment)."""
+        return min(max(bisect.bisect_right(self._segments()[0], t) - 1, 0), len(self.zmp) - 1)
+
     def _evaluate_one(self, t: float):
         """:meth:`evaluate` at one instant, in plain floats with numpy's operation order (the same
         bits as the array path, without its array overhead); 1-element arrays."""
-        segments = self.__dict__.get("_segments")
-        if segments is None:  # per segment: break, V, W, the COG polynomial and the ZMP's, as lists
-            segments = self.__dict__["_segments"] = (
-                self.breaks.tolist(), self.cosh_coef.tolist(), self.sinh_coef.tolist(),
-                self.cog_poly.tolist(), self.zmp.tolist())
-        breaks, cosh_coef, sinh_coef, cog_poly, zmp = segments
-        k = min(max(bisect.bisect_right(breaks, t) - 1, 0), len(zmp) - 1)
+        breaks, cosh_coef, sinh_coef, cog_poly, zmp = self._segments()
+        k = self._segment_at(t)
         tau = np.array([t - breaks[k]])
         w = self.w
         # numpy's cosh, sinh and power (its SIMD loops round differently from libm's)
@@ -275,14 +284,15 @@ class LipmTrajectory:
     def evaluate_at(self, t: float):
         """:meth:`evaluate` at one instant in plain floats (position, velocity,
         acceleration, ZMP, ZMP rate, ZMP acceleration), for per-tick callers."""
-        k = min(max(bisect.bisect_right(self.breaks.tolist(), t) - 1, 0), len(self.zmp) - 1)
-        tau = t - float(self.breaks[k])
+        breaks, cosh_coef, sinh_coef, cog_poly, zmp = self._segments()
+        k = self._segment_at(t)
+        tau = t - breaks[k]
         w = self.w
         ch, sh = math.cosh(w * tau), math.sinh(w * tau)
-        cosh_part, sinh_part = float(self.cosh_coef[k]), float(self.sinh_coef[k])
-        poly = self.cog_poly[k].tolist()
+        cosh_part, sinh_part = cosh_coef[k], sinh_coef[k]
+        poly = cog_poly[k]
         rate = _derivative(poly)
-        zmp = self.zmp[k].tolist()
+        zmp = zmp[k]
         zmp_rate = _derivative(zmp)
         return (cosh_part * ch + sinh_part * sh + horner(poly, tau),
                 w * (cosh_part * sh + sinh_part * ch) + horner(rate, tau),

@@ -367,15 +367,13 @@ class StopPlan:
             t = float(times[0])
             s = min(max((t - start) / duration, 0.0), 1.0)
             inside = 1.0 if start < t < end else 0.0
-            return (np.array([z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)]),
-                    np.array([-depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside]),
-                    np.array([-depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside]))
-        s = np.clip((times - start) / duration, 0.0, 1.0)
-        inside = (times > start) & (times < end)
+        else:
+            s = np.clip((times - start) / duration, 0.0, 1.0)
+            inside = (times > start) & (times < end)
         z = z0 - depth * lipm.poly_eval(lipm.SMOOTHSTEP, s)
         zd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 1) / duration * inside
         zdd = -depth * lipm.poly_eval(lipm.SMOOTHSTEP, s, 2) / duration**2 * inside
-        return z, zd, zdd
+        return np.atleast_1d(z), np.atleast_1d(zd), np.atleast_1d(zdd)
 
     def feet(self, t: float):
         """Ankle (x, y, lift) of each foot at ``t``."""
@@ -529,8 +527,9 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clea
     return np.array([float(lipm.poly_eval(u, s)) for u in unit])
 
 
-_SWING_GRID = np.linspace(0, 1, 41)
-_APPROACH_GRID = _SWING_GRID[20:-1]  # the second half, touchdown left out (there both sides are 0)
+#: normalised swing time on which the landing swing is checked (its lowest point, the braking limit)
+SWING_GRID = np.linspace(0, 1, 41)
+_APPROACH_GRID = SWING_GRID[20:-1]  # the second half, touchdown left out (there both sides are 0)
 _BUMP = 64.0 * lipm.pad(lipm.BUMP_A)  # s^3 (1 - s)^3, 1 at s = 1/2
 _BUMP_ON_APPROACH = lipm.poly_eval(_BUMP, _APPROACH_GRID)
 
@@ -545,7 +544,7 @@ def landing_swing_polynomials(pos, vel, acc, target_xy, duration, lift_height, c
         + vel[i] * duration * lipm.HERMITE_D1 + acc[i] * duration**2 * lipm.HERMITE_D2
         for i in range(3)
     ]
-    lowest = float(np.min(lipm.poly_eval(unit[2], _SWING_GRID)))
+    lowest = float(np.min(lipm.poly_eval(unit[2], SWING_GRID)))
     leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
     apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)
     if clearance is not None:

@@ -48,6 +48,7 @@ from drake_estop.planning.halt import choose_halt
 from drake_estop.planning.heading import solve_turned
 from drake_estop.planning.plan import (
     PHASES,
+    SWING_GRID,
     InfeasibleStop,
     PhaseSolution,
     StopParameters,
@@ -873,7 +874,7 @@ def swing_braking_time(pos, vel, acc, target_xy, params: StopParameters) -> floa
     limit = params.max_swing_acceleration
     # ankle acceleration of the Hermite at s on the grid, for every duration T (eq. of landing_swing):
     # (S''(s) D + H1''(s) v T + H2''(s) a T^2) / T^2
-    terms = [lipm.poly_eval(c, _BRAKING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
+    terms = _BRAKING_TERMS
     T = durations[:, None, None]
     swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel * T
              + terms[2][None, :, None] * acc * T**2) / T**2
@@ -882,7 +883,8 @@ def swing_braking_time(pos, vel, acc, target_xy, params: StopParameters) -> floa
     return float(durations[within[0]]) if len(within) else params.min_landing_time
 
 
-_BRAKING_GRID = np.linspace(0.0, 1.0, 41)
+#: second derivatives of the landing swing's Hermite terms on its check grid (position, velocity, acceleration)
+_BRAKING_TERMS = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
 
 
 def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,

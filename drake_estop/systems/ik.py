@@ -52,7 +52,7 @@ def _skew(w):
 
 def rotation_log(rot):
     """Rotation vector (axis * angle) of the 3x3 rotation matrix ``rot``."""
-    r = rot.tolist() if isinstance(rot, np.ndarray) else np.asarray(rot).tolist()  # plain floats: same bits, faster
+    r = np.asarray(rot).tolist()  # plain floats: the same bits, faster
     cos_angle = min(1.0, max(-1.0, 0.5 * ((r[0][0] + r[1][1] + r[2][2]) - 1.0)))
     angle = math.acos(cos_angle)
     axis = np.array([r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]])
