@@ -51,6 +51,11 @@ from drake_estop.timing import timed
 #: benchmark stood on feet 5-20 mm from the plan's, with the CoP inside the measured soles.
 FOOTHOLD_TOLERANCE = 0.005
 
+#: Stages of a sole in the stop (``StopPlannerSystem``'s re-landing tracking): where the plan has it in
+#: the air; standing (loaded ``foothold_ticks`` ticks where the plan has it down); lifted off the floor
+#: (unloaded) while the plan still has it down.
+_AWAY, _STANDING, _LIFTED = 0.0, 1.0, 2.0
+
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
                     ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
@@ -566,7 +571,8 @@ class StopPlannerSystem(_ReferenceSystem):
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
-                 foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True, timer=None):
+                 foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
+                 relanded_footholds: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -580,6 +586,7 @@ class StopPlannerSystem(_ReferenceSystem):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
+        self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
         self._recovery_step = bool(recovery_step)
         self._pattern = pattern
@@ -604,6 +611,8 @@ class StopPlannerSystem(_ReferenceSystem):
         self._bias_state = self.DeclareDiscreteState(4)
         self._filtered_state = self.DeclareDiscreteState(4)
         self._filter_started = self.DeclareDiscreteState(1)
+        # per sole (SIDES order): _AWAY, _STANDING or _LIFTED since the latch (_relanded)
+        self._sole_stages = self.DeclareDiscreteState(2)
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
@@ -682,7 +691,8 @@ class StopPlannerSystem(_ReferenceSystem):
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
         measured = self._filter(context, state, track_bias=not latched)
         if handle.plan is not None:
-            self._maybe_replan(context, state, handle, measured)
+            relanded = self._relanded(context, state, handle.plan)
+            self._maybe_replan(context, state, handle, measured, relanded)
             return EventStatus.Succeeded()
         if not latched:
             t = context.get_time()
@@ -741,14 +751,55 @@ class StopPlannerSystem(_ReferenceSystem):
         omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
         return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)))
 
-    def _maybe_replan(self, context, state, handle, measured):
+    def _relanded(self, context, state, plan):
+        """``{side: xy}``: the soles that landed again on this tick, off the plan's foothold.
+
+        A sole re-lands when it stood on the floor after the latch (loaded
+        ``foothold_ticks`` ticks where the plan has it down), lost contact
+        (unloaded) and has been loaded ``foothold_ticks`` ticks again, the
+        plan still having it down: the robot bounced off a hard touchdown, or
+        rolled off that sole, and came back elsewhere. Only soles more than
+        ``foothold_tolerance`` from the plan's foothold (the estimate is good
+        to 3 mm) are returned, with their estimated position. The stages live
+        in the discrete state (updated into ``state``); empty without
+        ``measured_feet`` or with ``relanded_footholds=False``.
+        """
+        if self._relanded_tolerance is None or not self.measured_feet_port.HasValue(context):
+            return {}
+        feet = self.measured_feet_port.Eval(context)
+        if not np.all(np.isfinite(feet)):
+            return {}
+        t = context.get_time()
+        stages = context.get_discrete_state(self._sole_stages).value().copy()
+        planned = plan.feet(t)
+        relanded = {}
+        for k, side in enumerate(SIDES):
+            loaded = feet[4 + k] >= self._foothold_ticks
+            if planned[side][2] > 1e-9:
+                stages[k] = _AWAY
+            elif stages[k] == _AWAY and loaded:
+                stages[k] = _STANDING
+            elif stages[k] == _STANDING and feet[4 + k] == 0.0:
+                stages[k] = _LIFTED
+            elif stages[k] == _LIFTED and loaded:
+                stages[k] = _STANDING
+                xy = feet[2 * k:2 * k + 2].copy()
+                if np.hypot(*(xy - planned[side][:2])) > self._relanded_tolerance:
+                    relanded[side] = xy
+        state.get_mutable_discrete_state(self._sole_stages).set_value(stages)
+        return relanded
+
+    def _maybe_replan(self, context, state, handle, measured, relanded=None):
         if measured is None:
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
-        if t - handle.last_try < self._replan_interval - 1e-9:
-            return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
+        # a sole re-landed off its foothold after the landing re-plans at once (no interval: the
+        # sole's new place is a fact, not a deviation that a blend may still remove)
+        relanded = relanded if landed else None
+        if not relanded and t - handle.last_try < self._replan_interval - 1e-9:
+            return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         threshold = self._landed_threshold if landed else self._replan_threshold
         deviated = self._deviation(plan, t, measured) > threshold
         # the measured feet: for a re-plan after the landing, and (option) to see whether they left the plan's
@@ -758,7 +809,9 @@ class StopPlannerSystem(_ReferenceSystem):
         feet = self._footholds(context, landing) if wanted else None
         if feet is None:
             landing = None
-        if not deviated and not self._feet_moved(plan, t, feet):
+        if relanded:  # the re-landed soles where they are; the other from the footholds, or the plan's
+            feet = {**(feet or {}), **relanded}
+        elif not deviated and not self._feet_moved(plan, t, feet):
             return EventStatus.DidNothing()
         start = time.perf_counter()
         try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
