@@ -11,11 +11,11 @@ DT = 0.005
 
 
 def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
-    """A StopPlannerSystem (no input filtering, re-plans up to every tick, ``kwargs``) whose stop latched at
+    """A StopPlannerSystem (no input filtering, re-plans up to every tick; ``kwargs`` override) whose stop latched at
     ``t0`` from the reference, then without a measurement (NaN: no re-plan). Returns the planner, its
     context, the simulator and the first plan."""
-    planner = StopPlannerSystem(pattern=pattern, params=params, filter_time_constant=1e-6, replan_interval=DT,
-                                **kwargs)
+    kwargs = {"filter_time_constant": 1e-6, "replan_interval": DT, **kwargs}
+    planner = StopPlannerSystem(pattern=pattern, params=params, **kwargs)
     context = planner.CreateDefaultContext()
     pos, vel, _, _ = pattern.com([t0])
     planner.stop_port.FixValue(context, [1.0, t0])

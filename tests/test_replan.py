@@ -557,3 +557,82 @@ def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs)
     assert planner.plan(context) is first
 
 
+
+
+def _relanding(pattern, params, shift, **kwargs):
+    """StopPlannerSystem alone: the stop latched at 3.4 s; from 20 ms after the landing the measured COG is
+    the plan's (the DCM on the plan) and both soles stand where the plan has them (loaded 40 ticks); then
+    the left sole is unloaded for 4 ticks (the robot bounced) and loaded again moved by ``shift`` (dx, dy),
+    for 1 tick, then 2. Returns the planner, its context, the first plan, the moved sole's position and the
+    tick of its second loaded tick (``foothold_ticks``)."""
+    planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
+    t = round((first.landing_time + 0.02) / DT) * DT
+    simulator.AdvanceTo(t - DT / 2)
+    pos, vel, _ = _state_at(first, t)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    feet = {side: first.final_feet[side][:2] for side in ("left", "right")}
+    moved = feet["left"] + np.asarray(shift)
+    steps = [(feet["left"], 40.0)] * 2 + [(feet["left"], 0.0)] * 4 + [(moved, 1.0), (moved, 2.0)]
+    for k, (left, ticks) in enumerate(steps):
+        planner.measured_feet_port.FixValue(context, [*left, *feet["right"], ticks, 40.0])
+        simulator.AdvanceTo(t + k * DT + DT / 2)
+        if k < len(steps) - 1:
+            assert planner.replans(context) == (0, 0), f"re-planned on step {k}"
+    return planner, context, first, moved, t + (len(steps) - 1) * DT
+
+
+def test_a_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands(pattern, params):
+    """A sole that stood, lost contact (a bounce) and landed again 1 cm away re-plans the stop on its new
+    foothold on its second loaded tick, with the DCM on the plan and within the re-plan interval: the other
+    sole keeps the plan's foothold."""
+    planner, context, first, moved, t = _relanding(pattern, params, (-0.01, 0.0), replan_interval=0.05)
+    assert planner.replans(context) == (1, 0)
+    new = planner.plan(context)
+    assert new.start_time == pytest.approx(t) and new.recovery_step is False
+    np.testing.assert_allclose(new.final_feet["left"][:2], moved, atol=1e-12)
+    np.testing.assert_allclose(new.final_feet["right"], first.final_feet["right"], atol=1e-12)
+    # a second bounce 15 ms later, landing another centimetre back: re-planned at once again, within the
+    # 50 ms re-plan interval (the sole's new place is a fact, not a deviation for the blend to remove)
+    simulator = Simulator(planner, context)
+    again = moved + np.array([-0.01, 0.0])
+    for k, (left, ticks) in enumerate([(moved, 0.0), (again, 1.0), (again, 2.0)], start=1):
+        planner.measured_feet_port.FixValue(context, [*left, *first.final_feet["right"][:2], ticks, 40.0])
+        simulator.AdvanceTo(t + k * DT + DT / 2)
+    assert planner.replans(context) == (2, 0)
+    np.testing.assert_allclose(planner.plan(context).final_feet["left"][:2], again, atol=1e-12)
+
+
+@pytest.mark.parametrize("shift, kwargs", [
+    ((-0.003, 0.0), {}),  # re-landed within the 5 mm tolerance
+    ((-0.01, 0.0), {"relanded_footholds": False}),
+    ((-0.01, 0.0), {"foothold_tolerance": 0.02}),
+])
+def test_a_sole_that_relands_on_its_foothold_keeps_the_plan(pattern, params, shift, kwargs):
+    planner, context, first, _, _ = _relanding(pattern, params, shift, **kwargs)
+    assert planner.replans(context) == (0, 0)
+    assert planner.plan(context) is first
+
+
+@pytest.mark.parametrize("scuff_ticks", [0, 3])
+def test_the_landing_itself_is_not_a_relanding(pattern, params, scuff_ticks):
+    """The landing sole's touchdown 1 cm off its target does not re-plan with the DCM on the plan (that is
+    the foothold re-plan's option, off by default), also when the swinging sole scuffed the floor (loaded
+    ``scuff_ticks`` ticks where the plan has it in the air) before."""
+    planner, context, simulator, first = latched_stop_planner(pattern, params)
+    swing = first.landing_foot
+    k_swing = ("left", "right").index(swing)
+    feet = {side: first.final_feet[side][:2].copy() for side in ("left", "right")}
+    landed = dict(feet, **{swing: feet[swing] + np.array([-0.01, 0.0])})
+    ticks = [40.0, 40.0]
+    for k in range(1, round((first.landing_time + 0.1 - 3.4) / DT)):
+        t = 3.4 + k * DT
+        pos, vel, _ = _state_at(first, t)
+        planner.measured_com_port.FixValue(context, [*pos, 0.8])
+        planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+        airborne = first.feet(t)[swing][2] > 1e-9
+        ticks[k_swing] = float(k) if k <= scuff_ticks else 0.0 if airborne else min(40.0, ticks[k_swing] + 1.0)
+        sole = landed if t >= first.landing_time else first.feet(t)
+        planner.measured_feet_port.FixValue(context, [*sole["left"][:2], *sole["right"][:2], *ticks])
+        simulator.AdvanceTo(t + DT / 2)
+    assert planner.replans(context) == (0, 0)
