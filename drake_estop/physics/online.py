@@ -183,13 +183,13 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
                                             max_landing_shift_per_height=10.0)
 
 
-#: The controller's braked landing (on by default since session 14; ``braked_landing=False`` in
-#: :func:`controller_stop_parameters`, ``simulate --physics --no-braked-landing``, for comparison): re-planned
-#: landing swings brake at up to 15 m/s^2 and come down onto their landing point at a slope of 0.6 (up to
-#: 1 cm above the floor; StopParameters says why). Measured (README, benchmarks/ROBUSTNESS.md): with the
-#: re-landed footholds (StopPlannerSystem's ``relanded_footholds``) 0.5 m/s forward and backward passes at
-#: every phase benchmarked, the matrix 44/44 and the stride sweep 40/40; alone (session 12) the 17 N s
-#: forward push early in single support failed by 0.4 mm.
+#: An option, off by default: StopParameters overrides for a braked landing. Re-planned landing swings brake
+#: at up to 15 m/s^2 and come down onto their landing point at a slope of 0.6 (up to 1 cm above the floor;
+#: StopParameters says why). ``run_online(stop_params=controller_stop_parameters(replace(StopParameters(),
+#: **BRAKED_LANDING)))``; ``simulate --physics --max-swing-acceleration 15 --landing-approach-slope 0.6``;
+#: ``benchmarks/robustness.py --stop-parameter``. Measured (README): 0.5 m/s forward and backward passes at
+#: every phase benchmarked, but the 17 N s forward push early in single support fails by 0.4 mm; 136 of the
+#: 156 runs (137 by default).
 BRAKED_LANDING = {"max_swing_acceleration": 15.0, "landing_approach_slope": 0.6}
 
 #: The whole-body IK keeps the knees bent by at least this much [rad] (a leg-extension limit; the module
@@ -209,23 +209,17 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
 
 
-def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True) -> StopParameters:
+def controller_stop_parameters(params: StopParameters | None = None) -> StopParameters:
     """``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
-    landing and landing-shift limit (:data:`CONTROLLER_STOP_PARAMETERS`), and with ``braked_landing`` the
-    braked landing's swing limits (:data:`BRAKED_LANDING`); a larger margin, a later landing, a tighter
-    shift or swing-acceleration limit or a steeper approach in ``params`` is kept."""
+    landing and landing-shift limit (:data:`CONTROLLER_STOP_PARAMETERS`; a larger margin, a later landing
+    or a tighter shift limit in ``params`` is kept)."""
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
-    params = replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
-                     halt_durations=controller.halt_durations,
-                     max_early_landing=min(base.max_early_landing, controller.max_early_landing),
-                     max_landing_shift_per_height=min(base.max_landing_shift_per_height,
-                                                      controller.max_landing_shift_per_height))
-    if not braked_landing:
-        return params
-    return replace(params,
-                   max_swing_acceleration=min(base.max_swing_acceleration, BRAKED_LANDING["max_swing_acceleration"]),
-                   landing_approach_slope=max(base.landing_approach_slope, BRAKED_LANDING["landing_approach_slope"]))
+    return replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
+                   halt_durations=controller.halt_durations,
+                   max_early_landing=min(base.max_early_landing, controller.max_early_landing),
+                   max_landing_shift_per_height=min(base.max_landing_shift_per_height,
+                                                    controller.max_landing_shift_per_height))
 
 
 @dataclass

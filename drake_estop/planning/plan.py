@@ -136,7 +136,7 @@ class StopParameters:
     max_swing_descent_speed: float = 0.30
     # re-plans before the landing: the landing no sooner than the swing from the foot's state to the plan's
     # landing point can get there with at most this horizontal acceleration [m/s^2] (inf: no limit; the
-    # physics controller's braked landing, physics.online.BRAKED_LANDING, uses 15). The nominal swing peaks at 9.6.
+    # braked-landing option, physics.online.BRAKED_LANDING, uses 15). The nominal swing peaks at 9.6.
     # Measured on a 29 N s forward push at 2.95 s: a re-plan 0.175 s before the touchdown landed 50 ms
     # sooner and 4 cm further, a swing braking the foot from 1 m/s at up to 27 m/s^2; the servo lagged, the
     # foot struck the floor still moving at 0.8 m/s (2.4 kN) and the robot left the ground for 25 ms. An
