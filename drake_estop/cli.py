@@ -174,6 +174,10 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.measured_footholds,
                    help="with --physics: re-plan after the landing on the plan's feet instead of the "
                         "estimated footholds (for comparison)")
+    d.add_argument("--no-relanded-footholds", dest="relanded_footholds", action="store_false",
+                   default=scenario.relanded_footholds,
+                   help="with --physics: no re-plan for a sole that lost contact after the landing and landed "
+                        "again off the plan's foothold (for comparison)")
     d.add_argument("--no-recovery-step", dest="recovery_step", action="store_false",
                    default=scenario.recovery_step,
                    help="with --physics: no recovery step out of a double-support stop that cannot hold "
@@ -233,7 +237,7 @@ def _effective_scenario(args, gait, stop) -> Scenario:
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
                    measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
-                   foothold_replan=args.foothold_replan,
+                   relanded_footholds=args.relanded_footholds, foothold_replan=args.foothold_replan,
                    perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
 
@@ -243,6 +247,7 @@ def _online_only_options(args, perturbations) -> list:
     given = (("perturbations", perturbations != Perturbations()), ("--true-state", args.true_state),
              ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
              ("--no-measured-footholds", not args.measured_footholds),
+             ("--no-relanded-footholds", not args.relanded_footholds),
              ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan))
     return [name for name, on in given if on]
 
@@ -328,7 +333,8 @@ def _fit(values, n):
 
 def _planner_options(args) -> dict | None:
     """The online controller's StopPlannerSystem options the command line changed (None: the defaults)."""
-    options = {name: False for name in ("measured_footholds", "recovery_step") if not getattr(args, name)}
+    options = {name: False for name in ("measured_footholds", "relanded_footholds", "recovery_step")
+               if not getattr(args, name)}
     if args.foothold_replan:
         options["foothold_replan"] = True
     return options or None

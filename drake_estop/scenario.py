@@ -76,6 +76,9 @@ class Scenario:
     recovery_step : bool
         Physics, online controller only: a re-plan after the landing that finds no double-support stop
         steps the rear foot forward (default on; off keeps the plan, for comparison).
+    relanded_footholds : bool
+        Physics, online controller only: a sole that lost contact after the landing and landed again off the
+        plan's foothold re-plans the stop where it stands (default on; off for comparison).
     foothold_replan : bool
         Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
         stop on the measured feet (default off: net neutral on the campaign; on for comparison).
@@ -98,6 +101,7 @@ class Scenario:
     swing_tilt: bool = True
     measured_footholds: bool = True
     recovery_step: bool = True
+    relanded_footholds: bool = True
     foothold_replan: bool = False
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)

@@ -362,6 +362,26 @@ def test_a_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_si
     assert hurried.online["replans"] > stopped.online["replans"]
 
 
+def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands():
+    """17 N s forward at 2.95 s (a matrix cell) with the braked-landing option: in the halt the robot rocks
+    onto the fore foot, the rear sole leaves the floor for 35 ms and comes down 6 mm behind its foothold;
+    the CoP then runs to the rear heel, inside the measured sole but 0.4 mm outside the plan's without the
+    re-landed footholds. With them (the default) the stop is re-planned where the sole stands."""
+    from drake_estop.physics.online import BRAKED_LANDING
+    from drake_estop.planning.planner import StopParameters
+
+    pattern = NominalPattern()
+    pushes = Perturbations(pushes=(Push(2.95, 170.0, 0.0, 0.1),))
+    braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
+    stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked)
+    assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
+    on_the_plan = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
+                             planner_options={"relanded_footholds": False})
+    assert not on_the_plan.criteria["cop_in_support"]
+    assert np.nanmin(on_the_plan.cop_margin_plan[1:]) > -0.002  # a near miss, not a fall
+    assert stopped.online["replans"] > on_the_plan.online["replans"]
+
+
 # -- command line ----------------------------------------------------------------------------------
 
 
@@ -440,7 +460,8 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
 
 
 #: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
-PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step"}
+PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
+                 "--no-relanded-footholds": "relanded_footholds"}
 
 
 @pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
