@@ -636,3 +636,35 @@ def test_the_landing_itself_is_not_a_relanding(pattern, params, scuff_ticks):
         planner.measured_feet_port.FixValue(context, [*sole["left"][:2], *sole["right"][:2], *ticks])
         simulator.AdvanceTo(t + DT / 2)
     assert planner.replans(context) == (0, 0)
+
+
+def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(pattern, params):
+    """The support sole re-lands 1 cm back in the last ``min_landing_time`` before the touchdown, where no
+    re-plan can move the landing and the double-support stop has not begun: the re-landing is kept and the
+    stop is re-planned on it at the touchdown's tick."""
+    planner, context, simulator, first = latched_stop_planner(pattern, params)
+    swing = first.landing_foot
+    stance = next(side for side in ("left", "right") if side != swing)
+    k_stance = ("left", "right").index(stance)
+    home = first.final_feet[stance][:2].copy()
+    moved = home + np.array([-0.01, 0.0])
+    landing_tick = round(first.landing_time / DT)
+    start = landing_tick - round(0.5 * params.min_landing_time / DT) - 4
+    stance_ticks = [40.0, 40.0, 0.0, 0.0] + [float(n) for n in range(1, 30)]
+    for k, loaded in enumerate(stance_ticks[:landing_tick - start + 2]):
+        t = (start + k) * DT
+        pos, vel, _ = _state_at(first, t)
+        planner.measured_com_port.FixValue(context, [*pos, 0.8])
+        planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+        ticks = [0.0, 0.0]
+        ticks[k_stance] = loaded
+        ticks[1 - k_stance] = 0.0 if t < first.landing_time - 1e-9 else 40.0
+        sole = {stance: home if k < 4 else moved, swing: first.final_feet[swing][:2]}
+        planner.measured_feet_port.FixValue(context, [*sole["left"], *sole["right"], *ticks])
+        simulator.AdvanceTo(t + DT / 2)
+        if t < first.landing_time - 1e-9:
+            assert planner.replans(context) == (0, 0), f"re-planned at {t:.3f} s, before the touchdown"
+    assert planner.replans(context) == (1, 0)
+    new = planner.plan(context)
+    assert new.start_time == pytest.approx(landing_tick * DT)
+    np.testing.assert_allclose(new.final_feet[stance][:2], moved, atol=1e-12)

@@ -53,8 +53,9 @@ FOOTHOLD_TOLERANCE = 0.005
 
 #: Stages of a sole in the stop (``StopPlannerSystem``'s re-landing tracking): where the plan has it in
 #: the air; standing (loaded ``foothold_ticks`` ticks where the plan has it down); lifted off the floor
-#: (unloaded) while the plan still has it down.
-_AWAY, _STANDING, _LIFTED = 0.0, 1.0, 2.0
+#: (unloaded) while the plan still has it down; landed again off the plan's foothold, until a re-plan
+#: stands on it.
+_AWAY, _STANDING, _LIFTED, _RELANDED = 0.0, 1.0, 2.0, 3.0
 
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
@@ -706,8 +707,8 @@ class StopPlannerSystem(_ReferenceSystem):
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
         measured = self._filter(context, state, track_bias=not latched)
         if handle.plan is not None:
-            relanded = self._relanded(context, state, handle.plan)
-            self._maybe_replan(context, state, handle, measured, relanded)
+            relanded, fresh = self._relanded(context, state, handle.plan)
+            self._maybe_replan(context, state, handle, measured, relanded, fresh)
             return EventStatus.Succeeded()
         if not latched:
             t = context.get_time()
@@ -767,53 +768,59 @@ class StopPlannerSystem(_ReferenceSystem):
         return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)))
 
     def _relanded(self, context, state, plan):
-        """``{side: xy}``: the soles that landed again on this tick, off the plan's foothold.
+        """``({side: xy}, fresh)``: the soles that landed again off the plan's foothold, and whether one
+        of them did so on this tick.
 
         A sole re-lands when it stood on the floor after the latch (loaded
         ``foothold_ticks`` ticks where the plan has it down), lost contact
         (unloaded) and has been loaded ``foothold_ticks`` ticks again, the
         plan still having it down: the robot bounced off a hard touchdown, or
-        rolled off that sole, and came back elsewhere. Only soles more than
+        rocked off that sole, and came back elsewhere. A sole more than
         ``foothold_tolerance`` from the plan's foothold (the estimate is good
-        to 3 mm) are returned, with their estimated position. The stages live
-        in the discrete state (updated into ``state``); empty without
-        ``measured_feet`` or with ``relanded_footholds=False``.
+        to 3 mm) is returned with its estimated position on every tick until
+        a plan stands on it (a re-plan may have to wait for the landing's
+        tick). The stages live in the discrete state (updated into
+        ``state``); empty without ``measured_feet`` or with
+        ``relanded_footholds=False``.
         """
         if self._relanded_tolerance is None or not self.measured_feet_port.HasValue(context):
-            return {}
+            return {}, False
         feet = self.measured_feet_port.Eval(context)
         if not np.all(np.isfinite(feet)):
-            return {}
+            return {}, False
         t = context.get_time()
         stages = context.get_discrete_state(self._sole_stages).value().copy()
         planned = plan.feet(t)
-        relanded = {}
+        relanded, fresh = {}, False
         for k, side in enumerate(SIDES):
             loaded = feet[4 + k] >= self._foothold_ticks
+            xy = feet[2 * k:2 * k + 2].copy()
+            off = np.hypot(*(xy - planned[side][:2])) > self._relanded_tolerance
             if planned[side][2] > 1e-9:
                 stages[k] = _AWAY
             elif stages[k] == _AWAY and loaded:
                 stages[k] = _STANDING
-            elif stages[k] == _STANDING and feet[4 + k] == 0.0:
+            elif stages[k] in (_STANDING, _RELANDED) and feet[4 + k] == 0.0:
                 stages[k] = _LIFTED
             elif stages[k] == _LIFTED and loaded:
+                stages[k], fresh = (_RELANDED, True) if off else (_STANDING, fresh)
+            elif stages[k] == _RELANDED and not off:  # a plan stands on it now
                 stages[k] = _STANDING
-                xy = feet[2 * k:2 * k + 2].copy()
-                if np.hypot(*(xy - planned[side][:2])) > self._relanded_tolerance:
-                    relanded[side] = xy
+            if stages[k] == _RELANDED:
+                relanded[side] = xy
         state.get_mutable_discrete_state(self._sole_stages).set_value(stages)
-        return relanded
+        return relanded, fresh
 
-    def _maybe_replan(self, context, state, handle, measured, relanded=None):
+    def _maybe_replan(self, context, state, handle, measured, relanded=None, fresh=False):
         if measured is None:
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
         landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
-        # a sole re-landed off its foothold after the landing re-plans at once (no interval: the
-        # sole's new place is a fact, not a deviation that a blend may still remove)
+        # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
+        # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
         relanded = relanded if landed else None
-        if not relanded and t - handle.last_try < self._replan_interval - 1e-9:
+        if not (relanded and fresh) and t - handle.last_try < self._replan_interval - 1e-9:
             return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
         threshold = self._landed_threshold if landed else self._replan_threshold
         deviated = self._deviation(plan, t, measured) > threshold
