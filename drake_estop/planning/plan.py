@@ -151,6 +151,9 @@ class StopParameters:
     # sideways: capped at half the lift height (2.5 cm), a 17 N s push to the right slid the stance foot 12 mm
     landing_approach_slope: float = 0.0
     landing_approach_height: float = 0.01
+    # the approach slope only for a re-planned landing swing that the braking limit holds back (the
+    # plan's braked_swing); other swings (the signal's plan, unhurried re-plans) are the quintic alone
+    landing_approach_when_braking: bool = False
     zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
     crouch: bool = True
     crouch_depth: float = 0.04  # COG lowering during the stop [m] (IV.A)
@@ -310,6 +313,7 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
+    braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) held back
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -386,16 +390,24 @@ class StopPlan:
             feet[self.landing_foot] = np.array([float(lipm.poly_eval(u, s)) for u in self._swing_polynomials()])
         return feet
 
+    @property
+    def _approach_slope(self) -> float:
+        """The landing swing's approach slope: ``params.landing_approach_slope``, or 0 for a swing the
+        braking limit did not hold back when ``params.landing_approach_when_braking``."""
+        if self.params.landing_approach_when_braking and not self.braked_swing:
+            return 0.0
+        return self.params.landing_approach_slope
+
     def _swing_polynomials(self) -> list:
         """:func:`landing_swing_polynomials` of this plan's landing swing, computed once (cached)."""
         s = self.swing_start  # the key holds the values (not the objects' ids, which a new object may reuse)
         key = (self.start_time, self.landing_time, *np.ravel(self.landing_position), *np.ravel(s["pos"]),
-               *np.ravel(s["vel"]), *np.ravel(s["acc"]), s.get("clearance"), self.params.landing_approach_slope,
+               *np.ravel(s["vel"]), *np.ravel(s["acc"]), s.get("clearance"), self._approach_slope,
                self.params.landing_approach_height, self.pattern.params.lift_height)
         if self._swing_cache is None or self._swing_cache[0] != key:
             self._swing_cache = key, landing_swing_polynomials(
                 s["pos"], s["vel"], s["acc"], self.landing_position, self.landing_time - self.start_time,
-                self.pattern.params.lift_height, s.get("clearance"), self.params.landing_approach_slope,
+                self.pattern.params.lift_height, s.get("clearance"), self._approach_slope,
                 self.params.landing_approach_height)
         return self._swing_cache[1]
 

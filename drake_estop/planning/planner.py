@@ -914,13 +914,16 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
         rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
                 else plan.start_state.rear_foot)
         changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
-    elif plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
+    braked = False
+    if not double and plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
         side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
         soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
+        braked = soonest > params.min_landing_time + 1e-9
         params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
     wall = time.perf_counter()
     new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
                      zmp_region="polygon" if double else "fore")
+    new.braked_swing = braked
     new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
     return _finish(new, wall)
 
