@@ -55,19 +55,18 @@ def _run(job):
     from drake_estop.physics.plant import PhysicsParameters
     from drake_estop.planning.gait import NominalPattern
 
-    t, options, planner_options, time_step, foot_compliance, swing_tilt, stop_overrides = job
+    t, options, planner_options, time_step, foot_compliance, swing_tilt, stop_overrides, braked_landing = job
     options = dict(options)
     push = options.pop("push", None)
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
     start = time.perf_counter()
     physics = PhysicsParameters() if time_step is None else PhysicsParameters(time_step=time_step)
-    stop_params = None
-    if stop_overrides:
-        from dataclasses import replace
+    from dataclasses import replace
 
-        from drake_estop.physics.online import controller_stop_parameters
-        from drake_estop.planning.planner import StopParameters
-        stop_params = controller_stop_parameters(replace(StopParameters(), **stop_overrides))
+    from drake_estop.physics.online import controller_stop_parameters
+    from drake_estop.planning.planner import StopParameters
+    stop_params = controller_stop_parameters(replace(StopParameters(), **stop_overrides),
+                                             braked_landing=braked_landing)
     try:
         result = run_online(estop_time=t, pattern=NominalPattern(), planner_options=planner_options,
                             stop_params=stop_params,
@@ -106,6 +105,8 @@ def main(argv=None):
     parser.add_argument("--stop-parameter", action="append", default=[], metavar="NAME=VALUE",
                         help="a StopParameters setting over the controller's, e.g. max_swing_acceleration=15 "
                              "(repeatable; the braked landing: drake_estop.physics.online.BRAKED_LANDING)")
+    parser.add_argument("--no-braked-landing", action="store_true",
+                        help="the paper's landing swing instead of the controller's braked landing (for comparison)")
     parser.add_argument("--time-step", type=float, default=None,
                         help="the plant's discrete step [s] (default: PhysicsParameters' own)")
     parser.add_argument("--no-foot-compliance", action="store_true",
@@ -125,7 +126,7 @@ def main(argv=None):
     planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
     stop_overrides = {k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)}
     jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance,
-             not args.no_swing_tilt, stop_overrides) for t, options in jobs]
+             not args.no_swing_tilt, stop_overrides, not args.no_braked_landing) for t, options in jobs]
     wall = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(_run, jobs))
@@ -137,6 +138,8 @@ def main(argv=None):
         text = text.replace("\n\n", f"\n\nPlanner settings changed from the defaults: {planner_options}.\n\n", 1)
     if stop_overrides:
         text = text.replace("\n\n", f"\n\nStop-planner settings over the controller's: {stop_overrides}.\n\n", 1)
+    if args.no_braked_landing:
+        text = text.replace("\n\n", "\n\nWithout the braked landing (the paper's landing swing).\n\n", 1)
     if args.no_foot_compliance:
         text = text.replace("\n\n", "\n\nWithout the foot-edge compliance.\n\n", 1)
     if args.no_swing_tilt:

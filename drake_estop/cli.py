@@ -174,6 +174,10 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.measured_footholds,
                    help="with --physics: re-plan after the landing on the plan's feet instead of the "
                         "estimated footholds (for comparison)")
+    d.add_argument("--no-braked-landing", dest="braked_landing", action="store_false",
+                   default=scenario.braked_landing,
+                   help="with --physics: the paper's landing swing instead of the controller's braked landing "
+                        "(drake_estop.physics.online.BRAKED_LANDING; for comparison)")
     d.add_argument("--no-relanded-footholds", dest="relanded_footholds", action="store_false",
                    default=scenario.relanded_footholds,
                    help="with --physics: no re-plan for a sole that lost contact after the landing and landed "
@@ -237,7 +241,8 @@ def _effective_scenario(args, gait, stop) -> Scenario:
                    simulation=simulation, controller=args.controller, true_state=args.true_state,
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
                    measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
-                   relanded_footholds=args.relanded_footholds, foothold_replan=args.foothold_replan,
+                   relanded_footholds=args.relanded_footholds, braked_landing=args.braked_landing,
+                   foothold_replan=args.foothold_replan,
                    perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
 
@@ -248,6 +253,7 @@ def _online_only_options(args, perturbations) -> list:
              ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
              ("--no-measured-footholds", not args.measured_footholds),
              ("--no-relanded-footholds", not args.relanded_footholds),
+             ("--no-braked-landing", not args.braked_landing),
              ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan))
     return [name for name, on in given if on]
 
@@ -346,7 +352,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
     if args.controller == "online":
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
-        result = run_online(gait, controller_stop_parameters(stop), estop_time, after_halt=args.after_halt,
+        stop = controller_stop_parameters(stop, braked_landing=args.braked_landing)
+        result = run_online(gait, stop, estop_time, after_halt=args.after_halt,
                             pattern=pattern, perturbations=perturbations, true_state=args.true_state,
                             physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance,
                             swing_tilt=args.swing_tilt,

@@ -79,6 +79,9 @@ class Scenario:
     relanded_footholds : bool
         Physics, online controller only: a sole that lost contact after the landing and landed again off the
         plan's foothold re-plans the stop where it stands (default on; off for comparison).
+    braked_landing : bool
+        Physics, online controller only: the controller's braked landing
+        (``drake_estop.physics.online.BRAKED_LANDING``; default on; off lands the paper's swing, for comparison).
     foothold_replan : bool
         Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
         stop on the measured feet (default off: net neutral on the campaign; on for comparison).
@@ -102,6 +105,7 @@ class Scenario:
     measured_footholds: bool = True
     recovery_step: bool = True
     relanded_footholds: bool = True
+    braked_landing: bool = True
     foothold_replan: bool = False
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)

@@ -3,6 +3,7 @@
 the floor towards it (``landing_approach_slope``, ``landing_approach_height``)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -150,19 +151,61 @@ def test_a_replanned_landing_waits_for_the_swing_to_brake():
     ("landing_approach_slope", "0.6"), ("landing_approach_height", 0.0), ("landing_approach_height", -0.01),
     ("landing_approach_height", math.nan), ("landing_approach_height", math.inf),
     ("max_swing_acceleration", 0.0), ("max_swing_acceleration", -1.0), ("max_swing_acceleration", math.nan),
-    ("max_swing_acceleration", "15")])
+    ("max_swing_acceleration", "15"), ("landing_approach_when_braking", 1), ("landing_approach_when_braking", "no")])
 def test_bad_landing_settings_raise_naming_them(name, value):
     with pytest.raises(ValueError, match=name):
         StopParameters(**{name: value})
 
 
-def test_the_braked_landing_is_an_option_over_the_controllers_settings():
-    from dataclasses import replace
-
+def test_the_braked_landing_is_the_controllers_default_and_turns_off():
     from drake_estop.physics.online import BRAKED_LANDING, controller_stop_parameters
     default = controller_stop_parameters()
-    assert default.max_swing_acceleration == math.inf and default.landing_approach_slope == 0.0  # off by default
-    braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
-    assert braked.max_swing_acceleration == pytest.approx(15.0)
-    assert braked.landing_approach_slope == pytest.approx(0.6)
-    assert braked.zmp_margin == default.zmp_margin  # the controller's own settings stay
+    assert default.max_swing_acceleration == pytest.approx(BRAKED_LANDING["max_swing_acceleration"])
+    assert default.landing_approach_slope == pytest.approx(BRAKED_LANDING["landing_approach_slope"])
+    assert default.landing_approach_when_braking  # the slope only where the braking limit bounds the landing
+    paper = controller_stop_parameters(braked_landing=False)
+    assert paper.max_swing_acceleration == math.inf and paper.landing_approach_slope == 0.0
+    assert not paper.landing_approach_when_braking
+    assert paper.zmp_margin == default.zmp_margin  # the controller's own settings stay
+    # session 12's option: a slope given shapes every swing; a tighter limit or a steeper slope is kept
+    option = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
+    assert option.landing_approach_slope == pytest.approx(0.6) and not option.landing_approach_when_braking
+    tighter = controller_stop_parameters(replace(StopParameters(), max_swing_acceleration=10.0,
+                                                 landing_approach_slope=0.8))
+    assert tighter.max_swing_acceleration == 10.0 and tighter.landing_approach_slope == 0.8
+    looser = controller_stop_parameters(replace(StopParameters(), max_swing_acceleration=30.0))
+    assert looser.max_swing_acceleration == 15.0 and looser.landing_approach_when_braking
+
+
+def _swing_of(plan, step=DT):
+    times = np.arange(plan.start_time, plan.landing_time, step)
+    return np.array([plan.feet(float(t))[plan.landing_foot] for t in times])
+
+
+def _replan_at(t_before_landing, params, push=0.1):
+    plan = plan_stop(NOMINAL, 3.1, params)
+    t = round((plan.landing_time - t_before_landing) / DT) * DT
+    pos, vel, _, _ = plan.com([t])
+    return plan, replan_stop(plan, t, pos[0], vel[0] + np.array([push, 0.0]))
+
+
+def test_with_landing_approach_when_braking_only_a_braked_swing_approaches():
+    """``landing_approach_when_braking``: the approach slope shapes only a re-planned swing whose landing the
+    braking limit bounds (the plan's ``braked_swing``); the signal's plan and a re-plan the limit leaves
+    alone swing as without a slope (the paper's quintic), to the bit."""
+    gated = StopParameters(max_swing_acceleration=10.0, landing_approach_slope=0.6, landing_approach_when_braking=True)
+    plain = StopParameters(max_swing_acceleration=10.0)
+    always = StopParameters(max_swing_acceleration=10.0, landing_approach_slope=0.6)
+    first, held = _replan_at(0.15, gated)  # 0.15 s before the touchdown at 10 m/s^2: the limit bounds it
+    assert not first.braked_swing and held.braked_swing
+    np.testing.assert_array_equal(_swing_of(first), _swing_of(plan_stop(NOMINAL, 3.1, plain)))
+    _, held_plain = _replan_at(0.15, plain)
+    assert held.landing_time == held_plain.landing_time  # the same landing, from the same swing
+    np.testing.assert_array_equal(_swing_of(held), _swing_of(replace(held_plain, params=always)))
+    assert np.max(np.abs(_swing_of(held)[:, 2] - _swing_of(held_plain)[:, 2])) > 1e-3  # it does approach
+    # a limit the swing keeps anyway (1000 m/s^2) bounds nothing: the re-planned swing is the quintic
+    _, free = _replan_at(0.15, replace(gated, max_swing_acceleration=1000.0))
+    _, free_plain = _replan_at(0.15, replace(plain, max_swing_acceleration=1000.0))
+    assert not free.braked_swing
+    np.testing.assert_array_equal(_swing_of(free), _swing_of(free_plain))
+    assert np.max(np.abs(_swing_of(replace(free, braked_swing=True))[:, 2] - _swing_of(free)[:, 2])) > 1e-3

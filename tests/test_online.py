@@ -344,29 +344,31 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     assert not held.criteria["no_fall"]
 
 
-def test_a_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
+def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
     """29 N s forward at 2.95 s (0.5 m/s, issue 13's target; early single support, the swing foot 0.57 m
-    from its landing). By default a re-plan 0.175 s before the touchdown hurries the landing and the foot
-    skims the floor: it strikes it at 2.4 kN, the robot leaves the ground for 25 ms and the CoP leaves the
-    planned support. The braked-landing option (BRAKED_LANDING) meets every criterion."""
-    from drake_estop.physics.online import BRAKED_LANDING
-    from drake_estop.planning.planner import StopParameters
-
+    from its landing). With the paper's landing swing (``braked_landing=False``) a re-plan 0.175 s before
+    the touchdown hurries the landing and the foot skims the floor: it strikes it at 2.4 kN, the robot
+    leaves the ground for 25 ms and the CoP leaves the planned support. The controller's braked landing
+    (BRAKED_LANDING, the default: that re-plan's landing is bounded by the braking limit and its swing
+    approaches the floor at the slope) meets every criterion."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 290.0, 0.0, 0.1),))
-    braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
-    stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked)
+    stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
-    hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
+    hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
+                         stop_params=controller_stop_parameters(braked_landing=False))
     assert not hurried.criteria["cop_in_support"]
+    assert not np.all(np.isfinite(hurried.cop_margin_plan[1:]))  # airborne ticks: no CoP
     assert hurried.online["replans"] > stopped.online["replans"]
+    assert any(plan.braked_swing for plan in stopped.plan.plans)
 
 
 def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands():
-    """17 N s forward at 2.95 s (a matrix cell) with the braked-landing option: in the halt the robot rocks
-    onto the fore foot, the rear sole leaves the floor for 35 ms and comes down 6 mm behind its foothold;
-    the CoP then runs to the rear heel, inside the measured sole but 0.4 mm outside the plan's without the
-    re-landed footholds. With them (the default) the stop is re-planned where the sole stands."""
+    """17 N s forward at 2.95 s (a matrix cell) with session 12's braked-landing option (the approach slope
+    on every landing swing, given explicitly): in the halt the robot rocks onto the fore foot, the rear sole
+    leaves the floor for 35 ms and comes down 6 mm behind its foothold; the CoP then runs to the rear heel,
+    inside the measured sole but 0.4 mm outside the plan's without the re-landed footholds. With them (the
+    default) the stop is re-planned where the sole stands."""
     from drake_estop.physics.online import BRAKED_LANDING
     from drake_estop.planning.planner import StopParameters
 
@@ -421,9 +423,10 @@ def _online_run_keywords(monkeypatch, args):
     return seen
 
 
-def test_the_braked_landing_settings_reach_the_online_run_as_options(monkeypatch):
-    """BRAKED_LANDING from the command line: the generated StopParameters options reach run_online's stop
-    parameters, over the controller's (its margin stays); without them the landing is the paper's."""
+def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
+    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
+    over the controller's margin; ``--no-braked-landing`` gives the paper's landing swing; a tighter
+    limit from the command line is kept."""
     import drake_estop.physics.online as online
 
     seen = []
@@ -433,13 +436,22 @@ def test_the_braked_landing_settings_reach_the_online_run_as_options(monkeypatch
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(online, "run_online", fake_run_online)
-    args = [f"--{name.replace('_', '-')}={value}" for name, value in online.BRAKED_LANDING.items()]
-    assert main(["simulate", "--physics", *args]) == 2
     assert main(["simulate", "--physics"]) == 2
-    braked, default = seen
+    assert main(["simulate", "--physics", "--no-braked-landing"]) == 2
+    assert main(["simulate", "--physics", "--max-swing-acceleration=10", "--landing-approach-slope=0.8"]) == 2
+    braked, paper, tighter = seen
     assert braked.max_swing_acceleration == 15.0 and braked.landing_approach_slope == 0.6
-    assert braked.zmp_margin == default.zmp_margin == pytest.approx(0.03)
-    assert default.max_swing_acceleration == math.inf and default.landing_approach_slope == 0.0
+    assert braked.landing_approach_when_braking  # the slope only where the braking limit bounds the landing
+    assert braked.zmp_margin == paper.zmp_margin == pytest.approx(0.03)
+    assert paper.max_swing_acceleration == math.inf and paper.landing_approach_slope == 0.0
+    assert tighter.max_swing_acceleration == 10.0 and tighter.landing_approach_slope == 0.8
+    assert not tighter.landing_approach_when_braking  # a slope given shapes every swing (session 12's option)
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_no_braked_landing_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--no-braked-landing"]) == 2
+    assert "--no-braked-landing" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])

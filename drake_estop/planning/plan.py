@@ -75,6 +75,11 @@ class StopParameters:
         ``landing_approach_slope`` times its horizontal distance to the
         landing point above the floor [m/m], up to ``landing_approach_height``
         [m] (default slope 0: the quintic alone).
+    landing_approach_when_braking : bool
+        The approach slope only on a re-planned landing swing whose landing
+        ``max_swing_acceleration`` bounds (its ``StopPlan.braked_swing``);
+        every other swing is the quintic alone (default False: the slope on
+        every landing swing).
     zmp_margin : float
         ZMP distance kept from the sole edges [m].
     crouch : bool
@@ -199,6 +204,9 @@ class StopParameters:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and not math.isnan(value) and value > 0):
                 raise ValueError(f"{name} must be > 0 (max_swing_acceleration: inf for no limit), got {value!r}")
+        if not isinstance(self.landing_approach_when_braking, bool):
+            raise ValueError("landing_approach_when_braking must be a bool, "
+                             f"got {self.landing_approach_when_braking!r}")
         if not math.isfinite(self.landing_approach_height):
             raise ValueError(f"landing_approach_height must be finite, got {self.landing_approach_height!r}")
         if not (isinstance(self.max_early_landing, (int, float)) and self.max_early_landing >= 0):
@@ -313,7 +321,7 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
-    braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) held back
+    braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
 

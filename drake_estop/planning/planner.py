@@ -918,7 +918,7 @@ def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: 
     if not double and plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
         side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
         soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
-        braked = soonest > params.min_landing_time + 1e-9
+        braked = soonest > params.min_landing_time + 1e-9  # the limit bounds the landing (braked_swing)
         params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
     wall = time.perf_counter()
     new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
