@@ -10,12 +10,21 @@ every example tests a stop from walking (none while standing or after the walk e
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop
 
+
+def nominal_swing_speed(gait) -> float:
+    """Mean speed [m/s] of the walk's own swing foot: two step lengths over the single support."""
+    return 2.0 * gait.step_length / (gait.step_time * (1.0 - gait.double_support_ratio))
+
+
+# walks whose own swing stays within the planner's max_swing_speed: a faster walk's stop cannot land in
+# time at some signals (test_a_walk_faster_than_the_swing_speed_limit_may_have_no_stop below)
 gaits = st.builds(
     GaitParameters,
     com_height=st.floats(0.6, 0.95),
@@ -23,7 +32,7 @@ gaits = st.builds(
     step_time=st.floats(0.6, 1.4),
     double_support_ratio=st.floats(0.1, 0.4),
     num_steps=st.integers(3, 6),
-)
+).filter(lambda gait: nominal_swing_speed(gait) <= StopParameters().max_swing_speed)
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -56,3 +65,19 @@ def test_random_signal_inside_the_walk_stops_within_limits(gait, fraction, crouc
         assert distance / duration <= params.max_swing_speed + 1e-9
     for t in (plan.start_time, plan.landing_time, plan.slowdown_end, plan.halt_end):
         assert math.isfinite(t)
+
+
+def test_a_walk_faster_than_the_swing_speed_limit_may_have_no_stop():
+    """Found by the property test above (session 14): 0.34 m steps in 0.625 s with 12.5 % double support
+    swing the foot at 1.26 m/s on average, over the planner's 1.12 m/s max_swing_speed. Early in a
+    single support no landing within the limits stops the COG, nor does the next support phase: the
+    planner raises InfeasibleStop naming the limit that binds (never a silent infeasible plan). 0.32 m
+    steps (1.17 m/s) stop at every signal."""
+    from drake_estop.planning.plan import InfeasibleStop
+
+    fast = GaitParameters(com_height=0.75, step_length=0.34375, step_time=0.625, double_support_ratio=0.125,
+                          num_steps=4)
+    assert nominal_swing_speed(fast) > StopParameters().max_swing_speed
+    with pytest.raises(InfeasibleStop, match="no feasible stop within two steps.*step_length"):
+        plan_stop(NominalPattern(fast), 1.552734375, StopParameters(crouch=False))
+
