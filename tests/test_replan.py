@@ -510,16 +510,24 @@ def test_blend_fades_the_sole_offsets_to_the_new_plan_at_rest():
     assert np.all(np.abs(feet(1.1)) < np.abs(dfeet) + 1e-12)
 
 
-def _feet_at_the_plan(pattern, params, shift, **kwargs):
-    """StopPlannerSystem alone: the stop latched at 3.4 s; 20 ms after the landing the measured COG is the
-    plan's (the DCM on the plan) and the measured soles are the plan's feet moved by ``shift`` (side ->
-    (dx, dy)), loaded 40 ticks. Returns the planner, its context, the simulator, the first plan and t."""
+def _on_the_plan_after_the_landing(pattern, params, **kwargs):
+    """StopPlannerSystem alone: the stop latched at 3.4 s, advanced to just before the tick ``t`` 20 ms
+    after the landing, with the measured COG the plan's there (the DCM on the plan). Returns the planner,
+    its context, the simulator, the first plan and t."""
     planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
     t = round((first.landing_time + 0.02) / DT) * DT
     simulator.AdvanceTo(t - DT / 2)
     pos, vel, _ = _state_at(first, t)
     planner.measured_com_port.FixValue(context, [*pos, 0.8])
     planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    return planner, context, simulator, first, t
+
+
+def _feet_at_the_plan(pattern, params, shift, **kwargs):
+    """:func:`_on_the_plan_after_the_landing`, then at ``t`` the measured soles are the plan's feet moved by
+    ``shift`` (side -> (dx, dy)), loaded 40 ticks. Returns the planner, its context, the simulator, the first
+    plan, t and the measured feet."""
+    planner, context, simulator, first, t = _on_the_plan_after_the_landing(pattern, params, **kwargs)
     feet = {side: first.final_feet[side] + np.asarray(shift.get(side, (0.0, 0.0))) for side in ("left", "right")}
     planner.measured_feet_port.FixValue(context, [*feet["left"], *feet["right"], 40.0, 40.0])
     simulator.AdvanceTo(t + DT / 2)
@@ -557,20 +565,13 @@ def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs)
     assert planner.plan(context) is first
 
 
-
-
 def _relanding(pattern, params, shift, **kwargs):
     """StopPlannerSystem alone: the stop latched at 3.4 s; from 20 ms after the landing the measured COG is
     the plan's (the DCM on the plan) and both soles stand where the plan has them (loaded 40 ticks); then
     the left sole is unloaded for 4 ticks (the robot bounced) and loaded again moved by ``shift`` (dx, dy),
     for 1 tick, then 2. Returns the planner, its context, the first plan, the moved sole's position and the
     tick of its second loaded tick (``foothold_ticks``)."""
-    planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
-    t = round((first.landing_time + 0.02) / DT) * DT
-    simulator.AdvanceTo(t - DT / 2)
-    pos, vel, _ = _state_at(first, t)
-    planner.measured_com_port.FixValue(context, [*pos, 0.8])
-    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    planner, context, simulator, first, t = _on_the_plan_after_the_landing(pattern, params, **kwargs)
     feet = {side: first.final_feet[side][:2] for side in ("left", "right")}
     moved = feet["left"] + np.asarray(shift)
     steps = [(feet["left"], 40.0)] * 2 + [(feet["left"], 0.0)] * 4 + [(moved, 1.0), (moved, 2.0)]
