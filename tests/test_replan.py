@@ -510,6 +510,14 @@ def test_blend_fades_the_sole_offsets_to_the_new_plan_at_rest():
     assert np.all(np.abs(feet(1.1)) < np.abs(dfeet) + 1e-12)
 
 
+def _measure_on_the_plan(planner, context, plan, t):
+    """Fix the planner's measured COG (0.8 m high) and its velocity at ``plan``'s state at ``t``: the DCM
+    on the plan."""
+    pos, vel, _ = _state_at(plan, t)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+
+
 def _on_the_plan_after_the_landing(pattern, params, **kwargs):
     """StopPlannerSystem alone: the stop latched at 3.4 s, advanced to just before the tick ``t`` 20 ms
     after the landing, with the measured COG the plan's there (the DCM on the plan). Returns the planner,
@@ -517,9 +525,7 @@ def _on_the_plan_after_the_landing(pattern, params, **kwargs):
     planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
     t = round((first.landing_time + 0.02) / DT) * DT
     simulator.AdvanceTo(t - DT / 2)
-    pos, vel, _ = _state_at(first, t)
-    planner.measured_com_port.FixValue(context, [*pos, 0.8])
-    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    _measure_on_the_plan(planner, context, first, t)
     return planner, context, simulator, first, t
 
 
@@ -547,9 +553,7 @@ def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landin
     # the foot slides on by another centimetre: that landing's feet were taken once, no second re-plan
     slid = feet["left"] + [0.0, -0.01]
     planner.measured_feet_port.FixValue(context, [*slid, *feet["right"], 40.0, 40.0])
-    pos, vel, _ = _state_at(new, t + 0.1)
-    planner.measured_com_port.FixValue(context, [*pos, 0.8])
-    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    _measure_on_the_plan(planner, context, new, t + 0.1)
     simulator.AdvanceTo(t + 0.1 + DT / 2)
     assert planner.replans(context) == (1, 0)
 
@@ -628,9 +632,7 @@ def test_the_landing_itself_is_not_a_relanding(pattern, params, scuff_ticks):
     ticks = [40.0, 40.0]
     for k in range(1, round((first.landing_time + 0.1 - 3.4) / DT)):
         t = 3.4 + k * DT
-        pos, vel, _ = _state_at(first, t)
-        planner.measured_com_port.FixValue(context, [*pos, 0.8])
-        planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+        _measure_on_the_plan(planner, context, first, t)
         airborne = first.feet(t)[swing][2] > 1e-9
         ticks[k_swing] = float(k) if k <= scuff_ticks else 0.0 if airborne else min(40.0, ticks[k_swing] + 1.0)
         sole = landed if t >= first.landing_time else first.feet(t)
@@ -654,9 +656,7 @@ def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(patter
     stance_ticks = [40.0, 40.0, 0.0, 0.0] + [float(n) for n in range(1, 30)]
     for k, loaded in enumerate(stance_ticks[:landing_tick - start + 2]):
         t = (start + k) * DT
-        pos, vel, _ = _state_at(first, t)
-        planner.measured_com_port.FixValue(context, [*pos, 0.8])
-        planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+        _measure_on_the_plan(planner, context, first, t)
         ticks = [0.0, 0.0]
         ticks[k_stance] = loaded
         ticks[1 - k_stance] = 0.0 if t < first.landing_time - 1e-9 else 40.0

@@ -186,7 +186,7 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
 #: The controller's braked landing (on by default since session 14; ``braked_landing=False`` in
 #: :func:`controller_stop_parameters`, ``simulate --physics --no-braked-landing``, for comparison). A
 #: single-support re-plan lands no sooner than the swing can brake to the landing point at 15 m/s^2
-#: (``max_swing_acceleration``, planner.swing_braking_time); where that limit holds the landing back, the
+#: (``max_swing_acceleration``, planner.swing_braking_time); where that limit bounds the landing, the
 #: re-planned swing also comes down onto its point no flatter than a slope of 0.6, up to 1 cm above the
 #: floor (``landing_approach_slope`` with ``landing_approach_when_braking``; StopParameters says why). Every
 #: other swing is the paper's quintic. Measured (README): the 0.5 m/s target forward and backward at every
@@ -216,7 +216,7 @@ SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.
 def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True) -> StopParameters:
     """``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
     landing and landing-shift limit (:data:`CONTROLLER_STOP_PARAMETERS`), and with ``braked_landing`` the
-    braked landing (:data:`BRAKED_LANDING`: its approach slope only on swings the braking limit holds back,
+    braked landing (:data:`BRAKED_LANDING`: its approach slope only on swings whose landing the braking limit bounds,
     unless ``params`` gives a slope of its own, which then shapes every swing); a larger margin, a later
     landing, a tighter shift or swing-acceleration limit or a steeper approach in ``params`` is kept."""
     base = params or StopParameters()

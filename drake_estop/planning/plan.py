@@ -156,8 +156,8 @@ class StopParameters:
     # sideways: capped at half the lift height (2.5 cm), a 17 N s push to the right slid the stance foot 12 mm
     landing_approach_slope: float = 0.0
     landing_approach_height: float = 0.01
-    # the approach slope only for a re-planned landing swing that the braking limit holds back (the
-    # plan's braked_swing); other swings (the signal's plan, unhurried re-plans) are the quintic alone
+    # the approach slope only for a re-planned landing swing whose landing the braking limit bounds (the
+    # plan's braked_swing); other swings (the signal's plan, unbounded re-plans) are the quintic alone
     landing_approach_when_braking: bool = False
     zmp_margin: float = 0.01  # ZMP distance kept from the sole edges [m]
     crouch: bool = True
@@ -400,8 +400,8 @@ class StopPlan:
 
     @property
     def _approach_slope(self) -> float:
-        """The landing swing's approach slope: ``params.landing_approach_slope``, or 0 for a swing the
-        braking limit did not hold back when ``params.landing_approach_when_braking``."""
+        """The landing swing's approach slope: ``params.landing_approach_slope``, or 0 for a swing whose
+        landing the braking limit does not bound when ``params.landing_approach_when_braking``."""
         if self.params.landing_approach_when_braking and not self.braked_swing:
             return 0.0
         return self.params.landing_approach_slope

@@ -57,6 +57,11 @@ FOOTHOLD_TOLERANCE = 0.005
 #: stands on it.
 _AWAY, _STANDING, _LIFTED, _RELANDED = 0.0, 1.0, 2.0, 3.0
 
+
+def _off_foothold(xy, planned, tolerance: float) -> bool:
+    """Whether the measured sole ``xy`` lies more than ``tolerance`` [m] from the plan's ``planned`` (x, y first)."""
+    return bool(np.hypot(xy[0] - planned[0], xy[1] - planned[1]) > tolerance)
+
 #: Sizes of the reference outputs, in the order they sit in the cached vector.
 REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
                     ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
@@ -627,7 +632,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._bias_state = self.DeclareDiscreteState(4)
         self._filtered_state = self.DeclareDiscreteState(4)
         self._filter_started = self.DeclareDiscreteState(1)
-        # per sole (SIDES order): _AWAY, _STANDING or _LIFTED since the latch (_relanded)
+        # per sole (SIDES order): _AWAY, _STANDING, _LIFTED or _RELANDED since the latch (_relanded)
         self._sole_stages = self.DeclareDiscreteState(2)
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
@@ -795,7 +800,7 @@ class StopPlannerSystem(_ReferenceSystem):
         for k, side in enumerate(SIDES):
             loaded = feet[4 + k] >= self._foothold_ticks
             xy = feet[2 * k:2 * k + 2].copy()
-            off = np.hypot(*(xy - planned[side][:2])) > self._relanded_tolerance
+            off = _off_foothold(xy, planned[side], self._relanded_tolerance)
             if planned[side][2] > 1e-9:
                 stages[k] = _AWAY
             elif stages[k] == _AWAY and loaded:
@@ -859,7 +864,7 @@ class StopPlannerSystem(_ReferenceSystem):
         if feet is None or self._foothold_tolerance is None:
             return False
         planned = plan.feet(t)
-        return any(np.hypot(*(xy - planned[side][:2])) > self._foothold_tolerance for side, xy in feet.items())
+        return any(_off_foothold(xy, planned[side], self._foothold_tolerance) for side, xy in feet.items())
 
     @staticmethod
     def _last_landing(history):
