@@ -193,6 +193,7 @@ class CopEstimator(LeafSystem):
         ground = ground_bodies if ground_bodies is not None else (plant.world_body(),)
         self._ground = {int(b.index()) for b in ground}
         self._bodies = [int(b.index()) for b in bodies]
+        self._pair_sides = {}  # (body A, body B) -> (sign, index in bodies or -1), filled as pairs appear
         self._geometry_body = {}
         if scene_graph is not None:
             inspector = scene_graph.model_inspector()
@@ -233,30 +234,34 @@ class CopEstimator(LeafSystem):
     def ground_reaction(self, results: ContactResults) -> np.ndarray:
         """[n (3), f (3), count, f_z per body, [n, f] per body] of the ground on the robot, about the
         world origin."""
-        moment, force = np.zeros(3), np.zeros(3)
-        body_wrench = np.zeros((len(self._bodies), 6))
+        n_bodies = len(self._bodies)
+        # point pairs: summed in plain floats (numpy's per-call cost on 3-vectors was most of this)
+        total = [0.0] * 6  # [n, f]
+        per_body = [[0.0] * 6 for _ in range(n_bodies)]
         count = 0
-        points, forces, owners = [], [], []
+        pair_sides = self._pair_sides
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
-            sign, body = self._robot_side(int(info.bodyA_index()), int(info.bodyB_index()))
+            pair = (int(info.bodyA_index()), int(info.bodyB_index()))
+            side = pair_sides.get(pair)
+            if side is None:  # the (sign, owner) of a body pair: a function of the model alone
+                sign, body = self._robot_side(*pair)
+                side = pair_sides[pair] = (sign, self._bodies.index(body) if body in self._bodies else -1)
+            sign, owner = side
             if sign == 0.0:
                 continue
-            f = sign * info.contact_force()
-            points.append(info.contact_point())
-            forces.append(f)
-            owners.append(self._bodies.index(body) if body in self._bodies else -1)
+            px, py, pz = info.contact_point().tolist()
+            fx, fy, fz = (sign * info.contact_force()).tolist()
+            wrench = (py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx, fx, fy, fz)
+            for j in range(6):
+                total[j] += wrench[j]
+            if owner >= 0:
+                mine = per_body[owner]
+                for j in range(6):
+                    mine[j] += wrench[j]
             count += 1
-        if forces:  # one vectorised sum of p x f (a per-contact np.cross cost ~10 % of the physics loop)
-            p, f = np.array(points), np.array(forces)
-            pxf = np.column_stack([p[:, 1] * f[:, 2] - p[:, 2] * f[:, 1], p[:, 2] * f[:, 0] - p[:, 0] * f[:, 2],
-                                   p[:, 0] * f[:, 1] - p[:, 1] * f[:, 0]])
-            force += f.sum(axis=0)
-            moment += pxf.sum(axis=0)
-            owners = np.array(owners)
-            for k in range(len(self._bodies)):
-                mine = owners == k
-                body_wrench[k] += np.concatenate([pxf[mine].sum(axis=0), f[mine].sum(axis=0)])
+        moment, force = np.array(total[:3]), np.array(total[3:])
+        body_wrench = np.array(per_body, dtype=float).reshape(n_bodies, 6)
         for i in range(results.num_hydroelastic_contacts()):
             info = results.hydroelastic_contact_info(i)
             surface = info.contact_surface()
@@ -507,9 +512,15 @@ class DesiredStateInterpolator(LeafSystem):
         self.q_port = self.DeclareVectorInputPort("q", len(initial))
         # [q_a of the previous tick, time of the last tick]
         self._state = self.DeclareDiscreteState(np.concatenate([initial[self._idx], [0.0]]))
+        # this tick's [hold start, velocity, tick time]: it changes only at the ticks, so it is
+        # computed once a tick and not at every plant step between them
+        self._hold = self.DeclareCacheEntry(
+            "first-order hold", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(2 * n + 1)),
+                                              calc=self._calc_hold),
+            {self.q_port.ticket(), self.xd_ticket()})
         self.desired_state_port = self.DeclareVectorOutputPort(
             "desired_state", BasicVector(2 * n), self._calc,
-            prerequisites_of_calc={self.q_port.ticket(), self.xd_ticket(), self.time_ticket()})
+            prerequisites_of_calc={self._hold.ticket(), self.time_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(self._dt, 0.0, self._update)
 
     @property
@@ -530,10 +541,16 @@ class DesiredStateInterpolator(LeafSystem):
         discrete_state.set_value(self._state, np.concatenate([q, [context.get_time()]]))
         return EventStatus.Succeeded()
 
-    def _calc(self, context, output):
+    def _calc_hold(self, context, value):
         state = context.get_discrete_state(self._state).value()
         previous, tick = state[:-1], state[-1]
         q = self._command(context, previous)
         v = (q - previous) / self._dt
         base = q if self._extrapolate else previous
-        output.SetFromVector(np.concatenate([base + (context.get_time() - tick) * v, v]))
+        value.set_value(np.concatenate([base, v, [tick]]))
+
+    def _calc(self, context, output):
+        hold = self._hold.Eval(context)
+        n = (len(hold) - 1) // 2
+        base, v = hold[:n], hold[n:2 * n]
+        output.SetFromVector(np.concatenate([base + (context.get_time() - hold[-1]) * v, v]))

@@ -73,7 +73,8 @@ def _norm(v):
 
 def rotation_exp(w):
     """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
-    angle = float(np.linalg.norm(w))
+    w = np.asarray(w, dtype=float)
+    angle = _norm(w)
     if angle < 1e-12:
         return np.eye(3) + _skew(w)
     k = _skew(w / angle)
@@ -82,7 +83,8 @@ def rotation_exp(w):
 
 def quaternion_to_matrix(quat):
     """3x3 rotation of the (w, x, y, z) quaternion (normalised here)."""
-    w, x, y, z = (quat / np.linalg.norm(quat)).tolist()  # plain floats: the same bits, faster
+    quat = np.asarray(quat, dtype=float)
+    w, x, y, z = (quat / _norm(quat)).tolist()  # plain floats: the same bits, faster
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -140,16 +142,19 @@ class IkResult:
     joint_limit_ok: bool
 
 
-@dataclass(frozen=True)
+@dataclass
 class _Errors:
-    """Task error vector (18) with the kinematics it was computed from."""
+    """Task error vector (18) at ``q``; ``jac``, the 18 x 18 task Jacobian, is computed by
+    :meth:`WholeBodyIkSolver._jacobian` only when a step is taken from ``q`` (the last
+    iterate of a solve needs none)."""
 
     e: np.ndarray
-    jac: np.ndarray
+    q: np.ndarray
     com: float
     foot_pos: float
     foot_rot: float
     orient: float
+    jac: np.ndarray | None = None
 
 
 class WholeBodyIkSolver:
@@ -192,6 +197,7 @@ class WholeBodyIkSolver:
         self._tol = np.array([com_tolerance, foot_position_tolerance,
                               foot_rotation_tolerance, orientation_tolerance])
         self._stop = convergence_ratio * self._tol
+        self._stop_values = tuple(float(v) for v in self._stop)  # plain floats: compared every iteration
         self._bias = damping_bias
         self._init_indices(plant)
         self._init_weights(rotation_weight)
@@ -252,42 +258,51 @@ class WholeBodyIkSolver:
     # -- kinematics ---------------------------------------------------------
 
     def _errors(self, context, q, targets):
-        """Task errors and the 18x18 task Jacobian at ``q``."""
-        plant, world, kv = self._plant, self._world, JacobianWrtVariable.kV
+        """Task errors at ``q`` (``context`` is left at ``q`` for :meth:`_jacobian`)."""
+        plant = self._plant
         plant.SetPositions(context, q)
         com_t, feet_t, rot_base_t = targets
         e = np.empty(18)
-        jac = np.empty((18, self._nv))
         e[0:3] = com_t - plant.CalcCenterOfMassPositionInWorld(context)
-        jac[0:3] = plant.CalcJacobianCenterOfMassTranslationalVelocity(
-            context, kv, world, world)
         rot_err, pos_err = 0.0, 0.0
         for k, (frame, (rot_t, p_t)) in enumerate(zip(self._soles, feet_t)):
             pose = frame.CalcPoseInWorld(context)
-            rows = slice(3 + 6 * k, 9 + 6 * k)
-            e[rows] = np.concatenate([
-                rotation_log(rot_t @ pose.rotation().matrix().T),
-                p_t - pose.translation()])
-            jac[rows] = plant.CalcJacobianSpatialVelocity(
-                context, kv, frame, np.zeros(3), world, world)
-            rot_err = max(rot_err, _norm(e[rows][:3]))
-            pos_err = max(pos_err, _norm(e[rows][3:]))
+            row = 3 + 6 * k
+            e[row:row + 3] = rotation_log(rot_t @ pose.rotation().matrix().T)
+            e[row + 3:row + 6] = p_t - pose.translation()
+            rot_err = max(rot_err, _norm(e[row:row + 3]))
+            pos_err = max(pos_err, _norm(e[row + 3:row + 6]))
         rot_base = quaternion_to_matrix(q[self._base_q:self._base_q + 4])
         e[15:18] = rotation_log(rot_base_t @ rot_base.T)
-        jac[15:18] = plant.CalcJacobianAngularVelocity(
-            context, kv, self._base_frame, world, world)
-        return _Errors(e, jac[:, self._v_sel], _norm(e[0:3]),
-                       pos_err, rot_err, _norm(e[15:18]))
+        return _Errors(e, q, _norm(e[0:3]), pos_err, rot_err, _norm(e[15:18]))
+
+    def _jacobian(self, context, err):
+        """``err.jac``: the 18 x 18 task Jacobian at ``err.q`` (computed once)."""
+        if err.jac is None:
+            plant, world, kv = self._plant, self._world, JacobianWrtVariable.kV
+            plant.SetPositions(context, err.q)  # a no-op for the cache when the context is at err.q
+            jac = np.empty((18, self._nv))
+            jac[0:3] = plant.CalcJacobianCenterOfMassTranslationalVelocity(context, kv, world, world)
+            for k, frame in enumerate(self._soles):
+                jac[3 + 6 * k:9 + 6 * k] = plant.CalcJacobianSpatialVelocity(
+                    context, kv, frame, np.zeros(3), world, world)
+            jac[15:18] = plant.CalcJacobianAngularVelocity(context, kv, self._base_frame, world, world)
+            err.jac = jac[:, self._v_sel]
+        return err.jac
 
     # -- stepping -----------------------------------------------------------
 
-    def _step(self, err, q):
-        """Damped least-squares step dx (18) honouring active joint limits."""
-        jw = err.jac.T * self._w
-        hess = jw @ err.jac
+    def _step(self, err, q, jac):
+        """Damped least-squares step dx (18) honouring active joint limits (``jac``: ``err``'s
+        Jacobian)."""
+        jw = jac.T * self._w
+        hess = jw @ jac
         grad = jw @ err.e
         hess[np.diag_indices(18)] += err.e @ (self._w * err.e) + self._bias
-        free = self._free_mask(q, np.linalg.solve(hess, grad))
+        dx = np.linalg.solve(hess, grad)
+        free = self._free_mask(q, dx)
+        if free.all():  # no joint at a limit pushed past it: that solve is the step
+            return dx
         dx = np.zeros(18)
         dx[free] = np.linalg.solve(hess[np.ix_(free, free)], grad[free])
         return dx
@@ -346,13 +361,13 @@ class WholeBodyIkSolver:
                                 base_rotation)
         context = context if context is not None else self._context
         q = self.prepare_guess(q_guess, upper_body_targets)
-        if not np.all(np.isfinite(q)):
+        if not np.isfinite(q).all():
             raise ValueError("q_guess contains non-finite values")
         best_q, best = q, self._errors(context, q, targets)
         err, iterations, stalled = best, 0, 0
         cost = best_cost = self._cost(best)
         while iterations < self.max_iterations and not self._converged(err) and not self._stalled(stalled):
-            q_new = self._integrate(q, self._step(err, q))
+            q_new = self._integrate(q, self._step(err, q, self._jacobian(context, err)))
             iterations += 1
             if not np.all(np.isfinite(q_new)):
                 break
@@ -379,13 +394,14 @@ class WholeBodyIkSolver:
         else:
             rot_base = _as_matrix(base_rotation)
         values = [com, rot_base] + [a for pose in feet for a in pose]
-        if not all(np.all(np.isfinite(v)) for v in values):
+        if not all(np.isfinite(v).all() for v in values):
             raise ValueError("IK targets contain non-finite values")
         return com, feet, rot_base
 
     def _converged(self, err):
         """True once every error is far below its tolerance."""
-        return bool(np.all(self._error_vector(err) <= self._stop))
+        stop = self._stop_values
+        return err.com <= stop[0] and err.foot_pos <= stop[1] and err.foot_rot <= stop[2] and err.orient <= stop[3]
 
     def _cost(self, err):
         """Weighted squared task error (for keeping the best iterate)."""
