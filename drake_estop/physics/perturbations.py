@@ -320,7 +320,8 @@ class PelvisPush(LeafSystem):
         self._p_BoBcm_B = np.asarray(body.default_com(), float)
         self.applied_spatial_force_port = self.DeclareAbstractOutputPort(
             "applied_spatial_force", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]),
-            self._calc, prerequisites_of_calc={self.time_ticket()})
+            # without pushes the (empty) output is constant: computed once, not at every plant step
+            self._calc, prerequisites_of_calc={self.time_ticket() if self.pushes else self.nothing_ticket()})
 
     def force_at(self, t: float) -> np.ndarray:
         """Total push force [N] (world x, y, z) at time ``t``."""

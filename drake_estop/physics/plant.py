@@ -435,7 +435,8 @@ def run_through_stop(simulator, planner, estop_time, servo_period, after_halt, c
 
     def monitor(root_context):
         t = root_context.get_time()
-        if t < planned_by - 1e-9:
+        # the run ends on a tick (end_of): the plant's steps between ticks need no look at the plan
+        if t < planned_by - 1e-9 or abs(t / dt - round(t / dt)) > 1e-6:
             return EventStatus.DidNothing()
         plan = current_plan(planner_context)
         # no EventStatus.Failed from Python: formatting its message crashes pydrake (see
@@ -551,6 +552,8 @@ class DesiredStateInterpolator(LeafSystem):
 
     def _calc(self, context, output):
         hold = self._hold.Eval(context)
-        n = (len(hold) - 1) // 2
-        base, v = hold[:n], hold[n:2 * n]
-        output.SetFromVector(np.concatenate([base + (context.get_time() - hold[-1]) * v, v]))
+        n = len(self._idx)
+        v = hold[n:2 * n]
+        out = output.get_mutable_value()
+        out[:n] = hold[:n] + (context.get_time() - hold[-1]) * v
+        out[n:] = v
