@@ -325,6 +325,9 @@ def _simulate(args) -> int:
                   f"stop), work per tick median {tick['median'] * 1e3:.2f} ms, p99 {tick['p99'] * 1e3:.2f} ms, "
                   f"max {tick['max'] * 1e3:.2f} ms (CPU time: max {cpu['max'] * 1e3:.2f} ms); "
                   f"ticks over a joint-velocity limit {summary['joint_velocity_violations']}")
+            blocks = summary["tick_compute_by_block"]
+            print("  CPU per tick by block (mean): " + ", ".join(
+                f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(blocks.items())[:5]))
         return 0 if not failed else 1
     return 0
 
@@ -359,7 +362,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             swing_tilt=args.swing_tilt,
                             planner_options=_planner_options(args))
         online = {key: result.online[key] for key in
-                  ("tick_compute", "tick_compute_cpu", "replans", "replan_failures", "joint_velocity_violations",
+                  ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "replans", "replan_failures", "joint_velocity_violations",
                    "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]

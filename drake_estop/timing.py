@@ -26,6 +26,10 @@ class TickTimer:
     The wall clock is what a servo deadline sees on this machine, preemption by
     other processes included; the thread's CPU time (``time.thread_time``) is the
     controller's own work alone, what a core of its own would take.
+
+    Each callback's own share (its time less the timed and excluded callbacks it
+    ran) is also kept per label (:meth:`breakdown`), a per-block profile of the
+    controller: the label is the callback's ``__qualname__`` (``"WholeBodyIK._update"``).
     """
 
     CLOCKS = ("wall", "cpu")
@@ -35,34 +39,46 @@ class TickTimer:
             raise ValueError(f"servo_period must be positive, got {servo_period!r}")
         self._period = float(servo_period)
         self._totals = {clock: defaultdict(float) for clock in self.CLOCKS}
-        self._active = [False]  # a timed callback is running (nested ones are not added twice)
-        self._excluded = [0.0, 0.0]  # wall, CPU [s] of excluded callbacks inside the running one
+        self._blocks = {clock: defaultdict(float) for clock in self.CLOCKS}  # (tick, label) -> own time
+        self._frames = []  # per running timed callback: [wall, CPU] of the callbacks it ran
+        self._excluded = [0.0, 0.0]  # wall, CPU [s] of excluded callbacks inside the outermost one
         self._excluding = [False]  # an excluded callback is running
 
-    def wrap(self, callback):
+    def wrap(self, callback, label: str | None = None):
         """``callback(context, *args)`` timed into the tick of ``context.get_time()``.
 
         Also for cache entries and output ports whose work is the controller's (the state
         estimate): Drake computes those where first evaluated, which may be a logger's publish
-        outside every update. A wrapped callback run inside another one is counted once, in the
-        outer one."""
+        outside every update. A wrapped callback run inside another one is counted once in the
+        tick (in the outer one) and in its own label's share of :meth:`breakdown`. ``label``
+        defaults to the callback's ``__qualname__``."""
+        label = label or getattr(callback, "__qualname__", repr(callback))
         wall_totals, cpu_totals = self._totals["wall"], self._totals["cpu"]
-        active, excluded = self._active, self._excluded
+        wall_blocks, cpu_blocks = self._blocks["wall"], self._blocks["cpu"]
+        frames, excluded = self._frames, self._excluded
 
         def timed(context, *args):
-            if active[0]:  # inside another timed callback (a cache it evaluates): counted there
-                return callback(context, *args)
-            active[0], excluded[:] = True, [0.0, 0.0]
+            outermost = not frames
+            if outermost:
+                excluded[:] = [0.0, 0.0]
+            frame = [0.0, 0.0]
+            frames.append(frame)
             wall, cpu = time.perf_counter(), time.thread_time()
             try:
                 status = callback(context, *args)
             finally:
-                active[0] = False
-            cpu = time.thread_time() - cpu - excluded[1]
-            wall = time.perf_counter() - wall - excluded[0]
+                cpu = time.thread_time() - cpu
+                wall = time.perf_counter() - wall
+                frames.pop()
             tick = round(context.get_time() / self._period)
-            wall_totals[tick] += wall
-            cpu_totals[tick] += cpu
+            wall_blocks[tick, label] += wall - frame[0]
+            cpu_blocks[tick, label] += cpu - frame[1]
+            if outermost:
+                wall_totals[tick] += wall - excluded[0]
+                cpu_totals[tick] += cpu - excluded[1]
+            else:
+                frames[-1][0] += wall
+                frames[-1][1] += cpu
             return status
         return timed
 
@@ -71,10 +87,10 @@ class TickTimer:
         robot's own work that a controller's evaluation pulls in (its sensors: contact forces
         summed into the feet's force/torque readings, noise), which a real controller receives
         instead of computing. Outside a timed callback it is simply called."""
-        active, excluded, excluding = self._active, self._excluded, self._excluding
+        frames, excluded, excluding = self._frames, self._excluded, self._excluding
 
         def untimed(context, *args):
-            if not active[0] or excluding[0]:  # not timed, or already inside an excluded callback
+            if not frames or excluding[0]:  # not timed, or already inside an excluded callback
                 return callback(context, *args)
             excluding[0] = True
             wall, cpu = time.perf_counter(), time.thread_time()
@@ -82,15 +98,21 @@ class TickTimer:
                 return callback(context, *args)
             finally:
                 excluding[0] = False
-                excluded[0] += time.perf_counter() - wall
-                excluded[1] += time.thread_time() - cpu
+                wall, cpu = time.perf_counter() - wall, time.thread_time() - cpu
+                excluded[0] += wall
+                excluded[1] += cpu
+                frames[-1][0] += wall  # not the running callback's own share either
+                frames[-1][1] += cpu
         return untimed
+
+    def _first_tick(self, since: float):
+        return round(since / self._period) if np.isfinite(since) else None
 
     def _ticks(self, since: float, clock: str):
         """``(tick indices, compute times)`` of the ticks at or after ``since`` [s], by ``clock``."""
         if clock not in self.CLOCKS:
             raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
-        first = round(since / self._period) if np.isfinite(since) else None
+        first = self._first_tick(since)
         totals = self._totals[clock]
         ticks = sorted(k for k in totals if first is None or k >= first)
         return ticks, np.array([totals[k] for k in ticks])
@@ -100,14 +122,30 @@ class TickTimer:
         return self._ticks(since, clock)[1]
 
     def summary(self, since: float = -np.inf, clock: str = "wall") -> dict:
-        """``{median, p99, max, ticks, max_at}`` of :meth:`per_tick` (seconds; ``max_at``: the time
-        [s] of the slowest tick, to find it in the run's log)."""
+        """``{median, p99, max, mean, ticks, max_at}`` of :meth:`per_tick` (seconds; ``max_at``: the
+        time [s] of the slowest tick, to find it in the run's log)."""
         ticks, values = self._ticks(since, clock)
         if not ticks:
-            return {"median": None, "p99": None, "max": None, "ticks": 0, "max_at": None}
+            return {"median": None, "p99": None, "max": None, "mean": None, "ticks": 0, "max_at": None}
         slowest = int(np.argmax(values))
         return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),
-                "max": float(values[slowest]), "ticks": len(values), "max_at": ticks[slowest] * self._period}
+                "max": float(values[slowest]), "mean": float(np.mean(values)), "ticks": len(values),
+                "max_at": ticks[slowest] * self._period}
+
+    def breakdown(self, since: float = -np.inf, clock: str = "cpu") -> dict:
+        """Each label's own time per tick [s], the mean over the ticks at or after ``since`` that
+        ran a timed callback, largest first: where a tick's work goes. The shares add up to the
+        mean of :meth:`per_tick`."""
+        ticks, _ = self._ticks(since, clock)
+        if not ticks:
+            return {}
+        first = ticks[0]
+        shares = defaultdict(float)
+        for (tick, label), seconds in self._blocks[clock].items():
+            if tick >= first:
+                shares[label] += seconds
+        return dict(sorted(((label, total / len(ticks)) for label, total in shares.items()),
+                           key=lambda item: -item[1]))
 
 
 def timed(callback, timer: TickTimer | None):

@@ -58,6 +58,10 @@ def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
     assert 0 < tick["median"] <= tick["p99"] <= tick["max"]
     cpu = online["tick_compute_cpu"]  # the same ticks in the thread's CPU time
     assert cpu["ticks"] == tick["ticks"] and 0 < cpu["median"] <= cpu["p99"] <= cpu["max"]
+    blocks = online["tick_compute_by_block"]  # where that CPU time goes, block by block
+    assert {"WholeBodyIK._update", "StateEstimator._calc_estimate", "StopPlannerSystem._update"} <= set(blocks)
+    assert all(seconds > 0 for seconds in blocks.values())
+    assert sum(blocks.values()) == pytest.approx(cpu["mean"], rel=1e-9)
     assert online["replans"] >= 0 and online["replan_failures"] >= 0
     assert online["joint_velocity_violations"] == 0
     assert paper_stop.criteria["joint_speed_within_limits"]  # the criterion is that count being 0
@@ -542,6 +546,7 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert set(data["tick_compute"]) >= {"median", "p99", "max"}
     assert data["tick_compute"]["median"] > 0
     assert set(data["tick_compute_cpu"]) >= {"median", "p99", "max"} and data["tick_compute_cpu"]["median"] > 0
+    assert data["tick_compute_by_block"]["WholeBodyIK._update"] > 0
     assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
     assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound

@@ -1,6 +1,7 @@
 """The controller's per-tick timing instrumentation and the frozen heap of the servo loop."""
 
 import gc
+import time
 
 import numpy as np
 import pytest
@@ -31,7 +32,8 @@ def test_tick_timer_sums_callbacks_per_tick_and_summarises_after_since():
     for t, work in ((0.0, 0), (0.005, 300000), (0.010, 0)):
         slow.wrap(lambda context, n=work: sum(range(n)))(_Context(t))
     assert slow.summary(clock="cpu")["max_at"] == pytest.approx(0.005)  # the slowest tick's time
-    assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "ticks": 0, "max_at": None}
+    assert TickTimer(0.005).summary() == {"median": None, "p99": None, "max": None, "mean": None, "ticks": 0,
+                                          "max_at": None}
     with pytest.raises(ValueError, match="clock"):
         timer.per_tick(clock="gpu")
 
@@ -97,6 +99,43 @@ def test_tick_timer_leaves_excluded_work_out_of_the_tick():
     assert len(timer.per_tick()) == 1
     update(_Context(0.005))  # the exclusion of one tick does not carry into the next
     assert 0.004 <= timer.per_tick(clock="cpu")[1] < 0.015
+
+
+class _Estimator:
+    def estimate(self, context):
+        end = time.thread_time() + 0.004
+        while time.thread_time() < end:
+            pass
+
+
+def test_tick_timer_breakdown_gives_each_block_its_own_share():
+    """Per label: a callback's time less the timed and excluded callbacks it ran; the shares of the
+    ticks since ``since`` add up to the mean tick (``summary``'s ``mean``)."""
+    import time
+
+    def spin(seconds):
+        end = time.thread_time() + seconds
+        while time.thread_time() < end:
+            pass
+
+    timer = TickTimer(0.005)
+    estimate = timer.wrap(_Estimator().estimate)  # label: the method's qualified name
+    sensors = timer.exclude(lambda context: spin(0.006))
+    planner = timer.wrap(lambda context: (spin(0.002), estimate(context), sensors(context)), label="planner")
+    planner(_Context(0.0))
+    planner(_Context(0.005))
+    estimate(_Context(0.010))  # alone (a logger's publish): its tick is its own work
+    shares = timer.breakdown(clock="cpu")
+    assert list(shares) == ["_Estimator.estimate", "planner"]  # largest first
+    assert shares["_Estimator.estimate"] == pytest.approx(3 * 0.004 / 3, rel=0.25)  # mean over 3 ticks
+    assert shares["planner"] == pytest.approx(2 * 0.002 / 3, rel=0.25)  # no estimator, no sensors
+    cpu = timer.summary(clock="cpu")
+    assert sum(shares.values()) == pytest.approx(cpu["mean"], rel=1e-9)
+    later = timer.breakdown(since=0.010, clock="cpu")
+    assert list(later) == ["_Estimator.estimate"] and later["_Estimator.estimate"] == pytest.approx(0.004, rel=0.25)
+    assert TickTimer(0.005).breakdown() == {}
+    with pytest.raises(ValueError, match="clock"):
+        timer.breakdown(clock="gpu")
 
 
 def test_frozen_heap_freezes_the_live_objects_for_the_block_and_unfreezes_after():

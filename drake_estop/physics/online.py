@@ -352,7 +352,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     :class:`drake_estop.physics.plant.PhysicsResult` of :func:`drake_estop.physics.plant.analyse`
     with ``online`` added: ``tick_compute`` (median / p99 / max wall-clock seconds of the
     controller's own work per servo tick after the signal), ``tick_compute_cpu`` (the same in the
-    thread's CPU time: without preemption by other processes), ``replans``,
+    thread's CPU time: without preemption by other processes), ``tick_compute_by_block`` (those
+    ticks' mean CPU seconds per block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``replans``,
     ``ankle_offset_max`` (the foot-edge compliance's largest ankle offset [rad]),
     ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction [rad]),
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
@@ -396,6 +397,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         # the same ticks in the controller thread's CPU time: its own work, without preemption by other
         # processes (which the wall clock above includes on a shared machine)
         "tick_compute_cpu": handles.timer.summary(since=plan.signal_time, clock="cpu"),
+        # where those ticks' CPU time goes: each block's own share, mean seconds a tick
+        "tick_compute_by_block": handles.timer.breakdown(since=plan.signal_time, clock="cpu"),
         "replans": int(replans),
         "replan_failures": int(replan_failures),
         "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
