@@ -148,9 +148,9 @@ class TickTimer:
                            key=lambda item: -item[1]))
 
 
-def timed(callback, timer: TickTimer | None):
-    """``callback`` wrapped by ``timer``, or unchanged without one."""
-    return callback if timer is None else timer.wrap(callback)
+def timed(callback, timer: TickTimer | None, label: str | None = None):
+    """``callback`` wrapped by ``timer`` (``label``: :meth:`TickTimer.wrap`'s), or unchanged without one."""
+    return callback if timer is None else timer.wrap(callback, label)
 
 
 def untimed(callback, timer: TickTimer | None):

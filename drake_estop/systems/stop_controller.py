@@ -148,12 +148,13 @@ def _table(pattern, params):
 class _ReferenceSystem(LeafSystem):
     """Base: a cached reference vector and one output port per entry."""
 
-    def _declare_reference_outputs(self, prerequisites):
-        """Cache the reference per context and declare its output ports."""
+    def _declare_reference_outputs(self, prerequisites, timer=None):
+        """Cache the reference per context and declare its output ports (``timer``: the cache's
+        computation timed as ``"<class>.reference"``)."""
         self._reference = self.DeclareCacheEntry(
             "reference",
             ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(REFERENCE_SIZE)),
-                          calc=self._calc_reference_value),
+                          calc=timed(self._calc_reference_value, timer, f"{type(self).__name__}.reference")),
             prerequisites)
         for name, size in REFERENCE_LAYOUT:  # one output port per entry, looked up by name
             self.DeclareVectorOutputPort(name, size, self._output_calc(REFERENCE_SLICES[name]),
@@ -637,7 +638,7 @@ class StopPlannerSystem(_ReferenceSystem):
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
-        self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()})
+        self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer)
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
