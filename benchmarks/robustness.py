@@ -84,6 +84,7 @@ def _run(job):
             "replans": result.online["replans"],
             "joint_velocity_violations": result.online["joint_velocity_violations"],
             "tick_compute": result.online["tick_compute"], "tick_compute_cpu": result.online["tick_compute_cpu"],
+            "tick_compute_by_block": result.online["tick_compute_by_block"],
             "torso_tilt_max": numbers["torso_tilt_max_rad"],
             "final_offset": numbers["final_cog_offset_m"], "realtime_factor": numbers["realtime_factor"],
             "wall": time.perf_counter() - start,
@@ -182,6 +183,12 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
         if cpu:
             lines += ["", f"The same in the controller thread's CPU time (its own work, no preemption): "
                       f"{_tick_line(cpu)}."]
+        blocks = [r["tick_compute_by_block"] for r in rows if r.get("tick_compute_by_block")]
+        if blocks:
+            labels = sorted({label for b in blocks for label in b}, key=lambda label: -_median(
+                [b.get(label, 0.0) for b in blocks]))
+            lines += ["", "Where it goes, CPU per tick by block (median over the runs of each run's mean): " + ", ".join(
+                f"{label} {_median([b.get(label, 0.0) for b in blocks]) * 1e3:.2f} ms" for label in labels) + "."]
         lines += ["", "Joint-velocity violations: "
                   f"{sum(r.get('joint_velocity_violations', 0) > 0 for r in rows)} of {len(rows)} runs."]
     factors = [r["cpu_realtime_factor"] for r in rows if "cpu_realtime_factor" in r]
