@@ -1,0 +1,39 @@
+"""benchmarks/bench_online.py: its report from runs (the runs themselves are physics, minutes: a benchmark)."""
+
+import pytest
+
+from scripts import load_script
+
+
+@pytest.fixture(scope="module")
+def bench():
+    return load_script("benchmarks/bench_online.py")
+
+
+def _run(rtf, median, p99, worst, blocks, success=True, replans=0):
+    return {"rtf": rtf, "cpu_rtf": rtf + 0.01, "tick": {"median": median, "p99": p99, "max": worst},
+            "blocks": blocks, "success": success, "replans": replans}
+
+
+def test_report_gives_medians_the_worst_tick_and_the_median_runs_blocks(bench):
+    runs = [_run(0.9, 1.0e-3, 3.0e-3, 4.0e-3, {"WholeBodyIK._update": 5e-4}),
+            _run(1.1, 1.4e-3, 2.0e-3, 9.0e-3, {"WholeBodyIK._update": 7e-4, "StopPlannerSystem._update": 2e-4},
+                 success=False, replans=2),
+            _run(1.0, 1.2e-3, 5.5e-3, 3.0e-3, {"WholeBodyIK._update": 6e-4, "StopPlannerSystem._update": 3e-4},
+                 replans=1)]
+    text = bench.report({"pushed": runs}, 3, 12.0)
+    row = next(line for line in text.splitlines() if line.startswith("| pushed"))
+    # 2 of 3 succeed; the median run (real-time factor 1.0) re-planned once; medians, worst p99 and max
+    assert row == "| pushed | 2/3 | 1 | 1.00 (0.90-1.10) | 1.01 | 1.20 ms | 5.50 ms | 9.00 ms |"
+    assert "| WholeBodyIK._update | 0.60 ms |" in text  # the median run's blocks, largest first
+    assert text.index("WholeBodyIK._update | 0.60") < text.index("StopPlannerSystem._update | 0.30")
+    assert "is 0.90 ms of CPU, inside one." in text  # the median run's blocks summed: 0.6 + 0.3 ms
+    slow = bench.report({"slow": [_run(0.8, 2e-3, 3e-3, 4e-3, {"WholeBodyIK._update": 1.5e-3})]}, 1, 5.0)
+    assert "is 1.50 ms of CPU, so this Python controller does not fit one." in slow
+
+
+def test_repeats_below_one_is_refused_naming_the_option(bench, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(["--repeats", "0"])
+    assert exit_info.value.code == 2
+    assert "--repeats must be >= 1" in capsys.readouterr().err
