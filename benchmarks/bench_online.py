@@ -69,7 +69,8 @@ def report(results: dict, repeats: int, wall: float) -> str:
             f"| {statistics.median(rtfs):.2f} ({min(rtfs):.2f}-{max(rtfs):.2f}) "
             f"| {statistics.median(r['cpu_rtf'] for r in runs):.2f} "
             f"| {statistics.median(r['tick']['median'] for r in runs) * 1e3:.2f} ms "
-            f"| {max(r['tick']['p99'] for r in runs) * 1e3:.2f} ms | {max(r['tick']['max'] for r in runs) * 1e3:.2f} ms |")
+            f"| {max(r['tick']['p99'] for r in runs) * 1e3:.2f} ms "
+            f"| {max(r['tick']['max'] for r in runs) * 1e3:.2f} ms |")
         breakdowns.append((name, median_run["blocks"]))
     lines += ["", "CPU per tick by block (mean over the ticks after the signal; the median run):", "",
               "| block | " + " | ".join(name for name, _ in breakdowns) + " |", "| --- |" + " --- |" * len(breakdowns)]

@@ -187,8 +187,9 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
         if blocks:
             labels = sorted({label for b in blocks for label in b}, key=lambda label: -_median(
                 [b.get(label, 0.0) for b in blocks]))
-            lines += ["", "Where it goes, CPU per tick by block (median over the runs of each run's mean): " + ", ".join(
-                f"{label} {_median([b.get(label, 0.0) for b in blocks]) * 1e3:.2f} ms" for label in labels) + "."]
+            shares = ", ".join(f"{label} {_median([b.get(label, 0.0) for b in blocks]) * 1e3:.2f} ms"
+                               for label in labels)
+            lines += ["", f"Where it goes, CPU per tick by block (median over the runs of each run's mean): {shares}."]
         lines += ["", "Joint-velocity violations: "
                   f"{sum(r.get('joint_velocity_violations', 0) > 0 for r in rows)} of {len(rows)} runs."]
     factors = [r["cpu_realtime_factor"] for r in rows if "cpu_realtime_factor" in r]

@@ -362,8 +362,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             swing_tilt=args.swing_tilt,
                             planner_options=_planner_options(args))
         online = {key: result.online[key] for key in
-                  ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "replans", "replan_failures", "joint_velocity_violations",
-                   "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max")}
+                  ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "replans", "replan_failures",
+                   "joint_velocity_violations", "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2],

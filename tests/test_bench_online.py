@@ -1,7 +1,6 @@
 """benchmarks/bench_online.py: its report from runs (the runs themselves are physics, minutes: a benchmark)."""
 
 import pytest
-
 from scripts import load_script
 
 
