@@ -193,7 +193,13 @@ class CopEstimator(LeafSystem):
         ground = ground_bodies if ground_bodies is not None else (plant.world_body(),)
         self._ground = {int(b.index()) for b in ground}
         self._bodies = [int(b.index()) for b in bodies]
-        self._pair_sides = {}  # (body A, body B) -> (sign, index in bodies or -1), filled as pairs appear
+        # (body A, body B) of a point pair -> (sign, index in ``bodies`` or -1): a function of the model
+        # alone, tabulated once for every pair of the plant's bodies
+        self._pair_sides = {}
+        for body_a in range(plant.num_bodies()):
+            for body_b in range(plant.num_bodies()):
+                sign, body = self._robot_side(body_a, body_b)
+                self._pair_sides[body_a, body_b] = (sign, self._bodies.index(body) if body in self._bodies else -1)
         self._geometry_body = {}
         if scene_graph is not None:
             inspector = scene_graph.model_inspector()
@@ -242,12 +248,7 @@ class CopEstimator(LeafSystem):
         pair_sides = self._pair_sides
         for i in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(i)
-            pair = (int(info.bodyA_index()), int(info.bodyB_index()))
-            side = pair_sides.get(pair)
-            if side is None:  # the (sign, owner) of a body pair: a function of the model alone
-                sign, body = self._robot_side(*pair)
-                side = pair_sides[pair] = (sign, self._bodies.index(body) if body in self._bodies else -1)
-            sign, owner = side
+            sign, owner = pair_sides[int(info.bodyA_index()), int(info.bodyB_index())]
             if sign == 0.0:
                 continue
             px, py, pz = info.contact_point().tolist()
