@@ -269,6 +269,26 @@ def _knees(plant, q):
     return np.array([q[plant.GetJointByName(name).position_start()] for name in ("l_knee", "r_knee")])
 
 
+def test_task_jacobian_is_taken_where_the_errors_were_even_if_the_context_moved(plant, q_nominal):
+    """The solver computes a step's Jacobian only when it steps (the last iterate needs none), at the
+    errors' q: also when its scratch context was moved in between; and only once per iterate."""
+    solver = WholeBodyIkSolver(plant)
+    com, left, right, _ = next(walking_targets(1))
+    targets = solver._targets(com, left, right, None)
+    bent = q_nominal.copy()
+    bent[joint_position_indices(plant, ["l_knee"])] += 0.3
+    context = plant.CreateDefaultContext()
+    err = solver._errors(context, q_nominal, targets)
+    assert err.jac is None  # errors alone
+    plant.SetPositions(context, bent)  # someone moved the context
+    jacobian = solver._jacobian(context, err)
+    fresh = solver._errors(plant.CreateDefaultContext(), q_nominal, targets)
+    np.testing.assert_array_equal(jacobian, solver._jacobian(plant.CreateDefaultContext(), fresh))
+    moved = solver._errors(plant.CreateDefaultContext(), bent, targets)
+    assert not np.allclose(jacobian, solver._jacobian(plant.CreateDefaultContext(), moved))  # q matters
+    assert solver._jacobian(context, err) is jacobian  # computed once
+
+
 def test_min_knee_bend_lowers_the_cog_instead_of_straightening_a_knee(plant, q_nominal):
     """A COG 0.25 m ahead of the rear ankle at the walking height needs a straight rear knee: the
     default solver straightens it onto its 0 rad limit; with ``min_knee_bend`` both knees stay bent by

@@ -280,7 +280,8 @@ class WholeBodyIkSolver:
         """``err.jac``: the 18 x 18 task Jacobian at ``err.q`` (computed once)."""
         if err.jac is None:
             plant, world, kv = self._plant, self._world, JacobianWrtVariable.kV
-            plant.SetPositions(context, err.q)  # a no-op for the cache when the context is at err.q
+            if not np.array_equal(plant.GetPositions(context), err.q):  # a solve leaves it there already;
+                plant.SetPositions(context, err.q)  # setting it again would recompute the kinematics
             jac = np.empty((18, self._nv))
             jac[0:3] = plant.CalcJacobianCenterOfMassTranslationalVelocity(context, kv, world, world)
             for k, frame in enumerate(self._soles):
