@@ -127,12 +127,13 @@ def test_tick_timer_breakdown_gives_each_block_its_own_share():
     estimate(_Context(0.010))  # alone (a logger's publish): its tick is its own work
     shares = timer.breakdown(clock="cpu")
     assert list(shares) == ["_Estimator.estimate", "planner"]  # largest first
-    assert shares["_Estimator.estimate"] == pytest.approx(3 * 0.004 / 3, rel=0.25)  # mean over 3 ticks
-    assert shares["planner"] == pytest.approx(2 * 0.002 / 3, rel=0.25)  # no estimator, no sensors
+    assert 0.004 <= shares["_Estimator.estimate"] < 0.008  # 3 x 4 ms over 3 ticks
+    # the planner's own 2 x 2 ms over 3 ticks: without the estimator's (4 ms) and the sensors' (6 ms) time
+    assert 2 * 0.002 / 3 <= shares["planner"] < 0.003
     cpu = timer.summary(clock="cpu")
     assert sum(shares.values()) == pytest.approx(cpu["mean"], rel=1e-9)
     later = timer.breakdown(since=0.010, clock="cpu")
-    assert list(later) == ["_Estimator.estimate"] and later["_Estimator.estimate"] == pytest.approx(0.004, rel=0.25)
+    assert list(later) == ["_Estimator.estimate"] and 0.004 <= later["_Estimator.estimate"] < 0.008
     assert TickTimer(0.005).breakdown() == {}
     with pytest.raises(ValueError, match="clock"):
         timer.breakdown(clock="gpu")
