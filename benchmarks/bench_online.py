@@ -44,7 +44,7 @@ SCENARIOS = {
 
 
 def run(estop_time, perturbations, pattern):
-    """One online run: ``(real-time factor, CPU real-time factor, CPU tick summary, breakdown, success)``."""
+    """One online run: ``{rtf, cpu_rtf, tick (CPU summary), blocks (breakdown), success, replans}``."""
     result = run_online(estop_time=estop_time, perturbations=perturbations, pattern=pattern,
                         stop_params=controller_stop_parameters())
     online = result.online

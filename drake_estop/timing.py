@@ -105,14 +105,11 @@ class TickTimer:
                 frames[-1][1] += cpu
         return untimed
 
-    def _first_tick(self, since: float):
-        return round(since / self._period) if np.isfinite(since) else None
-
     def _ticks(self, since: float, clock: str):
         """``(tick indices, compute times)`` of the ticks at or after ``since`` [s], by ``clock``."""
         if clock not in self.CLOCKS:
             raise ValueError(f"clock must be one of {self.CLOCKS}, got {clock!r}")
-        first = self._first_tick(since)
+        first = round(since / self._period) if np.isfinite(since) else None
         totals = self._totals[clock]
         ticks = sorted(k for k in totals if first is None or k >= first)
         return ticks, np.array([totals[k] for k in ticks])

@@ -271,7 +271,7 @@ class CopEstimator(LeafSystem):
             if body_m is None or body_n is None:
                 continue
             # F_Ac_W acts on A (geometry M): towards the robot if M is the robot.
-            sign, body = self._robot_side(body_n, body_m)
+            sign, owner = self._pair_sides[body_n, body_m]
             if sign == 0.0:
                 continue
             spatial = info.F_Ac_W()
@@ -281,8 +281,8 @@ class CopEstimator(LeafSystem):
             force += f
             moment += np.cross(p, f) + tau
             count += 1
-            if body in self._bodies:
-                body_wrench[self._bodies.index(body)] += np.concatenate([np.cross(p, f) + tau, f])
+            if owner >= 0:
+                body_wrench[owner] += np.concatenate([np.cross(p, f) + tau, f])
         return np.concatenate([moment, force, [count], body_wrench[:, 5], body_wrench.ravel()])
 
     def _calc_sums(self, context, value):
@@ -514,10 +514,10 @@ class DesiredStateInterpolator(LeafSystem):
         self.q_port = self.DeclareVectorInputPort("q", len(initial))
         # [q_a of the previous tick, time of the last tick]
         self._state = self.DeclareDiscreteState(np.concatenate([initial[self._idx], [0.0]]))
-        # this tick's [hold start, velocity, tick time]: it changes only at the ticks, so it is
-        # computed once a tick and not at every plant step between them
+        # this tick's [hold start, velocity, tick time, command]: it changes only at the ticks, so it
+        # is computed once a tick and not at every plant step between them (the update stores its command)
         self._hold = self.DeclareCacheEntry(
-            "first-order hold", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(2 * n + 1)),
+            "first-order hold", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(3 * n + 1)),
                                               calc=self._calc_hold),
             {self.q_port.ticket(), self.xd_ticket()})
         self.desired_state_port = self.DeclareVectorOutputPort(
@@ -538,8 +538,7 @@ class DesiredStateInterpolator(LeafSystem):
         return previous + np.clip(q - previous, -self._max_step, self._max_step)
 
     def _update(self, context, discrete_state):
-        previous = context.get_discrete_state(self._state).value()[:-1]
-        q = self._command(context, previous)
+        q = self._hold.Eval(context)[2 * len(self._idx) + 1:]  # the input, rate-limited from the last command
         discrete_state.set_value(self._state, np.concatenate([q, [context.get_time()]]))
         return EventStatus.Succeeded()
 
@@ -549,12 +548,12 @@ class DesiredStateInterpolator(LeafSystem):
         q = self._command(context, previous)
         v = (q - previous) / self._dt
         base = q if self._extrapolate else previous
-        value.set_value(np.concatenate([base, v, [tick]]))
+        value.set_value(np.concatenate([base, v, [tick], q]))
 
     def _calc(self, context, output):
         hold = self._hold.Eval(context)
         n = len(self._idx)
         v = hold[n:2 * n]
         out = output.get_mutable_value()
-        out[:n] = hold[:n] + (context.get_time() - hold[-1]) * v
+        out[:n] = hold[:n] + (context.get_time() - hold[2 * n]) * v
         out[n:] = v
