@@ -85,6 +85,7 @@ def _run(job):
             "joint_velocity_violations": result.online["joint_velocity_violations"],
             "tick_compute": result.online["tick_compute"], "tick_compute_cpu": result.online["tick_compute_cpu"],
             "tick_compute_by_block": result.online["tick_compute_by_block"],
+            "tick_compute_slowest": result.online["tick_compute_slowest"],
             "torso_tilt_max": numbers["torso_tilt_max_rad"],
             "final_offset": numbers["final_cog_offset_m"], "realtime_factor": numbers["realtime_factor"],
             "wall": time.perf_counter() - start,
@@ -114,6 +115,9 @@ def main(argv=None):
                         help="run without the stance ankles' foot-edge compliance (for comparison)")
     parser.add_argument("--no-swing-tilt", action="store_true",
                         help="run without the swing foot's tilt compensation (for comparison)")
+    parser.add_argument("--no-recheck", action="store_true",
+                        help="do not re-run alone the runs whose controller tick (CPU) had a p99 over 5 ms or a "
+                             "max over 10 ms")
     args = parser.parse_args(argv)
     start, end = _stride()
     every = 0.08 if args.quick else 0.02
@@ -132,6 +136,8 @@ def main(argv=None):
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(_run, jobs))
     wall = time.perf_counter() - wall
+    if not args.no_recheck:
+        recheck(rows, jobs)
     data = {"sweep": rows[:len(sweep_times)], "rows": rows, "wall_s": wall, "workers": args.workers}
     Path(args.out).with_suffix(".json").write_text(json.dumps(data, indent=1, default=str))
     text = report(rows, sweep_times, phase_times, impulses, wall, args.workers)
@@ -149,6 +155,65 @@ def main(argv=None):
         text = text.replace("\n\n", f"\n\nPlant time step: {args.time_step * 1e3:g} ms.\n\n", 1)
     Path(args.out).write_text(text)
     print(Path(args.out).read_text())
+
+
+#: a run's controller tick (CPU) over either bound is re-run alone: issue 13's p99 and max per tick [s]
+SLOW_P99, SLOW_MAX = 5e-3, 10e-3
+
+
+def slow_runs(rows) -> list:
+    """Indices of the rows whose controller tick in CPU time had a p99 over ``SLOW_P99`` or a max over
+    ``SLOW_MAX``."""
+    return [i for i, r in enumerate(rows) if r.get("tick_compute_cpu", {}).get("median")
+            and (r["tick_compute_cpu"]["p99"] > SLOW_P99 or r["tick_compute_cpu"]["max"] > SLOW_MAX)]
+
+
+def recheck(rows, jobs):
+    """Re-run each of :func:`slow_runs` alone (one worker, the other core idle) and keep its timing in
+    the row's ``recheck``, with whether the run did the same (success, numbers, re-plans): a slow tick
+    that is the controller's own work is slow again; one that two runs on two cores made slow is not."""
+    slow = slow_runs(rows)
+    if not slow:
+        return
+    with ProcessPoolExecutor(1) as pool:
+        again = list(pool.map(_run, [jobs[i] for i in slow]))
+    for i, row in zip(slow, again):
+        rows[i]["recheck"] = {key: row.get(key) for key in ("tick_compute_cpu", "tick_compute_slowest")}
+        rows[i]["recheck"]["same_run"] = all(row.get(key) == rows[i].get(key)
+                                             for key in ("success", "numbers", "replans", "failed"))
+
+
+def recheck_lines(rows) -> list:
+    """The report's lines on the slow runs: each one's slowest tick by block, and its figures alone."""
+    slow = [rows[i] for i in slow_runs(rows)]
+    if not slow:
+        return []
+    lines = ["", f"Runs with a tick (CPU) over {SLOW_P99 * 1e3:g} ms p99 or {SLOW_MAX * 1e3:g} ms max, and the "
+             "same run again alone (one worker, the other core idle): the slowest tick's largest blocks show "
+             "where it went.", "", "| run | p99 / max [ms] | slowest tick: its largest blocks [ms] | alone: "
+             "p99 / max [ms] | alone: slowest tick | same run |", "| --- | --- | --- | --- | --- | --- |"]
+    for r in slow:
+        cpu, again = r["tick_compute_cpu"], r.get("recheck")
+        alone = (f"{again['tick_compute_cpu']['p99'] * 1e3:.2f} / {again['tick_compute_cpu']['max'] * 1e3:.2f}"
+                 f" | {_slowest(again.get('tick_compute_slowest'))} | {'yes' if again['same_run'] else 'NO'}"
+                 if again and again.get("tick_compute_cpu") else "not re-run | - | -")
+        lines.append(f"| {r['t']:.3f} s {_options(r['options'])} | {cpu['p99'] * 1e3:.2f} / {cpu['max'] * 1e3:.2f}"
+                     f" | {_slowest(r.get('tick_compute_slowest'))} | {alone} |")
+    return lines
+
+
+def _slowest(slowest) -> str:
+    """``t s: total ms (block ms, block ms)`` of a run's slowest tick (``tick_compute_slowest[0]``)."""
+    if not slowest:
+        return "-"
+    worst = slowest[0]
+    blocks = ", ".join(f"{label} {seconds * 1e3:.2f}"
+                       for label, seconds in list(worst["blocks"].items())[:2])
+    return f"{worst['t']:.3f} s: {worst['total'] * 1e3:.2f} ({blocks})"
+
+
+def _options(options) -> str:
+    return ", ".join(f"{k} {v}" for k, v in options.items()) if options else "(sweep)"
 
 
 def _push(direction, impulse) -> dict:
@@ -183,6 +248,7 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
         if cpu:
             lines += ["", f"The same in the controller thread's CPU time (its own work, no preemption): "
                       f"{_tick_line(cpu)}."]
+            lines += recheck_lines(rows)
         blocks = [r["tick_compute_by_block"] for r in rows if r.get("tick_compute_by_block")]
         if blocks:
             labels = sorted({label for b in blocks for label in b}, key=lambda label: -_median(

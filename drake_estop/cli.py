@@ -328,6 +328,9 @@ def _simulate(args) -> int:
             blocks = summary["tick_compute_by_block"]
             print("  CPU per tick by block (mean): " + ", ".join(
                 f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(blocks.items())[:5]))
+            worst = summary["tick_compute_slowest"][0]
+            print(f"  slowest tick (CPU) at {worst['t']:.3f} s, {worst['total'] * 1e3:.2f} ms: " + ", ".join(
+                f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(worst["blocks"].items())[:3]))
         return 0 if not failed else 1
     return 0
 
@@ -362,7 +365,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             swing_tilt=args.swing_tilt,
                             planner_options=_planner_options(args))
         online = {key: result.online[key] for key in
-                  ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "replans", "replan_failures",
+                  ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "tick_compute_slowest", "replans",
+                   "replan_failures",
                    "joint_velocity_violations", "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]

@@ -144,6 +144,23 @@ class TickTimer:
         return dict(sorted(((label, total / len(ticks)) for label, total in shares.items()),
                            key=lambda item: -item[1]))
 
+    def slowest(self, since: float = -np.inf, clock: str = "cpu", count: int = 3) -> list:
+        """The ``count`` slowest ticks at or after ``since``, slowest first, each
+        ``{"t": time [s], "total": seconds, "blocks": {label: own seconds, largest first}}``: what
+        the worst ticks spent their time on. A slow tick whose blocks all took longer than their
+        mean points at the machine (preemption, a busy sibling core); one block far over its mean
+        at that block's own work (a re-plan)."""
+        if count < 1:
+            raise ValueError(f"count must be at least 1, got {count!r}")
+        ticks, values = self._ticks(since, clock)
+        order = np.argsort(-values, kind="stable")[:count]
+        chosen = {ticks[i]: {} for i in order}
+        for (tick, label), seconds in self._blocks[clock].items():
+            if tick in chosen:
+                chosen[tick][label] = seconds
+        return [{"t": ticks[i] * self._period, "total": float(values[i]),
+                 "blocks": dict(sorted(chosen[ticks[i]].items(), key=lambda item: -item[1]))} for i in order]
+
 
 def timed(callback, timer: TickTimer | None, label: str | None = None):
     """``callback`` wrapped by ``timer`` (``label``: :meth:`TickTimer.wrap`'s), or unchanged without one."""

@@ -63,6 +63,10 @@ def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):
             "StopPlannerSystem.reference"} <= set(blocks)  # the planner's reference: a cache, timed as its own
     assert all(seconds > 0 for seconds in blocks.values())
     assert sum(blocks.values()) == pytest.approx(cpu["mean"], rel=1e-9)
+    slowest = online["tick_compute_slowest"]  # the worst ticks, what each spent its time on
+    assert len(slowest) == 3 and slowest[0]["total"] == pytest.approx(cpu["max"], rel=1e-12)
+    assert slowest[0]["t"] == pytest.approx(cpu["max_at"]) and slowest[0]["t"] >= paper_stop.plan.signal_time
+    assert set(slowest[0]["blocks"]) <= set(blocks)
     assert online["replans"] >= 0 and online["replan_failures"] >= 0
     assert online["joint_velocity_violations"] == 0
     assert paper_stop.criteria["joint_speed_within_limits"]  # the criterion is that count being 0
@@ -548,6 +552,8 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert data["tick_compute"]["median"] > 0
     assert set(data["tick_compute_cpu"]) >= {"median", "p99", "max"} and data["tick_compute_cpu"]["median"] > 0
     assert data["tick_compute_by_block"]["WholeBodyIK._update"] > 0
+    worst = data["tick_compute_slowest"][0]  # the slowest tick after the signal, block by block
+    assert worst["total"] == pytest.approx(data["tick_compute_cpu"]["max"]) and worst["blocks"]
     assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
     assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
     assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound

@@ -139,6 +139,36 @@ def test_tick_timer_breakdown_gives_each_block_its_own_share():
         timer.breakdown(clock="gpu")
 
 
+def test_tick_timer_slowest_names_the_worst_ticks_and_their_blocks():
+    """The slowest ticks since ``since``, slowest first, each with its blocks' own time: a tick where the
+    planner spun 6 ms is first and its largest block is the planner's, not the estimator's."""
+    import time
+
+    def spin(seconds):
+        end = time.thread_time() + seconds
+        while time.thread_time() < end:
+            pass
+
+    timer = TickTimer(0.005)
+    estimate = timer.wrap(_Estimator().estimate)  # 4 ms a call
+    planner = timer.wrap(lambda context, seconds: (spin(seconds), estimate(context)), label="planner")
+    for t, seconds in ((0.0, 0.009), (0.005, 0.0), (0.010, 0.006), (0.015, 0.001)):
+        planner(_Context(t), seconds)
+    worst = timer.slowest(clock="cpu", count=2)
+    assert [round(entry["t"], 3) for entry in worst] == [0.0, 0.010]
+    assert list(worst[1]["blocks"]) == ["planner", "_Estimator.estimate"]  # largest first
+    assert 0.006 <= worst[1]["blocks"]["planner"] < 0.010 <= worst[1]["total"]
+    assert worst[1]["total"] == pytest.approx(sum(worst[1]["blocks"].values()), rel=1e-9)
+    assert worst[0]["total"] == pytest.approx(timer.summary(clock="cpu")["max"], rel=1e-12)
+    later = timer.slowest(since=0.005, clock="cpu", count=10)
+    assert [round(entry["t"], 3) for entry in later] == [0.010, 0.015, 0.005]  # every tick since, at most count
+    assert TickTimer(0.005).slowest() == []
+    with pytest.raises(ValueError, match="count"):
+        timer.slowest(count=0)
+    with pytest.raises(ValueError, match="clock"):
+        timer.slowest(clock="gpu")
+
+
 def test_frozen_heap_freezes_the_live_objects_for_the_block_and_unfreezes_after():
     assert gc.get_freeze_count() == 0
     kept = [np.zeros(3) for _ in range(10)]

@@ -353,7 +353,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     with ``online`` added: ``tick_compute`` (median / p99 / max wall-clock seconds of the
     controller's own work per servo tick after the signal), ``tick_compute_cpu`` (the same in the
     thread's CPU time: without preemption by other processes), ``tick_compute_by_block`` (those
-    ticks' mean CPU seconds per block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``replans``,
+    ticks' mean CPU seconds per block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`),
+    ``tick_compute_slowest`` (the three slowest of those ticks in CPU time, each with its blocks:
+    :meth:`TickTimer.slowest`), ``replans``,
     ``ankle_offset_max`` (the foot-edge compliance's largest ankle offset [rad]),
     ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction [rad]),
     ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
@@ -399,6 +401,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "tick_compute_cpu": handles.timer.summary(since=plan.signal_time, clock="cpu"),
         # where those ticks' CPU time goes: each block's own share, mean seconds a tick
         "tick_compute_by_block": handles.timer.breakdown(since=plan.signal_time, clock="cpu"),
+        # the three slowest of those ticks (CPU) and each one's blocks: what the worst tick did
+        "tick_compute_slowest": handles.timer.slowest(since=plan.signal_time, clock="cpu", count=3),
         "replans": int(replans),
         "replan_failures": int(replan_failures),
         "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
