@@ -134,6 +134,35 @@ def test_swing_braking_time_is_the_soonest_landing_within_the_limit():
         == pytest.approx(StopParameters().min_landing_time)
 
 
+def test_swing_braking_time_searches_in_chunks_with_the_whole_grids_answer():
+    """The search stops at the first chunk of durations with one within the limit; its answer is the
+    whole grid's first, to the bit, also where it lies past the first chunk or nowhere."""
+    from drake_estop.planning import planner
+
+    params = StopParameters(max_swing_acceleration=12.0)
+    grid = np.arange(params.min_landing_time, params.max_landing_time - DT + 1e-9, DT)
+    terms = planner._BRAKING_TERMS
+
+    def whole_grid(pos, vel, acc, target):
+        distance = np.asarray(target, float)[:2] - pos[:2]
+        T = grid[:, None, None]
+        swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel[:2] * T
+                 + terms[2][None, :, None] * acc[:2] * T**2) / T**2
+        within = np.flatnonzero(np.max(np.linalg.norm(swing, axis=2), axis=1) <= params.max_swing_acceleration + 1e-9)
+        return float(grid[within[0]]) if len(within) else params.min_landing_time
+
+    rng = np.random.default_rng(7)
+    answers = []
+    for _ in range(300):
+        pos, target = rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.3, 0.3, 2)
+        vel, acc = rng.uniform(-1.5, 1.5, 3), rng.uniform(-12.0, 12.0, 3)
+        answers.append(swing_braking_time(pos, vel, acc, target, params))
+        assert answers[-1] == whole_grid(pos, vel, acc, target)
+    index = np.round((np.array(answers) - params.min_landing_time) / DT)
+    assert np.sum(index >= planner._BRAKING_CHUNK) >= 10  # answers past the first chunk were searched too
+    assert np.sum(index == 0) >= 10  # and the first duration (or none within the limit)
+
+
 def test_a_replanned_landing_waits_for_the_swing_to_brake():
     """Pushed 0.15 s before the touchdown, the paper's re-plan lands 25 ms sooner; with a 10 m/s^2 limit the
     landing is no sooner than the swing can brake to the plan's landing point."""

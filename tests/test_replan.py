@@ -160,6 +160,25 @@ def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
         replan_stop(plan, t, com, vel)
 
 
+def test_ankle_strategy_builds_the_replans_start_once_for_all_its_tries(monkeypatch):
+    """The ankle strategy's tries differ only in the stance ZMP: the measured start (the feet's motion and
+    the swing's braking time) is built once, and every try solves from it with its own ZMP."""
+    from drake_estop.planning import planner
+
+    plan, t, com, vel = _left_push_state()
+    braking, solved = [], []
+    real_braking, real_plan_from = planner.swing_braking_time, planner._plan_from
+    monkeypatch.setattr(planner, "swing_braking_time", lambda *a: braking.append(a) or real_braking(*a))
+    monkeypatch.setattr(planner, "_plan_from",
+                        lambda pattern, state, *a, **k: solved.append(state.zmp.copy()) or real_plan_from(
+                            pattern, state, *a, **k))
+    new = replan_stop(plan, t, com, vel)
+    assert len(braking) == 1 and len(solved) >= 2  # the held ZMP failed, an ankle-strategy ZMP held
+    np.testing.assert_allclose(solved[0], [traj.evaluate_at(t)[3] for traj in (plan.x, plan.y)])
+    np.testing.assert_allclose(_state_at(new, t)[2], solved[-1], atol=1e-12)  # the last try is the plan
+    assert not np.allclose(solved[0], solved[-1])
+
+
 def test_ankle_zmp_brings_the_dcm_back_onto_the_plan_at_the_landing():
     from drake_estop.planning.planner import ankle_zmp
 

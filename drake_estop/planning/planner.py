@@ -779,8 +779,9 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
     double = plan.landing_time <= t < plan.slowdown_end
     if not (single or double):
         return None
+    start = _ReplanStart(plan, t, com_xy, com_vel_xy, double, params, footholds if double else None)
     try:
-        return _replan(plan, t, com_xy, com_vel_xy, double, params, footholds=footholds if double else None)
+        return start.solve()
     except InfeasibleStop as error:
         if double:
             if not recovery_step:
@@ -796,7 +797,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
         if np.max(np.abs(zmp - current)) < 1e-3:
             continue
         try:
-            return _replan(plan, t, com_xy, com_vel_xy, double, params, stance_zmp=zmp)
+            return start.solve(stance_zmp=zmp)
         except InfeasibleStop as error:
             failure = error
     raise failure
@@ -875,57 +876,72 @@ def swing_braking_time(pos, vel, acc, target_xy, params: StopParameters) -> floa
     # ankle acceleration of the Hermite at s on the grid, for every duration T (eq. of landing_swing):
     # (S''(s) D + H1''(s) v T + H2''(s) a T^2) / T^2
     terms = _BRAKING_TERMS
-    T = durations[:, None, None]
-    swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel * T
-             + terms[2][None, :, None] * acc * T**2) / T**2
-    peak = np.max(np.linalg.norm(swing, axis=2), axis=1)
-    within = np.flatnonzero(peak <= limit + 1e-9)
-    return float(durations[within[0]]) if len(within) else params.min_landing_time
+    for first in range(0, len(durations), _BRAKING_CHUNK):  # the soonest first: most re-plans stop in the first
+        chunk = durations[first:first + _BRAKING_CHUNK]
+        T = chunk[:, None, None]
+        swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel * T
+                 + terms[2][None, :, None] * acc * T**2) / T**2
+        peak = np.max(np.linalg.norm(swing, axis=2), axis=1)
+        within = np.flatnonzero(peak <= limit + 1e-9)
+        if len(within):
+            return float(chunk[within[0]])
+    return params.min_landing_time
 
 
+#: durations checked at a time by swing_braking_time (each duration's check is its own: the same bits)
+_BRAKING_CHUNK = 16
 #: second derivatives of the landing swing's Hermite terms on its check grid (position, velocity, acceleration)
 _BRAKING_TERMS = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
 
 
-def _replan(plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
-            stance_zmp=None, footholds=None) -> StopPlan:
-    """:func:`replan_stop`'s plan: the plan's state at ``t`` with the measured COG, solved as a single-
-    or double-support stop; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest; ``footholds``
-    (``{side: xy}``, double support) replace the plan's feet, at rest."""
-    h = 1e-3
-    axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
-    zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
-    if stance_zmp is not None:
-        zmp, rate, accel = np.asarray(stance_zmp, float)[:2].copy(), np.zeros(2), np.zeros(2)
-    before, now, after = plan.feet(t - h), plan.feet(t), plan.feet(t + h)
-    if t - h < plan.start_time:  # the plan's own swing start (continuous with what it started from)
-        before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
-    feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
-    feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
-    for side, xy in (footholds or {}).items():
-        now[side] = np.array([xy[0], xy[1], 0.0])
-        feet_vel[side], feet_acc[side] = np.zeros(3), np.zeros(3)
-    upper, upper_rate = plan.upper_body(t)
-    yaw, yaw_rate = plan.feet_yaw(t)
-    changes = dict(time=float(t), feet_yaw=yaw, feet_yaw_rate=yaw_rate, com=np.asarray(com_xy, float)[:2].copy(),
-                   com_vel=np.asarray(com_vel_xy, float)[:2].copy(), zmp=zmp, zmp_rate=rate, zmp_accel=accel,
-                   feet=now, feet_vel=feet_vel, feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
-    if double:
-        rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
-                else plan.start_state.rear_foot)
-        changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
-    braked = False
-    if not double and plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
-        side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
-        soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
-        braked = soonest > params.min_landing_time + 1e-9  # the limit bounds the landing (braked_swing)
-        params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
-    wall = time.perf_counter()
-    new = _plan_from(plan.pattern, replace(plan.start_state, **changes), params, plan.signal_time, plan.case,
-                     zmp_region="polygon" if double else "fore")
-    new.braked_swing = braked
-    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
-    return _finish(new, wall)
+class _ReplanStart:
+    """:func:`replan_stop`'s start: the plan's state at ``t`` with the measured COG, built once and solved
+    (:meth:`solve`) as a single- or double-support stop, for each stance ZMP the ankle strategy tries;
+    ``footholds`` (``{side: xy}``, double support) replace the plan's feet, at rest."""
+
+    def __init__(self, plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
+                 footholds=None):
+        h = 1e-3
+        axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
+        zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
+        before, now, after = plan.feet(t - h), plan.feet(t), plan.feet(t + h)
+        if t - h < plan.start_time:  # the plan's own swing start (continuous with what it started from)
+            before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
+        feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
+        feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
+        for side, xy in (footholds or {}).items():
+            now[side] = np.array([xy[0], xy[1], 0.0])
+            feet_vel[side], feet_acc[side] = np.zeros(3), np.zeros(3)
+        upper, upper_rate = plan.upper_body(t)
+        yaw, yaw_rate = plan.feet_yaw(t)
+        self.changes = dict(time=float(t), feet_yaw=yaw, feet_yaw_rate=yaw_rate,
+                            com=np.asarray(com_xy, float)[:2].copy(), com_vel=np.asarray(com_vel_xy, float)[:2].copy(),
+                            zmp=zmp, zmp_rate=rate, zmp_accel=accel, feet=now, feet_vel=feet_vel,
+                            feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
+        if double:
+            rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
+                    else plan.start_state.rear_foot)
+            self.changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
+        self.braked = False
+        if not double and plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
+            side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
+            soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
+            self.braked = soonest > params.min_landing_time + 1e-9  # the limit bounds the landing (braked_swing)
+            params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
+        self.plan, self.double, self.params = plan, double, params
+
+    def solve(self, stance_zmp=None) -> StopPlan:
+        """The stop from this start; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest."""
+        plan, changes = self.plan, self.changes
+        if stance_zmp is not None:
+            changes = dict(changes, zmp=np.asarray(stance_zmp, float)[:2].copy(), zmp_rate=np.zeros(2),
+                           zmp_accel=np.zeros(2))
+        wall = time.perf_counter()
+        new = _plan_from(plan.pattern, replace(plan.start_state, **changes), self.params, plan.signal_time,
+                         plan.case, zmp_region="polygon" if self.double else "fore")
+        new.braked_swing = self.braked
+        new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+        return _finish(new, wall)
 
 
 #: ZMP margin [m] of a recovery step's plan (or the plan's own, if smaller). A recovery step is planned
