@@ -115,6 +115,9 @@ def main(argv=None):
                         help="run without the stance ankles' foot-edge compliance (for comparison)")
     parser.add_argument("--no-swing-tilt", action="store_true",
                         help="run without the swing foot's tilt compensation (for comparison)")
+    parser.add_argument("--recheck-only", metavar="JSON",
+                        help="no new runs: re-check the slow runs of an earlier run's JSON (same settings) and "
+                             "write its report again")
     parser.add_argument("--no-recheck", action="store_true",
                         help="do not re-run alone the runs whose controller tick (CPU) had a p99 over 5 ms or a "
                              "max over 10 ms")
@@ -132,10 +135,18 @@ def main(argv=None):
     stop_overrides = {k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)}
     jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance,
              not args.no_swing_tilt, stop_overrides, not args.no_braked_landing) for t, options in jobs]
-    wall = time.perf_counter()
-    with ProcessPoolExecutor(args.workers) as pool:
-        rows = list(pool.map(_run, jobs))
-    wall = time.perf_counter() - wall
+    if args.recheck_only:
+        data = json.loads(Path(args.recheck_only).read_text())
+        rows, wall = data["rows"], data["wall_s"]
+        if not _same([[r["t"], r["options"]] for r in rows], [list(job[:2]) for job in jobs]):
+            parser.error("--recheck-only: the JSON's runs are not this benchmark's (other settings or --quick)")
+        for row, job in zip(rows, jobs):
+            row["options"] = job[1]  # the options as the report looks them up (JSON made tuples lists)
+    else:
+        wall = time.perf_counter()
+        with ProcessPoolExecutor(args.workers) as pool:
+            rows = list(pool.map(_run, jobs))
+        wall = time.perf_counter() - wall
     if not args.no_recheck:
         recheck(rows, jobs)
     data = {"sweep": rows[:len(sweep_times)], "rows": rows, "wall_s": wall, "workers": args.workers}
@@ -179,8 +190,13 @@ def recheck(rows, jobs):
         again = list(pool.map(_run, [jobs[i] for i in slow]))
     for i, row in zip(slow, again):
         rows[i]["recheck"] = {key: row.get(key) for key in ("tick_compute_cpu", "tick_compute_slowest")}
-        rows[i]["recheck"]["same_run"] = all(row.get(key) == rows[i].get(key)
+        rows[i]["recheck"]["same_run"] = all(_same(row.get(key), rows[i].get(key))
                                              for key in ("success", "numbers", "replans", "failed"))
+
+
+def _same(a, b) -> bool:
+    """Equal to the bit, NaN equal to NaN (a fallen run's rest time is NaN)."""
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
 
 
 def recheck_lines(rows) -> list:

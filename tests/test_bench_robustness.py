@@ -55,3 +55,26 @@ def test_recheck_reruns_the_slow_runs_alone_and_says_whether_they_did_the_same(b
                    "WholeBodyIK._update 2.40) | 2.50 / 5.80 | 3.175 s: 5.80 (StopPlannerSystem._update 4.06, "
                    "WholeBodyIK._update 1.16) | NO |")
     assert bench.recheck_lines([_row(3e-3, 9e-3)]) == []
+
+
+def test_a_fallen_run_rerun_alone_is_the_same_run_though_its_rest_time_is_nan(bench, monkeypatch):
+    fallen = dict(_row(3e-3, 12e-3), success=False, numbers={"rest_after_halt": float("nan"), "offset": 0.3})
+
+    class Pool:
+        def __init__(self, workers):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *args):
+            return False
+
+        def map(self, function, items):
+            return [dict(fallen, numbers=dict(fallen["numbers"]), tick_compute_cpu={"median": 1e-3, "p99": 3e-3,
+                                                                                     "max": 6e-3})]
+
+    monkeypatch.setattr(bench, "ProcessPoolExecutor", Pool)
+    rows = [fallen]
+    bench.recheck(rows, ["job"])
+    assert rows[0]["recheck"]["same_run"] is True
