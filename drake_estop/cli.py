@@ -325,14 +325,17 @@ def _simulate(args) -> int:
                   f"stop), work per tick median {tick['median'] * 1e3:.2f} ms, p99 {tick['p99'] * 1e3:.2f} ms, "
                   f"max {tick['max'] * 1e3:.2f} ms (CPU time: max {cpu['max'] * 1e3:.2f} ms); "
                   f"ticks over a joint-velocity limit {summary['joint_velocity_violations']}")
-            blocks = summary["tick_compute_by_block"]
-            print("  CPU per tick by block (mean): " + ", ".join(
-                f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(blocks.items())[:5]))
+            print("  CPU per tick by block (mean): " + _block_times(summary["tick_compute_by_block"], 5))
             worst = summary["tick_compute_slowest"][0]
-            print(f"  slowest tick (CPU) at {worst['t']:.3f} s, {worst['total'] * 1e3:.2f} ms: " + ", ".join(
-                f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(worst["blocks"].items())[:3]))
+            print(f"  slowest tick (CPU) at {worst['t']:.3f} s, {worst['total'] * 1e3:.2f} ms: "
+                  + _block_times(worst["blocks"], 3))
         return 0 if not failed else 1
     return 0
+
+
+def _block_times(blocks: dict, count: int) -> str:
+    """``"label 0.12 ms, ..."``: the first ``count`` of ``{label: seconds}`` (largest first)."""
+    return ", ".join(f"{label} {seconds * 1e3:.2f} ms" for label, seconds in list(blocks.items())[:count])
 
 
 def _fit(values, n):

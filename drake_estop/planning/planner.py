@@ -792,7 +792,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
     ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
     if ankle is None:
         raise failure
-    current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
+    current = start.zmp  # the plan's ZMP at t
     for zmp in (ankle, np.array([current[0], ankle[1]]), np.array([ankle[0], current[1]])):
         if np.max(np.abs(zmp - current)) < 1e-3:
             continue
@@ -897,7 +897,8 @@ _BRAKING_TERMS = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, li
 class _ReplanStart:
     """:func:`replan_stop`'s start: the plan's state at ``t`` with the measured COG, built once and solved
     (:meth:`solve`) as a single- or double-support stop, for each stance ZMP the ankle strategy tries;
-    ``footholds`` (``{side: xy}``, double support) replace the plan's feet, at rest."""
+    ``footholds`` (``{side: xy}``, double support) replace the plan's feet, at rest. ``zmp``: the plan's
+    ZMP at ``t`` (xy)."""
 
     def __init__(self, plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
                  footholds=None):
@@ -928,7 +929,7 @@ class _ReplanStart:
             soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
             self.braked = soonest > params.min_landing_time + 1e-9  # the limit bounds the landing (braked_swing)
             params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
-        self.plan, self.double, self.params = plan, double, params
+        self.plan, self.double, self.params, self.zmp = plan, double, params, zmp
 
     def solve(self, stance_zmp=None) -> StopPlan:
         """The stop from this start; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest."""
