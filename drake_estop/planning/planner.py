@@ -63,7 +63,8 @@ from drake_estop.planning.stop_condition import StopStart, slowdown_time, target
 
 __all__ = [  # the planner's interface, including the names other modules import from here
     "COMPILED", "PHASES", "InfeasibleStop", "PhaseSolution", "StopParameters", "StopPlan", "descent_time",
-    "landing_swing", "one_step_feasible", "plan_stop", "replan_stop", "snap_to_tick", "soles_polygon",
+    "REPLAN_TRIES", "ReplanPending", "landing_swing", "one_step_feasible", "plan_stop", "replan_stop",
+    "replan_support", "snap_to_tick", "soles_polygon",
     "solve_continuous", "solve_phases", "stop_problem", "swing_braking_time", "warm_up",
 ]
 
@@ -717,8 +718,40 @@ def _with_deviation(state: PatternState, pattern: NominalPattern, t0: float, mea
     return replace(state, com=state.com + d0 * ch + v0 / w * sh, com_vel=state.com_vel + d0 * w * sh + v0 * ch)
 
 
-def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
-                recovery_step: bool = False) -> StopPlan | None:
+#: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
+#: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone; double support
+#: (III.B) holds the plan's ZMP, then takes the recovery step. ``replan_stop(first_try=k)`` starts at the k-th.
+REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal"), "double": ("held", "recovery step")}
+
+
+class ReplanPending(InfeasibleStop):
+    """:func:`replan_stop` used its ``max_solves`` and tries are left: none so far gave a stop.
+
+    ``support`` ("single" or "double") and ``next_try`` (an index into
+    ``REPLAN_TRIES[support]``) resume it on a later tick, from that tick's
+    measurement: ``replan_stop(..., first_try=next_try)`` while
+    :func:`replan_support` still says ``support``.
+    """
+
+    def __init__(self, message: str, support: str, next_try: int):
+        super().__init__(message)
+        self.support = support
+        self.next_try = next_try
+
+
+def replan_support(plan: StopPlan, t: float) -> str | None:
+    """What :func:`replan_stop` re-plans at ``t``: "single" (the landing can still move), "double" (after
+    the landing, before the halt), or None (nothing left to re-plan)."""
+    if plan.x is None or t < plan.start_time:
+        return None
+    if (plan.landing_foot is not None and t < plan.landing_time - plan.params.min_landing_time
+            and not plan.recovery_step):  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
+        return "single"
+    return "double" if plan.landing_time <= t < plan.slowdown_end else None
+
+
+def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
+                first_try: int = 0, max_solves: int | None = None) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
@@ -765,39 +798,58 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None,
     rear leg within ``max_rear_reach``; a DCM outside the feet sideways or
     behind is not caught.
 
+    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to four solves in
+    single support, two in double support) run in order until one gives a
+    stop. ``max_solves`` (None: no bound) caps the solves of this call: when
+    it runs out with tries left, :class:`ReplanPending` says where to go on
+    (``first_try``) on a later tick, from that tick's measurement. A try the
+    ankle strategy would repeat (its stance ZMP within 1 mm of the plan's)
+    is skipped and costs no solve.
+
     Returns None where nothing is left to re-plan (the halt, a plan that has
     not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
-    stop exists from that state, ``ValueError`` for non-finite ``feet``.
+    stop exists from that state (:class:`ReplanPending` when tries are left),
+    ``ValueError`` for non-finite ``feet``, a ``first_try`` outside the
+    support's tries or a ``max_solves`` below 1.
     """
     footholds = _footholds(feet)
+    if max_solves is not None and (isinstance(max_solves, bool) or not isinstance(max_solves, int) or max_solves < 1):
+        raise ValueError(f"max_solves must be a positive integer or None, got {max_solves!r}")
+    support = replan_support(plan, t)
+    if support is None:
+        return None
+    tries = REPLAN_TRIES[support]
+    if isinstance(first_try, bool) or not isinstance(first_try, int) or not 0 <= first_try < len(tries):
+        raise ValueError(f"first_try must be an index into REPLAN_TRIES[{support!r}] (0-{len(tries) - 1}), "
+                         f"got {first_try!r}")
     # a push may need the early step, and a landing moved further than a low foot could on its own
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
-    if plan.x is None or t < plan.start_time:
-        return None
-    single = (plan.landing_foot is not None and t < plan.landing_time - params.min_landing_time
-              and not plan.recovery_step)  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
-    double = plan.landing_time <= t < plan.slowdown_end
-    if not (single or double):
-        return None
+    double = support == "double"
     start = _ReplanStart(plan, t, com_xy, com_vel_xy, double, params, footholds if double else None)
-    try:
-        return start.solve()
-    except InfeasibleStop as error:
-        if double:
-            if not recovery_step:
-                raise
-            return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, error)
-        failure = error
-    # the ankle strategy: the support foot's ZMP moved to take back the DCM deviation before the landing
-    ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
-    if ankle is None:
-        raise failure
-    current = start.zmp  # the plan's ZMP at t
-    for zmp in (ankle, np.array([current[0], ankle[1]]), np.array([ankle[0], current[1]])):
-        if np.max(np.abs(zmp - current)) < 1e-3:
-            continue
+    failure = InfeasibleStop(f"re-plan at t={t:.3f} s: the {support}-support tries before "
+                             f"{tries[first_try]!r} found no stop on earlier ticks")
+    ankle, solves = None, 0
+    for index in range(first_try, len(tries)):
+        name, stance_zmp = tries[index], None
+        if name == "recovery step" and not recovery_step:
+            break
+        if name.startswith("ankle"):  # the support foot's ZMP moved to take back the DCM deviation
+            ankle = ankle_zmp(plan, t, com_xy, com_vel_xy) if ankle is None else ankle
+            if ankle is None:
+                break
+            current = start.zmp  # the plan's ZMP at t
+            stance_zmp = {"ankle": ankle, "ankle lateral": np.array([current[0], ankle[1]]),
+                          "ankle sagittal": np.array([ankle[0], current[1]])}[name]
+            if np.max(np.abs(stance_zmp - current)) < 1e-3:
+                continue
+        if max_solves is not None and solves >= max_solves:
+            raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
+                                f"from {name!r}", support, index)
+        solves += 1
         try:
-            return start.solve(stance_zmp=zmp)
+            if name == "recovery step":
+                return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
+            return start.solve(stance_zmp=stance_zmp)
         except InfeasibleStop as error:
             failure = error
     raise failure

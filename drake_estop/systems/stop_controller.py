@@ -36,10 +36,12 @@ from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.planner import (
     PHASES,
     InfeasibleStop,
+    ReplanPending,
     StopParameters,
     one_step_feasible,
     plan_stop,
     replan_stop,
+    replan_support,
     snap_to_tick,
     warm_up,
 )
@@ -324,12 +326,14 @@ class _PlanHandle:
     """
 
     __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
-                 "last_try", "footholds_of")
+                 "last_try", "footholds_of", "pending")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None, last_try=-math.inf, footholds_of=None):
+                 blend=None, history=None, last_try=-math.inf, footholds_of=None, pending=None):
         self.plan = plan
-        self.last_try = last_try  # time of the last re-plan attempt
+        self.last_try = last_try  # time of the last re-plan attempt's first tick
+        # (support, next_try) of a re-plan whose tries go on next tick (planner.ReplanPending), or None
+        self.pending = pending
         # the landing (the plan of history that made it) whose measured footholds a re-plan has tried
         self.footholds_of = footholds_of
         self.history = history if history is not None else ((plan,) if plan is not None else ())
@@ -499,6 +503,15 @@ class StopPlannerSystem(_ReferenceSystem):
     and 0.4 mm outside the plan's. The landing itself is no re-landing (the
     swing sole never stood).
 
+    ``max_replan_solves`` (default 2) bounds a tick's re-plan work: a
+    re-plan solves at most that many stops a tick (``replan_stop``'s
+    ``max_solves``); tries left (the ankle strategy's third and fourth
+    stance ZMPs) go on at the next tick, from its measurement, while the
+    measured DCM still leaves the plan. A failing single-support re-plan
+    (four solves, each failing at the halt) took 7 ms of the tick at this
+    machine's slow hours; two solves are the held ZMP and the ankle ZMP, or
+    a double-support re-plan and its recovery step.
+
     ``recovery_step`` (default True): a re-plan after the landing that finds
     no double-support stop (the DCM 5 cm or more past the fore foot's ankle
     and not heading for the rear foot's side, the rear leg within reach)
@@ -570,6 +583,9 @@ class StopPlannerSystem(_ReferenceSystem):
         Whether a sole that lost contact after the landing and landed again
         more than ``foothold_tolerance`` from the plan's foothold re-plans the
         stop where it stands (default True; False for comparison).
+    max_replan_solves : int or None, optional
+        Stop solves a re-plan may do in one tick (default 2; None: all of
+        its tries on one tick, for comparison).
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
 
@@ -585,8 +601,9 @@ class StopPlannerSystem(_ReferenceSystem):
     Raises
     ------
     ValueError
-        If one of the time constants or thresholds is not positive and finite
-        (the message names it).
+        If one of the time constants or thresholds is not positive and finite,
+        or ``foothold_ticks`` or ``max_replan_solves`` is not a positive
+        integer (the message names it).
     """
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
@@ -594,7 +611,7 @@ class StopPlannerSystem(_ReferenceSystem):
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
-                 relanded_footholds: bool = True, timer=None):
+                 relanded_footholds: bool = True, max_replan_solves: int | None = 2, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -607,6 +624,10 @@ class StopPlannerSystem(_ReferenceSystem):
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
+        if max_replan_solves is not None and (isinstance(max_replan_solves, bool)
+                                              or not isinstance(max_replan_solves, int) or max_replan_solves < 1):
+            raise ValueError(f"max_replan_solves must be a positive integer or None, got {max_replan_solves!r}")
+        self._max_replan_solves = max_replan_solves
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
         self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
@@ -826,8 +847,10 @@ class StopPlannerSystem(_ReferenceSystem):
         # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
         # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
         relanded = relanded if landed else None
-        if not (relanded and fresh) and t - handle.last_try < self._replan_interval - 1e-9:
-            return EventStatus.DidNothing()  # let the last re-plan's blend act before judging it
+        # a re-plan with tries left (ReplanPending) goes on at this tick, in the same support
+        pending = handle.pending if handle.pending and handle.pending[0] == replan_support(plan, t) else None
+        if not (relanded and fresh) and pending is None and t - handle.last_try < self._replan_interval - 1e-9:
+            return self._drop_pending(state, handle)  # let the last re-plan's blend act before judging it
         threshold = self._landed_threshold if landed else self._replan_threshold
         deviated = self._deviation(plan, t, measured) > threshold
         # the measured feet: for a re-plan after the landing, and (option) to see whether they left the plan's
@@ -839,24 +862,38 @@ class StopPlannerSystem(_ReferenceSystem):
             landing = None
         if relanded:  # the re-landed soles where they are; the other from the footholds, or the plan's
             feet = {**(feet or {}), **relanded}
+            pending = None  # the soles moved: a new re-plan, all of its tries
         elif not deviated and not self._feet_moved(plan, t, feet):
-            return EventStatus.DidNothing()
+            return self._drop_pending(state, handle)
         start = time.perf_counter()
         try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
-            new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated)
+            new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated,
+                              first_try=pending[1] if pending else 0, max_solves=self._max_replan_solves)
+        except ReplanPending as error:
+            new, failures, left = None, handle.replan_failures, (error.support, error.next_try)
         except InfeasibleStop:
-            new, failures = None, handle.replan_failures + 1
+            new, failures, left = None, handle.replan_failures + 1, None
         else:
-            failures = handle.replan_failures
+            failures, left = handle.replan_failures, None
         wall = time.perf_counter() - start
-        if new is None and failures == handle.replan_failures:
-            return EventStatus.DidNothing()  # nothing left to re-plan (the foot has landed)
+        if new is None and failures == handle.replan_failures and left is None:
+            return self._drop_pending(state, handle)  # nothing left to re-plan (the foot has landed)
         updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
                               max(handle.max_wall_time, wall),
                               self._blend_into(context, new) if new is not None else handle.blend,
-                              handle.history + ((new,) if new is not None else ()), t,
-                              landing if landing is not None else handle.footholds_of)
+                              handle.history + ((new,) if new is not None else ()),
+                              handle.last_try if pending else t,
+                              landing if landing is not None else handle.footholds_of, left)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
+        return EventStatus.Succeeded()
+
+    def _drop_pending(self, state, handle):
+        """A re-plan's tries left (``handle.pending``) dropped, in ``state``: the tick does not re-plan."""
+        if handle.pending is None:
+            return EventStatus.DidNothing()
+        state.get_mutable_abstract_state(self._plan_state).set_value(_PlanHandle(
+            handle.plan, handle.wall_time, handle.replans, handle.replan_failures, handle.max_wall_time,
+            handle.blend, handle.history, handle.last_try, handle.footholds_of))
         return EventStatus.Succeeded()
 
     def _feet_moved(self, plan, t, feet) -> bool:
