@@ -688,3 +688,151 @@ def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(patter
     new = planner.plan(context)
     assert new.start_time == pytest.approx(landing_tick * DT)
     np.testing.assert_allclose(new.final_feet[stance][:2], moved, atol=1e-12)
+
+
+def _count_solves(monkeypatch):
+    """A list that grows by one for every stop the planner solves (``_plan_from``)."""
+    from drake_estop.planning import planner
+
+    solves, real = [], planner._plan_from
+    monkeypatch.setattr(planner, "_plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
+    return solves
+
+
+def _hopeless_left_push():
+    """The 2.95 s plan and the state measured at 3.05 s after a 29 N s push to the left (physics run of
+    session 16): no try gives a stop (the held ZMP and the ankle strategy's three each fail at the halt)."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.05, np.array([0.57120388, 0.05304342]), np.array([0.32019992, 0.22598745])
+
+
+def test_replan_support_names_what_a_replan_would_solve(pattern, params):
+    from drake_estop.planning.planner import replan_support
+
+    plan = plan_stop(pattern, 3.15, params)
+    assert replan_support(plan, 3.15) == "single"
+    assert replan_support(plan, plan.landing_time - params.min_landing_time - DT) == "single"
+    assert replan_support(plan, plan.landing_time - params.min_landing_time) is None  # the landing is set
+    assert replan_support(plan, plan.landing_time) == "double"
+    assert replan_support(plan, plan.slowdown_end) is None  # the halt
+    assert replan_support(plan, 3.1) is None  # before the plan
+
+
+def test_a_bounded_replan_goes_on_with_its_tries_where_it_stopped(monkeypatch):
+    """max_solves=2: the held ZMP and the ankle ZMP fail and the call says where to go on (the ankle ZMP's
+    lateral part); resumed there from the same measurement it gives the unbounded call's plan, to the bit."""
+    from drake_estop.planning.planner import ReplanPending
+
+    plan, t, com, vel = _left_push_state()
+    solves = _count_solves(monkeypatch)
+    whole = replan_stop(plan, t, com, vel)
+    assert len(solves) == 3  # the held ZMP, the ankle ZMP, its lateral part
+    solves.clear()
+    with pytest.raises(ReplanPending) as pending:
+        replan_stop(plan, t, com, vel, max_solves=2)
+    assert len(solves) == 2
+    assert (pending.value.support, pending.value.next_try) == ("single", 2)
+    resumed = replan_stop(plan, t, com, vel, first_try=pending.value.next_try, max_solves=2)
+    assert len(solves) == 3
+    times = np.linspace(t, whole.halt_end, 50)
+    np.testing.assert_array_equal(resumed.com(times)[0], whole.com(times)[0])
+    assert resumed.landing_time == whole.landing_time
+
+
+def test_a_replan_with_no_stop_spreads_its_four_solves_and_then_fails(monkeypatch):
+    from drake_estop.planning.planner import ReplanPending
+
+    plan, t, com, vel = _hopeless_left_push()
+    solves = _count_solves(monkeypatch)
+    with pytest.raises(InfeasibleStop) as whole:
+        replan_stop(plan, t, com, vel)
+    assert not isinstance(whole.value, ReplanPending) and len(solves) == 4
+    solves.clear()
+    with pytest.raises(ReplanPending) as pending:
+        replan_stop(plan, t, com, vel, max_solves=2)
+    assert len(solves) == 2 and pending.value.next_try == 2
+    with pytest.raises(InfeasibleStop) as last:
+        replan_stop(plan, t, com, vel, first_try=2, max_solves=2)
+    assert not isinstance(last.value, ReplanPending) and len(solves) == 4
+    assert str(last.value) == str(whole.value)  # the same last try failed the same way
+
+
+def test_a_bounded_double_support_replan_takes_its_recovery_step_on_the_next_call():
+    """A forward push in double support (3.55 s signal, measured at 3.665 s): the held ZMP has no stop;
+    with one solve a call the recovery step is the next call's."""
+    from drake_estop.physics.online import controller_stop_parameters
+    from drake_estop.planning.planner import ReplanPending
+
+    plan = plan_stop(NominalPattern(), 3.55, controller_stop_parameters())
+    t, com, vel = 3.665, np.array([0.80341699, -0.01403402]), np.array([0.61912665, -0.21738769])
+    whole = replan_stop(plan, t, com, vel, recovery_step=True)
+    assert whole.recovery_step
+    with pytest.raises(ReplanPending) as pending:
+        replan_stop(plan, t, com, vel, recovery_step=True, max_solves=1)
+    assert (pending.value.support, pending.value.next_try) == ("double", 1)
+    step = replan_stop(plan, t, com, vel, recovery_step=True, first_try=1, max_solves=1)
+    assert step.recovery_step and step.landing_time == whole.landing_time
+    with pytest.raises(InfeasibleStop) as no_step:  # without the step nothing is left to try
+        replan_stop(plan, t, com, vel, max_solves=1)
+    assert not isinstance(no_step.value, ReplanPending)
+
+
+@pytest.mark.parametrize("kwargs, name", [({"max_solves": 0}, "max_solves"), ({"max_solves": True}, "max_solves"),
+                                          ({"max_solves": 1.5}, "max_solves"), ({"first_try": 4}, "first_try"),
+                                          ({"first_try": -1}, "first_try"), ({"first_try": 1.0}, "first_try")])
+def test_replan_rejects_bad_try_settings(kwargs, name):
+    plan, t, com, vel = _left_push_state()
+    with pytest.raises(ValueError, match=name):
+        replan_stop(plan, t, com, vel, **kwargs)
+
+
+def _pushed_planner(monkeypatch, **kwargs):
+    """A latched 2.95 s stop (the controller's settings) at 3.175 s, with the left-push measurement fixed:
+    returns the planner, its context, the simulator and the per-tick solve counter."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    planner, context, simulator, first = latched_stop_planner(NominalPattern(), controller_stop_parameters(),
+                                                              t0=2.95, **kwargs)
+    _, t, com, vel = _left_push_state()
+    simulator.AdvanceTo(t - DT / 2)
+    planner.measured_com_port.FixValue(context, [*com, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    return planner, context, simulator, _count_solves(monkeypatch), t
+
+
+def test_the_planner_spreads_a_replans_tries_over_ticks(monkeypatch):
+    """max_replan_solves=2 (the default): the held ZMP and the ankle ZMP fail on the push's tick, the ankle
+    ZMP's lateral part holds on the next; unbounded (None), all three on the push's tick."""
+    planner, context, simulator, solves, t = _pushed_planner(monkeypatch)
+    simulator.AdvanceTo(t + DT / 2)
+    assert len(solves) == 2 and planner.replans(context) == (0, 0)
+    assert context.get_abstract_state(0).get_value().pending == ("single", 2)
+    simulator.AdvanceTo(t + DT + DT / 2)
+    assert len(solves) == 3 and planner.replans(context) == (1, 0)
+    assert planner.plan(context).start_time == pytest.approx(t + DT)
+    assert context.get_abstract_state(0).get_value().pending is None
+
+    planner, context, simulator, solves, t = _pushed_planner(monkeypatch, max_replan_solves=None)
+    simulator.AdvanceTo(t + DT / 2)
+    assert len(solves) == 3 and planner.replans(context) == (1, 0)
+    assert planner.plan(context).start_time == pytest.approx(t)
+
+
+def test_the_planner_drops_a_replans_tries_when_the_robot_is_back_on_the_plan(monkeypatch):
+    planner, context, simulator, solves, t = _pushed_planner(monkeypatch)
+    simulator.AdvanceTo(t + DT / 2)
+    assert context.get_abstract_state(0).get_value().pending == ("single", 2)
+    pos, vel, _ = _state_at(planner.plan(context), t + DT)
+    planner.measured_com_port.FixValue(context, [*pos, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    simulator.AdvanceTo(t + DT + DT / 2)
+    assert len(solves) == 2 and planner.replans(context) == (0, 0)
+    assert context.get_abstract_state(0).get_value().pending is None
+
+
+@pytest.mark.parametrize("value", [0, -1, 1.5, True, "2"])
+def test_planner_rejects_a_bad_solve_bound(pattern, params, value):
+    with pytest.raises(ValueError, match="max_replan_solves"):
+        StopPlannerSystem(pattern=pattern, params=params, max_replan_solves=value)
