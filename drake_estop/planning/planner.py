@@ -63,8 +63,8 @@ from drake_estop.planning.stop_condition import StopStart, slowdown_time, target
 
 __all__ = [  # the planner's interface, including the names other modules import from here
     "COMPILED", "PHASES", "InfeasibleStop", "PhaseSolution", "StopParameters", "StopPlan", "descent_time",
-    "REPLAN_TRIES", "ReplanPending", "landing_swing", "one_step_feasible", "plan_stop", "replan_stop",
-    "replan_support", "snap_to_tick", "soles_polygon",
+    "REPLAN_TRIES", "ReplanPending", "check_solve_bound", "landing_swing", "one_step_feasible", "plan_stop",
+    "replan_stop", "replan_support", "snap_to_tick", "soles_polygon",
     "solve_continuous", "solve_phases", "stop_problem", "swing_braking_time", "warm_up",
 ]
 
@@ -739,6 +739,14 @@ class ReplanPending(InfeasibleStop):
         self.next_try = next_try
 
 
+def check_solve_bound(value, name: str = "max_solves"):
+    """``value`` if it bounds a re-plan's solves (a positive integer, or None: no bound); else ``ValueError``
+    naming ``name``."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        raise ValueError(f"{name} must be a positive integer or None, got {value!r}")
+    return value
+
+
 def replan_support(plan: StopPlan, t: float) -> str | None:
     """What :func:`replan_stop` re-plans at ``t``: "single" (the landing can still move), "double" (after
     the landing, before the halt), or None (nothing left to re-plan)."""
@@ -813,8 +821,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     support's tries or a ``max_solves`` below 1.
     """
     footholds = _footholds(feet)
-    if max_solves is not None and (isinstance(max_solves, bool) or not isinstance(max_solves, int) or max_solves < 1):
-        raise ValueError(f"max_solves must be a positive integer or None, got {max_solves!r}")
+    check_solve_bound(max_solves)
     support = replan_support(plan, t)
     if support is None:
         return None
@@ -826,21 +833,21 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     double = support == "double"
     start = _ReplanStart(plan, t, com_xy, com_vel_xy, double, params, footholds if double else None)
+    # resumed (first_try > 0): what a try that does not apply re-raises (the held ZMP always runs at 0)
     failure = InfeasibleStop(f"re-plan at t={t:.3f} s: the {support}-support tries before "
-                             f"{tries[first_try]!r} found no stop on earlier ticks")
+                             f"{tries[first_try]!r} found no stop on earlier ticks") if first_try else None
     ankle, solves = None, 0
     for index in range(first_try, len(tries)):
         name, stance_zmp = tries[index], None
         if name == "recovery step" and not recovery_step:
             break
         if name.startswith("ankle"):  # the support foot's ZMP moved to take back the DCM deviation
-            ankle = ankle_zmp(plan, t, com_xy, com_vel_xy) if ankle is None else ankle
             if ankle is None:
+                ankle = _ankle_tries(plan, t, com_xy, com_vel_xy, start.zmp)
+            if not ankle:
                 break
-            current = start.zmp  # the plan's ZMP at t
-            stance_zmp = {"ankle": ankle, "ankle lateral": np.array([current[0], ankle[1]]),
-                          "ankle sagittal": np.array([ankle[0], current[1]])}[name]
-            if np.max(np.abs(stance_zmp - current)) < 1e-3:
+            stance_zmp = ankle[name]
+            if np.max(np.abs(stance_zmp - start.zmp)) < 1e-3:  # the plan's ZMP at t: nothing new to try
                 continue
         if max_solves is not None and solves >= max_solves:
             raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
@@ -853,6 +860,16 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
         except InfeasibleStop as error:
             failure = error
     raise failure
+
+
+def _ankle_tries(plan: StopPlan, t: float, com_xy, com_vel_xy, current) -> dict:
+    """The ankle strategy's stance ZMPs by try name (:data:`REPLAN_TRIES`): :func:`ankle_zmp`, its lateral
+    part and its sagittal part with the rest from ``current`` (the plan's ZMP at ``t``); empty without one."""
+    ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
+    if ankle is None:
+        return {}
+    return {"ankle": ankle, "ankle lateral": np.array([current[0], ankle[1]]),
+            "ankle sagittal": np.array([ankle[0], current[1]])}
 
 
 def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):

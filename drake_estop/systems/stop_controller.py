@@ -38,6 +38,7 @@ from drake_estop.planning.planner import (
     InfeasibleStop,
     ReplanPending,
     StopParameters,
+    check_solve_bound,
     one_step_feasible,
     plan_stop,
     replan_stop,
@@ -343,6 +344,10 @@ class _PlanHandle:
         self.replan_failures = replan_failures
         self.max_wall_time = wall_time if max_wall_time is None else max_wall_time
 
+    def replaced(self, **changes) -> _PlanHandle:
+        """A copy with ``changes`` (field: value)."""
+        return _PlanHandle(**{**{name: getattr(self, name) for name in self.__slots__}, **changes})
+
     def __deepcopy__(self, memo):
         return self
 
@@ -624,10 +629,7 @@ class StopPlannerSystem(_ReferenceSystem):
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
-        if max_replan_solves is not None and (isinstance(max_replan_solves, bool)
-                                              or not isinstance(max_replan_solves, int) or max_replan_solves < 1):
-            raise ValueError(f"max_replan_solves must be a positive integer or None, got {max_replan_solves!r}")
-        self._max_replan_solves = max_replan_solves
+        self._max_replan_solves = check_solve_bound(max_replan_solves, "max_replan_solves")
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
         self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
@@ -891,9 +893,7 @@ class StopPlannerSystem(_ReferenceSystem):
         """A re-plan's tries left (``handle.pending``) dropped, in ``state``: the tick does not re-plan."""
         if handle.pending is None:
             return EventStatus.DidNothing()
-        state.get_mutable_abstract_state(self._plan_state).set_value(_PlanHandle(
-            handle.plan, handle.wall_time, handle.replans, handle.replan_failures, handle.max_wall_time,
-            handle.blend, handle.history, handle.last_try, handle.footholds_of))
+        state.get_mutable_abstract_state(self._plan_state).set_value(handle.replaced(pending=None))
         return EventStatus.Succeeded()
 
     def _feet_moved(self, plan, t, feet) -> bool:
