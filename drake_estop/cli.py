@@ -13,7 +13,7 @@ from pathlib import Path
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
 from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPattern, load_footsteps
 from drake_estop.planning.plan import OBJECTIVES
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.planner import MAX_REPLAN_SOLVES, InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
 
@@ -38,8 +38,8 @@ def number(*, low=None, high=None, low_open=False, high_open=False, integer=Fals
         too_low = low is not None and (value < low or (low_open and value == low))
         too_high = high is not None and (value > high or (high_open and value == high))
         if too_low or too_high:
-            left = "any" if low is None else f"{'(' if low_open else '['}{low:g}"
-            right = "any" if high is None else f"{high:g}{')' if high_open else ']'}"
+            left = "(-inf" if low is None else f"{'(' if low_open else '['}{low:g}"
+            right = "inf)" if high is None else f"{high:g}{')' if high_open else ']'}"
             raise argparse.ArgumentTypeError(f"must be in {left}, {right}{unit}, got {text}")
         return value
     parse.__name__ = "integer" if integer else "number"
@@ -50,6 +50,14 @@ positive_float = number(low=0.0, low_open=True)
 non_negative_float = number(low=0.0)
 finite_float = number()
 port_number = number(low=1, high=65535, integer=True)
+_positive_integer = number(low=1, integer=True)
+
+
+def solve_bound(text):
+    """An argparse ``type=``: a positive whole number, or ``unbounded`` (None)."""
+    if text.strip().lower() == "unbounded":
+        return None
+    return _positive_integer(text)
 
 
 def _add_scenario_options(p):
@@ -190,6 +198,9 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.foothold_replan,
                    help="with --physics: re-plan for a foot that landed off the plan's foothold while the COG "
                         "follows the plan (off by default: net neutral on the campaign, see the README)")
+    d.add_argument("--max-replan-solves", type=solve_bound, default=scenario.max_replan_solves, metavar="N",
+                   help="with --physics: stop solves a re-plan may do in one servo tick (default %(default)s; the "
+                        "tries left go on at the next tick); 'unbounded' puts every try on one tick (for comparison)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -242,7 +253,7 @@ def _effective_scenario(args, gait, stop) -> Scenario:
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
                    measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
                    relanded_footholds=args.relanded_footholds, braked_landing=args.braked_landing,
-                   foothold_replan=args.foothold_replan,
+                   foothold_replan=args.foothold_replan, max_replan_solves=args.max_replan_solves,
                    perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
 
@@ -254,7 +265,8 @@ def _online_only_options(args, perturbations) -> list:
              ("--no-measured-footholds", not args.measured_footholds),
              ("--no-relanded-footholds", not args.relanded_footholds),
              ("--no-braked-landing", not args.braked_landing),
-             ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan))
+             ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan),
+             ("--max-replan-solves", args.max_replan_solves != MAX_REPLAN_SOLVES))
     return [name for name, on in given if on]
 
 
@@ -352,6 +364,8 @@ def _planner_options(args) -> dict | None:
                if not getattr(args, name)}
     if args.foothold_replan:
         options["foothold_replan"] = True
+    if args.max_replan_solves != MAX_REPLAN_SOLVES:
+        options["max_replan_solves"] = args.max_replan_solves
     return options or None
 
 

@@ -33,7 +33,7 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import Footstep, GaitParameters
-from drake_estop.planning.planner import StopParameters
+from drake_estop.planning.planner import MAX_REPLAN_SOLVES, StopParameters, check_solve_bound
 
 SIMULATIONS = ("kinematic", "diagram", "physics")
 CONTROLLERS = ("online", "offline-filter")
@@ -85,6 +85,9 @@ class Scenario:
     foothold_replan : bool
         Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
         stop on the measured feet (default off: net neutral on the campaign; on for comparison).
+    max_replan_solves : int or None
+        Physics, online controller only: stop solves a re-plan may do in one servo tick (default 2; the tries
+        left go on at the next tick); null puts every try on one tick (for comparison).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -107,6 +110,7 @@ class Scenario:
     relanded_footholds: bool = True
     braked_landing: bool = True
     foothold_replan: bool = False
+    max_replan_solves: int | None = MAX_REPLAN_SOLVES
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0
@@ -116,6 +120,7 @@ class Scenario:
             raise ValueError(f"simulation must be one of {SIMULATIONS}, got {self.simulation!r}")
         if self.controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, got {self.controller!r}")
+        check_solve_bound(self.max_replan_solves, "max_replan_solves")
         if not self.after_halt >= 1.0:
             raise ValueError(f"after_halt must be at least 1 s, got {self.after_halt!r}")
         if self.estop_time is not None and not self.estop_time >= 0.0:
@@ -246,7 +251,10 @@ def load_scenario(*, filename: str | Path | None = None, text: str | None = None
 
 def dump_scenario(scenario: Scenario) -> str:
     """The scenario as YAML text (every field), readable by :func:`load_scenario`."""
-    return yaml_dump_typed(_to_schema(scenario, Scenario))
+    text = yaml_dump_typed(_to_schema(scenario, Scenario))
+    # yaml_dump_typed leaves a None out, which would read back as the default: write it as null
+    nulls = [f.name for f in dataclasses.fields(Scenario) if getattr(scenario, f.name) is None]
+    return text + "".join(f"{name}: null\n" for name in nulls)
 
 
 _register(Push, Perturbations, Footstep, GaitParameters, StopParameters, Scenario)

@@ -498,6 +498,31 @@ def test_foothold_replan_flag_turns_the_option_on(monkeypatch):
     assert options == {"foothold_replan": True}  # and leaves the other options at their defaults
 
 
+@pytest.mark.parametrize("args, given", [
+    ([], "default"),
+    (["--max-replan-solves", "1"], 1),
+    (["--max-replan-solves", "unbounded"], None),
+    (["--scenario-text", "{max_replan_solves: null}"], None),
+    (["--scenario-text", "{max_replan_solves: 4}"], 4),
+])
+def test_max_replan_solves_reaches_the_online_run(monkeypatch, args, given):
+    options = _online_run_keywords(monkeypatch, args)["planner_options"] or {}
+    assert options.get("max_replan_solves", "default") == given
+    assert set(options) <= {"max_replan_solves"}  # the other planner options stay at their defaults
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", "nan"])
+def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
+    assert main(["simulate", "--physics", "--max-replan-solves", value]) == 2
+    assert "argument --max-replan-solves" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_max_replan_solves_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--max-replan-solves", "1"]) == 2
+    assert "--max-replan-solves" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
 def test_foothold_replan_flag_needs_the_online_physics_run(mode, capsys):
     assert main(["simulate", *mode, "--foothold-replan"]) == 2

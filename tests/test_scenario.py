@@ -38,6 +38,15 @@ def test_dump_and_load_round_trip():
     assert isinstance(loaded.stop.halt_durations, tuple) and isinstance(loaded.perturbations.pushes[0], Push)
 
 
+@pytest.mark.parametrize("fields", [{"estop_time": None}, {"max_replan_solves": None}, {"max_replan_solves": 3},
+                                    {"estop_time": None, "max_replan_solves": None}])
+def test_optional_fields_round_trip_null_included(fields):
+    """A None (the Meshcat button's stop, an unbounded re-plan) is written as null: left out it read back
+    as the default (3.4 s, 2 solves)."""
+    loaded = load_scenario(text=dump_scenario(Scenario(**fields)))
+    assert {name: getattr(loaded, name) for name in fields} == fields
+
+
 def test_a_partial_document_keeps_the_defaults():
     scenario = load_scenario(text="{gait: {step_length: 0.2}, plant: {time_step: 0.002}}")
     assert scenario.gait == GaitParameters(step_length=0.2)
@@ -52,6 +61,7 @@ def test_a_partial_document_keeps_the_defaults():
     ("{perturbations: {pushes: [{time: 3.4, force_x: 1, force_y: 0, duration: 0}]}}", "duration"),
     ("{simulation: walking}", "simulation"),
     ("{after_halt: 0.5}", "after_halt"),
+    ("{max_replan_solves: 0}", "max_replan_solves"),
     ("{plant: {contact_model: hydroelastic}}", "plant.contact_model"),
     ("{stop: {min_landing_time: 2.0}}", "landing_time"),
 ])

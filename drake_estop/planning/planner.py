@@ -739,6 +739,12 @@ class ReplanPending(InfeasibleStop):
         self.next_try = next_try
 
 
+#: Stop solves a re-plan of the online controller may do in one servo tick (``StopPlannerSystem``'s
+#: ``max_replan_solves``): a double-support re-plan (held ZMP, recovery step) and a single-support one's
+#: held and ankle ZMP each fit one tick; the rest go on at the next tick (session 17's 27 captured re-plans).
+MAX_REPLAN_SOLVES = 2
+
+
 def check_solve_bound(value, name: str = "max_solves"):
     """``value`` if it bounds a re-plan's solves (a positive integer, or None: no bound); else ``ValueError``
     naming ``name``."""

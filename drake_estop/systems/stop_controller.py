@@ -34,6 +34,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.planner import (
+    MAX_REPLAN_SOLVES,
     PHASES,
     InfeasibleStop,
     ReplanPending,
@@ -616,7 +617,7 @@ class StopPlannerSystem(_ReferenceSystem):
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
-                 relanded_footholds: bool = True, max_replan_solves: int | None = 2, timer=None):
+                 relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
