@@ -881,12 +881,13 @@ class StopPlannerSystem(_ReferenceSystem):
         wall = time.perf_counter() - start
         if new is None and failures == handle.replan_failures and left is None:
             return self._drop_pending(state, handle)  # nothing left to re-plan (the foot has landed)
-        updated = _PlanHandle(new or plan, wall, handle.replans + (new is not None), failures,
-                              max(handle.max_wall_time, wall),
-                              self._blend_into(context, new) if new is not None else handle.blend,
-                              handle.history + ((new,) if new is not None else ()),
-                              handle.last_try if pending else t,
-                              landing if landing is not None else handle.footholds_of, left)
+        updated = handle.replaced(
+            plan=new or plan, wall_time=wall, replans=handle.replans + (new is not None), replan_failures=failures,
+            max_wall_time=max(handle.max_wall_time, wall),
+            blend=self._blend_into(context, new) if new is not None else handle.blend,
+            history=handle.history + ((new,) if new is not None else ()),
+            last_try=handle.last_try if pending else t,  # a resumed sequence keeps its first tick
+            footholds_of=landing if landing is not None else handle.footholds_of, pending=left)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
