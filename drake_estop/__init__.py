@@ -15,7 +15,9 @@ Building blocks (Drake LeafSystems): `WalkingPatternSource`, `EStopTrigger`,
 `StopParameters`, `Sole`, `PhysicsParameters`, `Perturbations`, `Push`;
 the planner itself: `plan_stop` returning a `StopPlan` (or raising
 `InfeasibleStop`), and `one_step_feasible`, whether a signal now would stop
-within one step. World frame x forward, y left, z up; SI units throughout
+within one step; the online controller on the simulated robot: `run_online`
+(``drake-estop simulate --physics`` from Python) with
+`controller_stop_parameters`. World frame x forward, y left, z up; SI units throughout
 (m, s, rad, N).
 
 Names are imported on first use (PEP 562), so ``import drake_estop`` stays
@@ -48,6 +50,8 @@ _EXPORTS = {
     "plan_stop": "drake_estop.planning.planner",
     "one_step_feasible": "drake_estop.planning.planner",
     "PhysicsParameters": "drake_estop.physics.plant",
+    "run_online": "drake_estop.physics.online",
+    "controller_stop_parameters": "drake_estop.physics.online",
     "Perturbations": "drake_estop.physics.perturbations",
     "Push": "drake_estop.physics.perturbations",
     "Scenario": "drake_estop.scenario",

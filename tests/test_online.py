@@ -588,3 +588,45 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
                    "one_step_feasible"):
         assert column in header
+
+
+@pytest.mark.parametrize("arguments, named", [
+    ({"estop_time": float("nan")}, "estop_time"),
+    ({"estop_time": -0.1}, "estop_time"),
+    ({"estop_time": 100.0}, "estop_time"),  # past the walk's end
+    ({"estop_time": "3.4 s"}, "estop_time"),
+    ({"after_halt": 0.5}, "after_halt"),
+    ({"after_halt": float("inf")}, "after_halt"),
+    ({"planner_options": {"replan_treshold": 0.05}}, "planner_options"),
+    ({"planner_options": True}, "planner_options"),
+    ({"foot_compliance": {"damp": 80.0}}, "foot_compliance"),
+    ({"swing_tilt": 0.17}, "swing_tilt"),
+    ({"gait_params": GaitParameters(step_length=0.2), "pattern": NominalPattern()}, "gait_params and pattern"),
+])
+def test_run_online_rejects_bad_arguments_naming_them(arguments, named, monkeypatch):
+    import drake_estop.physics.online as online
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("built a diagram from bad arguments")
+
+    monkeypatch.setattr(online, "build_online_diagram", no_build)  # rejected before any work
+    with pytest.raises(ValueError, match=named):
+        online.run_online(**arguments)
+
+
+def test_run_online_takes_matching_gait_params_and_pattern(monkeypatch):
+    """The CLI passes both: a pattern built from the same gait is not a disagreement."""
+    import drake_estop.physics.online as online
+
+    built = {}
+
+    def stop_after_build(pattern, *args, **kwargs):
+        built["pattern"] = pattern
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "build_online_diagram", stop_after_build)
+    gait = GaitParameters(step_length=0.25)
+    pattern = NominalPattern(gait)
+    with pytest.raises(RuntimeError, match="stop here"):
+        online.run_online(gait_params=gait, pattern=pattern, estop_time=3.4)
+    assert built["pattern"] is pattern

@@ -149,6 +149,8 @@ How the controller balances (and what it does not do):
 
 from __future__ import annotations
 
+import inspect
+import math
 import time
 from dataclasses import dataclass, replace
 
@@ -175,7 +177,7 @@ from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
-from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
+from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller, connect_reference
 from drake_estop.timing import TickTimer
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s.
@@ -214,11 +216,26 @@ SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.
 
 
 def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True) -> StopParameters:
-    """``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
+    """The stop parameters the online controller plans with.
+
+    ``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
     landing and landing-shift limit (:data:`CONTROLLER_STOP_PARAMETERS`), and with ``braked_landing`` the
     braked landing (:data:`BRAKED_LANDING`: its approach slope only on swings whose landing the braking limit bounds,
     unless ``params`` gives a slope of its own, which then shapes every swing); a larger margin, a later
-    landing, a tighter shift or swing-acceleration limit or a steeper approach in ``params`` is kept."""
+    landing, a tighter shift or swing-acceleration limit or a steeper approach in ``params`` is kept.
+
+    Parameters
+    ----------
+    params : StopParameters, optional
+        Stop parameters to start from (lengths [m], times [s]); default the paper's.
+    braked_landing : bool, optional
+        Add the braked landing (15 m/s^2 swing braking, approach slope 0.6, dimensionless); default True.
+
+    Returns
+    -------
+    StopParameters
+        ZMP margin at least 0.03 [m], halt durations (1.0, 1.2, 1.5) [s], earliest landing 0.05 [s].
+    """
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
     params = replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
@@ -339,37 +356,119 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
     return out
 
 
+def _checked_pattern(gait_params, pattern) -> NominalPattern:
+    """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (the paper's by default)."""
+    if pattern is None:
+        return NominalPattern(gait_params or GaitParameters())
+    if gait_params is not None and gait_params != pattern.params:
+        raise ValueError("gait_params and pattern disagree: give one of them (pattern is NominalPattern(gait_params))")
+    return pattern
+
+
+def _real(value) -> float:
+    """``value`` as a float; NaN for what is not a number (which every range check then fails)."""
+    if isinstance(value, bool):
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_compliance, swing_tilt):
+    """ValueError naming the first argument of :func:`run_online` that cannot run."""
+    if not 0.0 <= _real(estop_time) <= pattern.end_time:  # NaN fails too
+        raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
+    if not 1.0 <= _real(after_halt) < math.inf:
+        raise ValueError(f"after_halt must be at least 1 s (the rest criterion looks 1 s past the halt), "
+                         f"got {after_halt!r}")
+    known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
+    for name, given, settings in (("planner_options", planner_options, known),
+                                  ("foot_compliance", foot_compliance, FOOT_EDGE_COMPLIANCE),
+                                  ("swing_tilt", swing_tilt, SWING_TILT_COMPENSATION)):
+        if given is None or isinstance(given, bool) and name != "planner_options":
+            continue
+        if not isinstance(given, dict):
+            kinds = "a dict" if name == "planner_options" else "True, False or a dict"
+            raise ValueError(f"{name} must be {kinds}, got {given!r}")
+        unknown = sorted(set(given) - set(settings))
+        if unknown:
+            raise ValueError(f"{name}: unknown setting(s) {unknown}; known: {sorted(settings)}")
+
+
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
                true_state: bool = False, planner_options: dict | None = None, foot_compliance: dict | bool = True,
                swing_tilt: dict | bool = True):
-    """Walk, stop at ``estop_time`` with the online controller, and check the success criteria.
+    """Walk, stop at ``estop_time`` with the online controller on the simulated robot, and check the
+    success criteria: ``drake-estop simulate --physics`` from Python.
 
-    ``stop_params`` are used as given (pass :func:`controller_stop_parameters`
-    for the controller's margins, as the CLI does); ``foot_compliance`` and ``swing_tilt`` as in
-    :func:`build_online_diagram`. Returns the
-    :class:`drake_estop.physics.plant.PhysicsResult` of :func:`drake_estop.physics.plant.analyse`
-    with ``online`` added: ``tick_compute`` (median / p99 / max wall-clock seconds of the
-    controller's own work per servo tick after the signal), ``tick_compute_cpu`` (the same in the
-    thread's CPU time: without preemption by other processes), ``tick_compute_by_block`` (those
-    ticks' mean CPU seconds per block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`),
-    ``tick_compute_slowest`` (the three slowest of those ticks in CPU time, each with its blocks:
-    :meth:`TickTimer.slowest`), ``replans``,
-    ``ankle_offset_max`` (the foot-edge compliance's largest ankle offset [rad]),
-    ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction [rad]),
-    ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint
-    over its velocity limit, measured), the estimator's COG log and
-    ``one_step_feasible`` (per servo tick ``k * servo_period`` from 0: 1.0 if
-    a stop signal at that tick would stop in one step, from the planner's
-    output, the state it planned from included; after the latch the latched
-    stop's case; NaN for a tick whose update had not run).
+    The humanoid walks the nominal pattern in physics (a discrete SAP ``MultibodyPlant``, 1 ms)
+    under the closed-loop diagram of :func:`build_online_diagram`; the stop signal latches at
+    ``estop_time`` and the run goes on until ``after_halt`` past the plan's halt.
+
+    Parameters
+    ----------
+    gait_params : GaitParameters, optional
+        The walk (step length [m], step time [s], ...); default the paper's. Give this or ``pattern``.
+    stop_params : StopParameters, optional
+        Used as given; default :func:`controller_stop_parameters` (the controller's margins, as the CLI).
+    estop_time : float, optional
+        Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
+    after_halt : float, optional
+        Seconds simulated past the plan's halt [s], at least 1 (the rest criterion needs them); default 2.5.
+    physics : PhysicsParameters, optional
+        The plant (time step [s], contact model, servo gains); default ``PhysicsParameters()``.
+    perturbations : Perturbations, optional
+        Pushes [N, s], mass and torso errors, friction, latency, sensor noise, seed: the simulated
+        robot only (the controller keeps the nominal model).
+    pattern : NominalPattern, optional
+        A walk built already (the same as ``NominalPattern(gait_params)``; it must agree with
+        ``gait_params`` when both are given).
+    true_state : bool, optional
+        Feed the controller the true COG instead of the estimate (debugging); default False.
+    planner_options : dict, optional
+        Keyword arguments of :class:`drake_estop.systems.stop_controller.StopPlannerSystem`
+        (``replan_threshold`` [m], ``max_replan_solves``, ``recovery_step``, ...).
+    foot_compliance, swing_tilt : bool or dict, optional
+        The stance ankles' foot-edge compliance and the swing foot's tilt compensation: True (default)
+        with :data:`FOOT_EDGE_COMPLIANCE` / :data:`SWING_TILT_COMPENSATION`, a dict overriding some of
+        those settings, False to leave it out (for comparison).
+
+    Returns
+    -------
+    drake_estop.physics.criteria.PhysicsResult
+        Per-tick (5 ms) arrays [m, s, rad], ``success`` and ``criteria`` (no fall, no slip, rest near
+        the feet's midpoint, CoP in the support, joint speeds within limits), and ``online``:
+        ``tick_compute`` (median / p99 / max wall-clock seconds [s] of the controller's own work per
+        servo tick after the signal), ``tick_compute_cpu`` (the same in the thread's CPU time: without
+        preemption by other processes), ``tick_compute_by_block`` (those ticks' mean CPU seconds per
+        block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``tick_compute_slowest`` (the
+        three slowest of those ticks in CPU time, each with its blocks: :meth:`TickTimer.slowest`),
+        ``replans``, ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint over its
+        velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
+        offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
+        [rad]), the estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
+        from 0: 1.0 if a stop signal at that tick would stop in one step, from the planner's output, the
+        state it planned from included; after the latch the latched stop's case; NaN for a tick whose
+        update had not run).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: ``estop_time`` outside the walk or not finite, ``after_halt`` under 1 s,
+        ``gait_params`` and ``pattern`` that disagree, an unknown ``planner_options``,
+        ``foot_compliance`` or ``swing_tilt`` setting (values the systems reject raise their own).
+    drake_estop.planning.plan.InfeasibleStop
+        When no stop can be planned at the signal.
     """
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
+    pattern = _checked_pattern(gait_params, pattern)
+    _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_compliance, swing_tilt)
     perturbations = perturbations or Perturbations()
     stop_params = stop_params or controller_stop_parameters()
-    pattern = pattern or NominalPattern(gait_params or GaitParameters())
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, true_state=true_state,
                                    planner_options=planner_options, foot_compliance=foot_compliance,
