@@ -380,13 +380,12 @@ def _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_
     if not 0.0 <= _real(estop_time) <= pattern.end_time:  # NaN fails too
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
     if not 1.0 <= _real(after_halt) < math.inf:
-        raise ValueError(f"after_halt must be at least 1 s (the rest criterion looks 1 s past the halt), "
-                         f"got {after_halt!r}")
+        raise ValueError(f"after_halt must be at least 1 s, as simulate's --after-halt, got {after_halt!r}")
     known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
     for name, given, settings in (("planner_options", planner_options, known),
                                   ("foot_compliance", foot_compliance, FOOT_EDGE_COMPLIANCE),
                                   ("swing_tilt", swing_tilt, SWING_TILT_COMPENSATION)):
-        if given is None or isinstance(given, bool) and name != "planner_options":
+        if given is None or (isinstance(given, bool) and name != "planner_options"):
             continue
         if not isinstance(given, dict):
             kinds = "a dict" if name == "planner_options" else "True, False or a dict"
@@ -417,7 +416,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     estop_time : float, optional
         Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
     after_halt : float, optional
-        Seconds simulated past the plan's halt [s], at least 1 (the rest criterion needs them); default 2.5.
+        Seconds simulated past the plan's halt [s], at least 1 (as ``simulate --after-halt``); default 2.5.
     physics : PhysicsParameters, optional
         The plant (time step [s], contact model, servo gains); default ``PhysicsParameters()``.
     perturbations : Perturbations, optional
