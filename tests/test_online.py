@@ -21,9 +21,8 @@ from drake_estop.physics.plant import actuated_indices
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 
 
-@pytest.fixture(scope="module")
-def paper_stop():
-    """The paper's 3.4 s stop with the online controller, with everything computed after the
+def _online_with_nothing_ahead(estop_time):
+    """The paper's stop at ``estop_time`` with the online controller, with everything computed after the
     signal forbidden: the offline joint reference (IK over the rollout), the preview filter and
     the nominal-walk error cache must never be called."""
     mp = pytest.MonkeyPatch()
@@ -35,9 +34,24 @@ def paper_stop():
         mp.setattr(offline, name, forbidden)
     mp.setattr(offline.ZmpPreviewFilter, "track", forbidden)
     try:
-        yield run_online(estop_time=3.4, pattern=NominalPattern())
+        return run_online(estop_time=estop_time, pattern=NominalPattern())
     finally:
         mp.undo()
+
+
+@pytest.fixture(scope="module")
+def paper_stop():
+    """The paper's 3.4 s stop (late single support), online, nothing computed ahead of its tick."""
+    return _online_with_nothing_ahead(3.4)
+
+
+def test_paper_stop_at_3_5_s_meets_every_criterion_online():
+    """The paper's second scenario (3.5 s, just after the touchdown: double support), online."""
+    result = _online_with_nothing_ahead(3.5)
+    assert result.plan.support == "double"
+    assert result.criteria == {name: True for name in CRITERIA}
+    assert result.online["joint_velocity_violations"] == 0
+    assert result.numbers()["final_cog_offset_m"] < 0.02
 
 
 def test_paper_stop_meets_every_criterion_online(paper_stop):
