@@ -18,7 +18,11 @@ warm-up run, and prints:
   out): the median over runs of each run's median, and the largest p99 and
   max of any run;
 * where that time goes, block by block (``TickTimer.breakdown``; the run
-  with the median real-time factor).
+  with the median real-time factor);
+* the machine's speed at the time: the humanoid's plant alone (standing on
+  both feet, servos holding the walk's start pose, no controller), CPU per
+  5 ms tick, measured before and after the scenarios. On this shared machine
+  every figure above follows the hour; this one says which hour it was.
 
 The robustness benchmark (``benchmarks/robustness.py``) times 168 runs two at
 a time on the two cores; this one runs them one at a time, as a robot's single
@@ -43,6 +47,33 @@ SCENARIOS = {
 }
 
 
+def plant_alone(seconds: float = 2.0, servo_period: float = 0.005) -> float:
+    """CPU seconds per servo tick of the humanoid's plant alone: the online run's plant (1 ms SAP
+    step, contact, PD servos) standing on both feet with its servos holding the walk's start pose,
+    no controller, no sensors, for ``seconds`` of simulated time after a 0.1 s warm-up."""
+    import numpy as np
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant
+    from drake_estop.systems.diagram import initial_configuration
+    from drake_estop.systems.ik import shared_ik
+
+    builder = DiagramBuilder()
+    plant, _, instance, _ = add_physics_plant(builder, PhysicsParameters())
+    q0 = initial_configuration(shared_ik()[0], NominalPattern())
+    q_idx = actuated_indices(plant)[0]
+    hold = builder.AddSystem(ConstantVectorSource(np.concatenate([q0[q_idx], np.zeros(len(q_idx))])))
+    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    simulator = Simulator(builder.Build())
+    plant.SetPositions(plant.GetMyMutableContextFromRoot(simulator.get_mutable_context()), q0)
+    simulator.AdvanceTo(0.1)
+    start = time.process_time()
+    simulator.AdvanceTo(0.1 + seconds)
+    return (time.process_time() - start) / seconds * servo_period
+
+
 def run(estop_time, perturbations, pattern):
     """One online run: ``{rtf, cpu_rtf, tick (CPU summary), blocks (breakdown), success, replans}``."""
     result = run_online(estop_time=estop_time, perturbations=perturbations, pattern=pattern,
@@ -53,10 +84,10 @@ def run(estop_time, perturbations, pattern):
             "success": result.success, "replans": online["replans"]}
 
 
-def report(results: dict, repeats: int, wall: float) -> str:
+def report(results: dict, repeats: int, wall: float, plant_ticks=None) -> str:
     """The markdown report of ``results`` (scenario name -> that scenario's runs, as :func:`run` returns
     them): medians over runs, the worst p99 and max of any run, and the block breakdown of the run with
-    the median real-time factor."""
+    the median real-time factor. ``plant_ticks``: :func:`plant_alone` before and after the runs [s]."""
     lines = [f"Online controller, one run at a time, {repeats} runs per scenario after a warm-up.", "",
              "| scenario | success | re-plans | real-time factor (wall) | real-time factor (CPU) "
              "| tick CPU median | worst p99 | worst max |", "| --- |" + " --- |" * 7]
@@ -81,8 +112,14 @@ def report(results: dict, repeats: int, wall: float) -> str:
                      + " |")
     mean_tick = statistics.median(sum(blocks.values()) for _, blocks in breakdowns)
     lines += ["", f"Against a 1 ms servo: the mean tick of the median scenario is {mean_tick * 1e3:.2f} ms of CPU"
-              + (", so this Python controller does not fit one." if mean_tick > 1e-3 else ", inside one."),
-              "", f"Benchmark wall time {wall:.0f} s."]
+              + (", so this Python controller does not fit one." if mean_tick > 1e-3 else ", inside one.")]
+    if plant_ticks:
+        loop = statistics.median(r["cpu_rtf"] for runs in results.values() for r in runs)
+        lines += ["", f"The machine at the time: the plant alone (standing, no controller) took "
+                  f"{plant_ticks[0] * 1e3:.2f} ms of CPU per 5 ms tick before the runs and "
+                  f"{plant_ticks[-1] * 1e3:.2f} ms after; the whole loop took {5.0 / loop:.2f} ms a tick "
+                  f"(the runs' median CPU real-time factor {loop:.2f})."]
+    lines += ["", f"Benchmark wall time {wall:.0f} s."]
     return "\n".join(lines)
 
 
@@ -96,9 +133,10 @@ def main(argv=None):
     pattern = NominalPattern()
     start = time.perf_counter()
     run(3.4, Perturbations(), pattern)  # warm-up: the IK plant, the planner's tables, first-call costs
+    before = plant_alone()
     results = {name: [run(estop_time, perturbations, pattern) for _ in range(args.repeats)]
                for name, (estop_time, perturbations) in SCENARIOS.items()}
-    text = report(results, args.repeats, time.perf_counter() - start)
+    text = report(results, args.repeats, time.perf_counter() - start, plant_ticks=(before, plant_alone()))
     print(text)
     if args.out:
         with open(args.out, "w") as out:
