@@ -42,7 +42,7 @@ import warnings
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+from pydrake.systems.primitives import LogVectorOutput
 
 from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
 from drake_estop.physics import estimation, online
@@ -112,9 +112,7 @@ def standing(perturbations, duration=2.0, pushes=(), **options):
     cop = builder.AddSystem(physics.CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
     q0 = nominal_standing_configuration(plant)
-    q_idx, _ = physics.actuated_indices(plant)
-    hold = builder.AddSystem(ConstantVectorSource(np.concatenate([q0[q_idx], np.zeros(len(q_idx))])))
-    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    physics.add_pose_hold(builder, plant, instance, q0)
     add_pelvis_push(builder, plant, pushes)
     estimator = estimation.add_state_estimation(builder, plant, cop, servo_period=DT, perturbations=perturbations,
                                                 initial_q=q0, **options)

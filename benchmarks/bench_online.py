@@ -39,6 +39,9 @@ from drake_estop.physics.online import controller_stop_parameters, run_online
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import NominalPattern
 
+#: The controller's servo period [s] (5 ms, HRP-2's): every figure here is per tick of it.
+SERVO_PERIOD = controller_stop_parameters().servo_period
+
 SCENARIOS = {
     "paper stop, 3.4 s": (3.4, Perturbations()),
     "paper stop, 3.5 s": (3.5, Perturbations()),
@@ -47,25 +50,21 @@ SCENARIOS = {
 }
 
 
-def plant_alone(seconds: float = 2.0, servo_period: float = 0.005) -> float:
+def plant_alone(seconds: float = 2.0, servo_period: float = SERVO_PERIOD) -> float:
     """CPU seconds per servo tick of the humanoid's plant alone: the online run's plant (1 ms SAP
     step, contact, PD servos) standing on both feet with its servos holding the walk's start pose,
     no controller, no sensors, for ``seconds`` of simulated time after a 0.1 s warm-up."""
-    import numpy as np
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
 
-    from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant
+    from drake_estop.physics.plant import PhysicsParameters, add_physics_plant, add_pose_hold
     from drake_estop.systems.diagram import initial_configuration
     from drake_estop.systems.ik import shared_ik
 
     builder = DiagramBuilder()
     plant, _, instance, _ = add_physics_plant(builder, PhysicsParameters())
     q0 = initial_configuration(shared_ik()[0], NominalPattern())
-    q_idx = actuated_indices(plant)[0]
-    hold = builder.AddSystem(ConstantVectorSource(np.concatenate([q0[q_idx], np.zeros(len(q_idx))])))
-    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    add_pose_hold(builder, plant, instance, q0)
     simulator = Simulator(builder.Build())
     plant.SetPositions(plant.GetMyMutableContextFromRoot(simulator.get_mutable_context()), q0)
     simulator.AdvanceTo(0.1)
@@ -115,9 +114,10 @@ def report(results: dict, repeats: int, wall: float, plant_ticks=None) -> str:
               + (", so this Python controller does not fit one." if mean_tick > 1e-3 else ", inside one.")]
     if plant_ticks:
         loop = statistics.median(r["cpu_rtf"] for runs in results.values() for r in runs)
+        tick = SERVO_PERIOD * 1e3  # [ms]
         lines += ["", f"The machine at the time: the plant alone (standing, no controller) took "
-                  f"{plant_ticks[0] * 1e3:.2f} ms of CPU per 5 ms tick before the runs and "
-                  f"{plant_ticks[-1] * 1e3:.2f} ms after; the whole loop took {5.0 / loop:.2f} ms a tick "
+                  f"{plant_ticks[0] * 1e3:.2f} ms of CPU per {tick:g} ms tick before the runs and "
+                  f"{plant_ticks[-1] * 1e3:.2f} ms after; the whole loop took {tick / loop:.2f} ms a tick "
                   f"(the runs' median CPU real-time factor {loop:.2f})."]
     lines += ["", f"Benchmark wall time {wall:.0f} s."]
     return "\n".join(lines)

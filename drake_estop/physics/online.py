@@ -150,7 +150,6 @@ How the controller balances (and what it does not do):
 from __future__ import annotations
 
 import inspect
-import math
 import time
 from dataclasses import dataclass, replace
 
@@ -162,7 +161,13 @@ from pydrake.systems.primitives import LogVectorOutput
 from drake_estop.physics.compliance import add_foot_edge_compliance
 from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
 from drake_estop.physics.estimation import add_state_estimation
-from drake_estop.physics.perturbations import Perturbations, add_pelvis_push, apply_model_errors, ground_friction
+from drake_estop.physics.perturbations import (
+    Perturbations,
+    add_pelvis_push,
+    apply_model_errors,
+    finite_number,
+    ground_friction,
+)
 from drake_estop.physics.plant import (
     SIDES,
     SOLE_FRAMES,
@@ -365,21 +370,11 @@ def _checked_pattern(gait_params, pattern) -> NominalPattern:
     return pattern
 
 
-def _real(value) -> float:
-    """``value`` as a float; NaN for what is not a number (which every range check then fails)."""
-    if isinstance(value, bool):
-        return math.nan
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
-
-
 def _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_compliance, swing_tilt):
     """ValueError naming the first argument of :func:`run_online` that cannot run."""
-    if not 0.0 <= _real(estop_time) <= pattern.end_time:  # NaN fails too
+    if isinstance(estop_time, bool) or not (finite_number(estop_time) and 0.0 <= float(estop_time) <= pattern.end_time):
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
-    if not 1.0 <= _real(after_halt) < math.inf:
+    if isinstance(after_halt, bool) or not (finite_number(after_halt) and float(after_halt) >= 1.0):
         raise ValueError(f"after_halt must be at least 1 s, as simulate's --after-halt, got {after_halt!r}")
     known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
     for name, given, settings in (("planner_options", planner_options, known),

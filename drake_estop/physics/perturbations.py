@@ -53,7 +53,8 @@ _TIME_TOLERANCE = 1e-9  # [s]
 MAX_TORSO_COM_OFFSET = 0.1
 
 
-def _finite(value) -> bool:
+def finite_number(value) -> bool:
+    """Whether ``value`` reads as a finite float (False for NaN, inf and what is not a number)."""
     try:
         return math.isfinite(float(value))
     except (TypeError, ValueError):
@@ -84,7 +85,7 @@ class Push:
 
     def __post_init__(self):
         for name in ("time", "force_x", "force_y", "duration"):
-            if not _finite(getattr(self, name)):
+            if not finite_number(getattr(self, name)):
                 raise ValueError(f"--push: {name} must be a finite number, got {getattr(self, name)!r}")
         if not self.duration > 0:
             raise ValueError(f"--push: duration must be > 0 s, got {self.duration!r}")
@@ -144,14 +145,14 @@ class Perturbations:
         object.__setattr__(self, "pushes", pushes)
         for option, name in (("--mass-scale", "mass_scale"), ("--torso-mass-scale", "torso_mass_scale")):
             value = getattr(self, name)
-            if not (_finite(value) and float(value) > 0):
+            if not (finite_number(value) and float(value) > 0):
                 raise ValueError(f"{option} must be a finite number > 0, got {value!r}")
-        if not (_finite(self.torso_com_offset) and abs(float(self.torso_com_offset)) <= MAX_TORSO_COM_OFFSET):
+        if not (finite_number(self.torso_com_offset) and abs(float(self.torso_com_offset)) <= MAX_TORSO_COM_OFFSET):
             raise ValueError(f"--torso-com-offset must be finite with |DX| <= {MAX_TORSO_COM_OFFSET} m, "
                              f"got {self.torso_com_offset!r}")
         if self.friction is not None:
             limit = 2 * SOLE_MU_DYNAMIC
-            if not (_finite(self.friction) and 0 < float(self.friction) < limit):
+            if not (finite_number(self.friction) and 0 < float(self.friction) < limit):
                 raise ValueError(f"--friction must be a finite number in (0, {limit:g}) (the soles' own "
                                  f"coefficient is {SOLE_MU_DYNAMIC:g}), got {self.friction!r}")
         if not (isinstance(self.latency_ticks, (int, np.integer)) and not isinstance(self.latency_ticks, bool)

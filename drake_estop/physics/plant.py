@@ -46,7 +46,7 @@ from pydrake.multibody.plant import (
 )
 from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
 from drake_estop.model import (
     LEFT_SOLE,
@@ -402,6 +402,16 @@ def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mod
     builder.Connect(ik.q_port, desired.q_port)
     builder.Connect(desired.desired_state_port, plant.get_desired_state_input_port(instance))
     return desired
+
+
+def add_pose_hold(builder, plant, instance, q):
+    """Hold the robot's actuated joints at ``q`` (full positions) with no controller: a constant plant
+    ``desired_state``, zero joint velocities. Returns the ``ConstantVectorSource``."""
+    q_idx, _ = actuated_indices(plant)
+    held = np.concatenate([np.asarray(q, float)[q_idx], np.zeros(len(q_idx))])
+    hold = builder.AddSystem(ConstantVectorSource(held))
+    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    return hold
 
 
 def add_online_loggers(builder, plant, cop, ik, period) -> dict:
