@@ -337,6 +337,9 @@ def _simulate(args) -> int:
                   f"stop), work per tick median {tick['median'] * 1e3:.2f} ms, p99 {tick['p99'] * 1e3:.2f} ms, "
                   f"max {tick['max'] * 1e3:.2f} ms (CPU time: max {cpu['max'] * 1e3:.2f} ms); "
                   f"ticks over a joint-velocity limit {summary['joint_velocity_violations']}")
+            if summary.get("latch_fallback"):
+                print("  no stop from the measured state at the signal: planned from the reference "
+                      f"(then re-planned from the measured state): {summary['latch_fallback']}")
             print("  CPU per tick by block (mean): " + _block_times(summary["tick_compute_by_block"], 5))
             worst = summary["tick_compute_slowest"][0]
             print(f"  slowest tick (CPU) at {worst['t']:.3f} s, {worst['total'] * 1e3:.2f} ms: "
@@ -383,7 +386,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
                             planner_options=_planner_options(args))
         online = {key: result.online[key] for key in
                   ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "tick_compute_slowest", "replans",
-                   "replan_failures",
+                   "replan_failures", "latch_fallback",
                    "joint_velocity_violations", "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]

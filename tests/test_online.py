@@ -644,3 +644,22 @@ def test_run_online_takes_matching_gait_params_and_pattern(monkeypatch):
     with pytest.raises(RuntimeError, match="stop here"):
         online.run_online(gait_params=gait, pattern=pattern, estop_time=3.4)
     assert built["pattern"] is pattern
+
+
+def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_reference(tmp_path, capsys):
+    """The campaign's run 181 (session 18: 29.9 N s forward-left starting 79 ms before a 3.275 s signal,
+    model error, noise, one tick of latency): at the signal no stop within two steps exists from the
+    measured state, and the run used to end there with exit status 2 ("stop planning failed"). The latch
+    now plans the paper's stop from the reference and re-plans from the measured state: the run goes to
+    its end and the robot stays up (the CoP leaves the planned soles, so it still fails a criterion)."""
+    summary = tmp_path / "summary.json"
+    code = main(["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0.2234", "--step-time", "0.875",
+                 "--step-width", "0.2034", "--push", "3.196", "412.98", "400.42", "0.052", "--mass-scale", "0.915",
+                 "--torso-mass-scale", "1.0602", "--torso-com-offset", "-0.01243", "--friction", "0.8393",
+                 "--latency", "1", "--seed", "1809849821110597283", "--sensor-noise", "--summary", str(summary)])
+    data = json.loads(summary.read_text())
+    assert code == (0 if data["physics"]["success"] else 1)
+    assert "no feasible stop within two steps" in data["latch_fallback"]
+    assert "planned from the reference" in capsys.readouterr().out
+    assert data["physics"]["criteria"]["no_fall"]
+    assert data["replans"] >= 1

@@ -351,11 +351,53 @@ def test_plan_sequence_summary_keeps_the_landing_and_counts_the_replans(pattern,
     assert summary["first_plan"]["step_length"] == first.step_length
 
 
+def _sideways_at(pattern, t, speed):
+    """The measured COG of the walk at ``t`` with ``speed`` [m/s] sideways: no stop catches 3 m/s."""
+    pos, vel, _, _ = pattern.com([t])
+    return [*pos[0], 0.8], [vel[0][0], speed, 0.0]
+
+
+def test_no_stop_from_the_measured_state_plans_from_the_reference_and_keeps_trying(pattern):
+    """A state no stop catches at the signal (3 m/s sideways) does not end the controller: the latch
+    plans the paper's stop from the reference, as without a measurement (continuous with the command, no
+    blend), says why, and the measured state is then re-planned from every tick (each try fails here)."""
+    t, params = 3.1, StopParameters()
+    com, com_vel = _sideways_at(pattern, t, 3.0)
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], com, com_vel, filter_time_constant=1e-6,
+                                        replan_interval=DT)
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(t)
+    simulator.AdvanceTo(t + DT / 2)
+    context = planner.GetMyContextFromRoot(simulator.get_context())
+    plan, reference = planner.plan(context), plan_stop(pattern, t, params)
+    assert (plan.start_time, plan.landing_time, plan.step_length) == (
+        reference.start_time, reference.landing_time, reference.step_length)
+    assert "no feasible stop within two steps" in planner.latch_fallback(context)
+    tc = context.get_time()  # the command is the plan's own, not blended towards the measured state
+    np.testing.assert_allclose(planner.GetOutputPort("com").Eval(context)[:2], plan.com([tc])[0][0], atol=1e-9)
+    simulator.AdvanceTo(t + 5 * DT + DT / 2)
+    replans, failures = planner.replans(context)
+    # re-plans from the measured state on every later tick: each one's four single-support tries take two
+    # ticks (MAX_REPLAN_SOLVES = 2), so five ticks end two of them, both without a stop
+    assert (replans, failures) == (0, 2)
+
+
+def test_a_plan_from_the_measured_state_records_no_fallback(pattern, params):
+    t = 3.15
+    pos, vel, _ = _state_at(plan_stop(pattern, t, params), t)
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*(vel + [0.02, 0.0]), 0.0],
+                                        replan_threshold=0.005)
+    simulator = Simulator(diagram)
+    simulator.get_mutable_context().SetTime(t)
+    simulator.AdvanceTo(t + DT / 2)
+    assert planner.latch_fallback(planner.GetMyContextFromRoot(simulator.get_context())) is None
+
+
 def test_an_infeasible_stop_raises_instead_of_crashing_the_simulator():
-    """A state no stop can catch (here 3 m/s sideways at the signal) makes the planner raise
-    InfeasibleStop out of AdvanceTo. Returning EventStatus.Failed instead crashed the process
-    (pydrake formats the failure with the GIL released: SIGSEGV); run in a child process so that
-    such a crash fails this test instead of the suite."""
+    """Without the reference fallback (``reference_fallback=False``), a state no stop can catch (here
+    3 m/s sideways at the signal) makes the planner raise InfeasibleStop out of AdvanceTo. Returning
+    EventStatus.Failed instead crashed the process (pydrake formats the failure with the GIL released:
+    SIGSEGV); run in a child process so that such a crash fails this test instead of the suite."""
     import subprocess
     import sys
 
@@ -368,7 +410,8 @@ def test_an_infeasible_stop_raises_instead_of_crashing_the_simulator():
         "pattern = NominalPattern(); t = 3.1\n"
         "pos, vel, _, _ = pattern.com([t])\n"
         "diagram, planner = _planner_diagram(pattern, StopParameters(), [1.0, t], [*pos[0], 0.8],\n"
-        "                                    [vel[0][0], 3.0, 0.0], filter_time_constant=1e-6)\n"
+        "                                    [vel[0][0], 3.0, 0.0], filter_time_constant=1e-6,\n"
+        "                                    reference_fallback=False)\n"
         "simulator = Simulator(diagram)\n"
         "simulator.get_mutable_context().SetTime(t)\n"
         "try:\n"

@@ -498,6 +498,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "tick_compute_slowest": handles.timer.slowest(since=plan.signal_time, clock="cpu", count=3),
         "replans": int(replans),
         "replan_failures": int(replan_failures),
+        # why the latch planned from the reference (no stop from the measured state), or None
+        "latch_fallback": handles.planner.latch_fallback(planner_context),
         "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
         "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
                                                    .FindLog(context).sample_times()),

@@ -328,11 +328,14 @@ class _PlanHandle:
     """
 
     __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
-                 "last_try", "footholds_of", "pending")
+                 "last_try", "footholds_of", "pending", "latch_fallback")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None, last_try=-math.inf, footholds_of=None, pending=None):
+                 blend=None, history=None, last_try=-math.inf, footholds_of=None, pending=None, latch_fallback=None):
         self.plan = plan
+        # why the latch planned from the reference although the measured state had left it (the
+        # InfeasibleStop message of the plan from the measured state), or None
+        self.latch_fallback = latch_fallback
         self.last_try = last_try  # time of the last re-plan attempt's first tick
         # (support, next_try) of a re-plan whose tries go on next tick (planner.ReplanPending), or None
         self.pending = pending
@@ -592,6 +595,15 @@ class StopPlannerSystem(_ReferenceSystem):
     max_replan_solves : int or None, optional
         Stop solves a re-plan may do in one tick (default 2; None: all of
         its tries on one tick, for comparison).
+    reference_fallback : bool, optional
+        What the latch does when no stop exists from the measured state (a
+        push under way at the signal; ``plan_stop`` raises InfeasibleStop):
+        True (default) plans the paper's stop from the reference at the
+        signal's tick, as without a measurement, so the robot is still
+        controlled; re-plans from the measured state then go on every tick
+        as after any deviation (:meth:`latch_fallback` gives the reason).
+        False raises InfeasibleStop out of the update (ending the
+        simulation), for comparison.
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
 
@@ -617,7 +629,8 @@ class StopPlannerSystem(_ReferenceSystem):
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
-                 relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES, timer=None):
+                 relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
+                 reference_fallback: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -635,6 +648,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
         self._recovery_step = bool(recovery_step)
+        self._reference_fallback = bool(reference_fallback)
         self._pattern = pattern
         self._params = params
         self._replan_threshold = float(replan_threshold)
@@ -696,6 +710,11 @@ class StopPlannerSystem(_ReferenceSystem):
         history = self._handle(context).history
         return PlanSequence(history) if history else None
 
+    def latch_fallback(self, context) -> str | None:
+        """Why the latch in ``context`` planned from the reference although a measured state was given
+        (no stop existed from it: the planner's message; ``reference_fallback``), or None."""
+        return self._handle(context).latch_fallback
+
     def replans(self, context):
         """``(re-plans made, re-plans that found no feasible stop)`` since the signal."""
         handle = self._handle(context)
@@ -747,12 +766,21 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.Succeeded()
         planned_time, measured = self._plan_request(signal_time, max(signal_time, context.get_time()), measured)
         start = time.perf_counter()
+        fallback = None
         try:
             if measured is None:
                 plan = plan_stop(self._pattern, planned_time, self._params)
             else:  # from the state measured now (this tick, at or after the signal's)
-                plan = plan_stop(self._pattern, planned_time, self._params, measured=measured)
-                plan.signal_time = min(plan.signal_time, signal_time)
+                try:
+                    plan = plan_stop(self._pattern, planned_time, self._params, measured=measured)
+                    plan.signal_time = min(plan.signal_time, signal_time)
+                except InfeasibleStop as error:
+                    if not self._reference_fallback:
+                        raise
+                    # no stop from the measured state: the paper's stop from the reference keeps the robot
+                    # controlled, and the re-plans below keep trying from the measured state every tick
+                    fallback, measured = str(error), None
+                    plan = plan_stop(self._pattern, signal_time, self._params)
         except (InfeasibleStop, ValueError) as error:
             # raised, not returned as EventStatus.Failed: Drake formats a failed status's message by
             # asking pydrake for this Python system's type name while AdvanceTo has released the GIL,
@@ -760,7 +788,8 @@ class StopPlannerSystem(_ReferenceSystem):
             raise InfeasibleStop(f"stop planning failed at t = {context.get_time():.3f} s: {error}") from error
         # a plan from the reference continues the command; one from the measured state is blended into
         handle = _PlanHandle(plan, time.perf_counter() - start,
-                             blend=None if measured is None else self._blend_into(context, plan))
+                             blend=None if measured is None else self._blend_into(context, plan),
+                             latch_fallback=fallback)
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
         state.get_mutable_discrete_state(self._feasible_state).set_value([float(plan.case == "one-step")])
         return EventStatus.Succeeded()
