@@ -194,6 +194,10 @@ def _add_simulate(sub, scenario: Scenario):
                    default=scenario.recovery_step,
                    help="with --physics: no recovery step out of a double-support stop that cannot hold "
                         "(for comparison)")
+    d.add_argument("--no-reference-fallback", dest="reference_fallback", action="store_false",
+                   default=scenario.reference_fallback,
+                   help="with --physics: where no stop exists from the measured state at the signal, end the run "
+                        "(exit 2) instead of planning the paper's stop from the reference (for comparison)")
     d.add_argument("--foothold-replan", dest="foothold_replan", action="store_true",
                    default=scenario.foothold_replan,
                    help="with --physics: re-plan for a foot that landed off the plan's foothold while the COG "
@@ -253,6 +257,7 @@ def _effective_scenario(args, gait, stop) -> Scenario:
                    foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
                    measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
                    relanded_footholds=args.relanded_footholds, braked_landing=args.braked_landing,
+                   reference_fallback=args.reference_fallback,
                    foothold_replan=args.foothold_replan, max_replan_solves=args.max_replan_solves,
                    perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
@@ -266,6 +271,7 @@ def _online_only_options(args, perturbations) -> list:
              ("--no-relanded-footholds", not args.relanded_footholds),
              ("--no-braked-landing", not args.braked_landing),
              ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan),
+             ("--no-reference-fallback", not args.reference_fallback),
              ("--max-replan-solves", args.max_replan_solves != MAX_REPLAN_SOLVES))
     return [name for name, on in given if on]
 
@@ -363,7 +369,8 @@ def _fit(values, n):
 
 def _planner_options(args) -> dict | None:
     """The online controller's StopPlannerSystem options the command line changed (None: the defaults)."""
-    options = {name: False for name in ("measured_footholds", "relanded_footholds", "recovery_step")
+    options = {name: False for name in ("measured_footholds", "relanded_footholds", "recovery_step",
+                                        "reference_fallback")
                if not getattr(args, name)}
     if args.foothold_replan:
         options["foothold_replan"] = True

@@ -82,6 +82,10 @@ class Scenario:
     braked_landing : bool
         Physics, online controller only: the controller's braked landing
         (``drake_estop.physics.online.BRAKED_LANDING``; default on; off lands the paper's swing, for comparison).
+    reference_fallback : bool
+        Physics, online controller only: where no stop exists from the measured state at the signal, the
+        latch plans the paper's stop from the reference and re-plans from the measured state (default on;
+        off ends the run, exit status 2, for comparison).
     foothold_replan : bool
         Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
         stop on the measured feet (default off: net neutral on the campaign; on for comparison).
@@ -109,6 +113,7 @@ class Scenario:
     recovery_step: bool = True
     relanded_footholds: bool = True
     braked_landing: bool = True
+    reference_fallback: bool = True
     foothold_replan: bool = False
     max_replan_solves: int | None = MAX_REPLAN_SOLVES
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)

@@ -496,7 +496,7 @@ def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
 
 #: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
 PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
-                 "--no-relanded-footholds": "relanded_footholds"}
+                 "--no-relanded-footholds": "relanded_footholds", "--no-reference-fallback": "reference_fallback"}
 
 
 @pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
@@ -646,6 +646,18 @@ def test_run_online_takes_matching_gait_params_and_pattern(monkeypatch):
     assert built["pattern"] is pattern
 
 
+#: The campaign's run 181 (docs/campaign): a push under way at the signal that no stop from the measured state catches.
+RUN_181 = ["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0.2234", "--step-time", "0.875",
+           "--step-width", "0.2034", "--push", "3.196", "412.98", "400.42", "0.052", "--mass-scale", "0.915",
+           "--torso-mass-scale", "1.0602", "--torso-com-offset", "-0.01243", "--friction", "0.8393",
+           "--latency", "1", "--seed", "1809849821110597283", "--sensor-noise"]
+
+
+def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners_reason(capsys):
+    assert main([*RUN_181, "--no-reference-fallback"]) == 2
+    assert "stop planning failed at t = 3.280 s: no feasible stop within two steps" in capsys.readouterr().err
+
+
 def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_reference(tmp_path, capsys):
     """The campaign's run 181 (session 18: 29.9 N s forward-left starting 79 ms before a 3.275 s signal,
     model error, noise, one tick of latency): at the signal no stop within two steps exists from the
@@ -653,13 +665,21 @@ def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_refer
     now plans the paper's stop from the reference and re-plans from the measured state: the run goes to
     its end and the robot stays up (the CoP leaves the planned soles, so it still fails a criterion)."""
     summary = tmp_path / "summary.json"
-    code = main(["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0.2234", "--step-time", "0.875",
-                 "--step-width", "0.2034", "--push", "3.196", "412.98", "400.42", "0.052", "--mass-scale", "0.915",
-                 "--torso-mass-scale", "1.0602", "--torso-com-offset", "-0.01243", "--friction", "0.8393",
-                 "--latency", "1", "--seed", "1809849821110597283", "--sensor-noise", "--summary", str(summary)])
+    code = main([*RUN_181, "--summary", str(summary)])
     data = json.loads(summary.read_text())
     assert code == (0 if data["physics"]["success"] else 1)
     assert "no feasible stop within two steps" in data["latch_fallback"]
     assert "planned from the reference" in capsys.readouterr().out
     assert data["physics"]["criteria"]["no_fall"]
     assert data["replans"] >= 1
+
+
+def test_reference_fallback_is_set_from_the_scenario_file_too(monkeypatch):
+    options = _online_run_keywords(monkeypatch, ["--scenario-text", "{reference_fallback: false}"])["planner_options"]
+    assert options == {"reference_fallback": False}
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_no_reference_fallback_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--no-reference-fallback"]) == 2
+    assert "--no-reference-fallback" in capsys.readouterr().err

@@ -440,7 +440,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         preemption by other processes), ``tick_compute_by_block`` (those ticks' mean CPU seconds per
         block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``tick_compute_slowest`` (the
         three slowest of those ticks in CPU time, each with its blocks: :meth:`TickTimer.slowest`),
-        ``replans``, ``replan_failures``, ``joint_velocity_violations`` (ticks with a joint over its
+        ``replans``, ``replan_failures``, ``latch_fallback`` (None, or why the latch planned from the
+        reference: no stop from the measured state), ``joint_velocity_violations`` (ticks with a joint over its
         velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
         offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
         [rad]), the estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
