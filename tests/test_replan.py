@@ -318,6 +318,52 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
     assert len(planner.plans(context).plans) == replans + 1
 
 
+def test_plan_stop_bounds_its_search_by_max_solves(pattern, monkeypatch):
+    """A state no stop catches (3 m/s sideways) costs plan_stop a solve at every tick of the next two steps;
+    ``max_solves`` ends the search after that many tries, with a message that says so."""
+    from drake_estop.planning import planner as planner_module
+
+    t, params = 3.1, StopParameters()
+    com, com_vel = _sideways_at(pattern, t, 3.0)
+    measured = (com[:2], com_vel[:2])
+    solves = []
+    solve = planner_module._plan_from
+    monkeypatch.setattr(planner_module, "_plan_from",
+                        lambda *args, **kwargs: solves.append(1) or solve(*args, **kwargs))
+    with pytest.raises(InfeasibleStop, match="within two steps"):
+        plan_stop(pattern, t, params, measured=measured)
+    unbounded, solves[:] = len(solves), []
+    with pytest.raises(InfeasibleStop, match="no feasible stop in the first 3 tries after t=3.100 s"):
+        plan_stop(pattern, t, params, measured=measured, max_solves=3)
+    assert len(solves) == 3 < unbounded
+
+
+def test_a_bound_that_the_search_does_not_reach_gives_the_same_plan(pattern, params):
+    """A next-step stop (III.C) found at the second try is the same plan with max_solves=2."""
+    t = next(t for t in np.arange(2.8, 3.6, DT) if plan_stop(pattern, t, params).case == "next-step")
+    pos, vel, _, _ = pattern.com([t])
+    measured = (pos[0], vel[0] + np.array([0.01, 0.0]))
+    plan = plan_stop(pattern, t, params, measured=measured)
+    assert plan.case == "next-step"
+    bounded = plan_stop(pattern, t, params, measured=measured, max_solves=2)
+    assert (bounded.start_time, bounded.landing_time, bounded.halt_end) == (plan.start_time, plan.landing_time,
+                                                                           plan.halt_end)
+    with pytest.raises(InfeasibleStop, match="first 1 tries"):
+        plan_stop(pattern, t, params, measured=measured, max_solves=1)
+
+
+@pytest.mark.parametrize("value", [0, -1, 1.5, True])
+def test_plan_stop_rejects_a_bad_max_solves(pattern, params, value):
+    with pytest.raises(ValueError, match="max_solves"):
+        plan_stop(pattern, 3.1, params, max_solves=value)
+
+
+@pytest.mark.parametrize("value", [0, 2.5, False])
+def test_planner_rejects_a_bad_max_latch_solves(pattern, params, value):
+    with pytest.raises(ValueError, match="max_latch_solves"):
+        StopPlannerSystem(pattern=pattern, params=params, max_latch_solves=value)
+
+
 @pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
                                   "replan_interval", "landed_replan_threshold", "foothold_tolerance"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
@@ -372,7 +418,7 @@ def test_no_stop_from_the_measured_state_plans_from_the_reference_and_keeps_tryi
     plan, reference = planner.plan(context), plan_stop(pattern, t, params)
     assert (plan.start_time, plan.landing_time, plan.step_length) == (
         reference.start_time, reference.landing_time, reference.step_length)
-    assert "no feasible stop within two steps" in planner.latch_fallback(context)
+    assert "no feasible stop in the first 4 tries" in planner.latch_fallback(context)  # MAX_LATCH_SOLVES
     tc = context.get_time()  # the command is the plan's own, not blended towards the measured state
     np.testing.assert_allclose(planner.GetOutputPort("com").Eval(context)[:2], plan.com([tc])[0][0], atol=1e-9)
     simulator.AdvanceTo(t + 5 * DT + DT / 2)

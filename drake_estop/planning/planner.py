@@ -594,7 +594,7 @@ def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> fl
 
 
 def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
-              measured=None) -> StopPlan:
+              measured=None, max_solves: int | None = None) -> StopPlan:
     """Plan the stop for a signal at ``signal_time`` (snapped to the next servo tick).
 
     Parameters
@@ -612,6 +612,11 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
         continuous with the pattern's (eq. 12-13). A next-step fallback
         (III.C) starts at a later tick from the pattern's state there plus
         the measured deviation propagated by the LIPM.
+    max_solves : int, optional
+        Most stop solves of the search (default None: every tick of the
+        next two steps, up to a few hundred where no stop exists). A
+        real-time caller bounds its tick's work with it; the search then
+        raises :class:`InfeasibleStop` once that many tries found no stop.
 
     Returns
     -------
@@ -621,11 +626,14 @@ def plan_stop(pattern: NominalPattern, signal_time: float, params: StopParameter
     Raises
     ------
     InfeasibleStop
-        If no stop within two steps meets the limits (names the limit).
+        If no stop within two steps (or ``max_solves`` tries) meets the
+        limits (names the limit).
     ValueError
-        If ``signal_time`` or ``measured`` is not finite.
+        If ``signal_time`` or ``measured`` is not finite, or ``max_solves``
+        is not a positive integer.
     """
-    return _search(pattern, signal_time, params, measured, first_only=False)
+    return _search(pattern, signal_time, params, measured, first_only=False,
+                   max_solves=check_solve_bound(max_solves))
 
 
 def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
@@ -666,8 +674,9 @@ def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopP
     return plan is not None and plan.case == "one-step"
 
 
-def _search(pattern, signal_time, params, measured, first_only):
-    """:func:`plan_stop`; with ``first_only``, None instead of trying past the first failed attempt."""
+def _search(pattern, signal_time, params, measured, first_only, max_solves=None):
+    """:func:`plan_stop`; with ``first_only``, None instead of trying past the first failed attempt; at
+    most ``max_solves`` tries (None: no bound)."""
     params = params or StopParameters()
     if measured is not None:
         measured = tuple(np.asarray(m, float)[:2] for m in measured)
@@ -682,7 +691,7 @@ def _search(pattern, signal_time, params, measured, first_only):
     case = "one-step"
     horizon = t0 + 2.0 * pattern.params.step_time
     reasons = []
-    while t <= horizon:
+    while t <= horizon and (max_solves is None or len(reasons) < max_solves):
         support, index, _ = pattern.support_at(t)
         state = pattern.state(t)
         if measured is not None:
@@ -704,6 +713,8 @@ def _search(pattern, signal_time, params, measured, first_only):
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     detail = f"; at the signal: {reasons[0]}; last try: {reasons[-1]}" if reasons else ""
+    if t <= horizon:  # the bound ended the search
+        raise InfeasibleStop(f"no feasible stop in the first {max_solves} tries after t={t0:.3f} s{detail}")
     raise InfeasibleStop(f"no feasible stop within two steps of t={t0:.3f} s{detail}")
 
 
@@ -743,6 +754,13 @@ class ReplanPending(InfeasibleStop):
 #: ``max_replan_solves``): a double-support re-plan (held ZMP, recovery step) and a single-support one's
 #: held and ankle ZMP each fit one tick; the rest go on at the next tick (session 17's 27 captured re-plans).
 MAX_REPLAN_SOLVES = 2
+
+#: Stop solves the online controller's latch may spend searching from the measured state (``StopPlannerSystem``'s
+#: ``max_latch_solves``; :func:`plan_stop`'s ``max_solves``): the signal's support phase and the first three ticks
+#: of the next one (III.C), about 2 ms. Measured (session 19, the 153 runs of the 500-run campaign whose push
+#: starts before the signal): 4 latched from the measured state; the one that found a stop found it at its first
+#: try, the three that found none tried 202-268 times (60-100 ms in that tick) before the reference fallback.
+MAX_LATCH_SOLVES = 4
 
 
 def check_solve_bound(value, name: str = "max_solves"):

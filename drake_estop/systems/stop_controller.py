@@ -34,6 +34,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.planner import (
+    MAX_LATCH_SOLVES,
     MAX_REPLAN_SOLVES,
     PHASES,
     InfeasibleStop,
@@ -595,6 +596,12 @@ class StopPlannerSystem(_ReferenceSystem):
     max_replan_solves : int or None, optional
         Stop solves a re-plan may do in one tick (default 2; None: all of
         its tries on one tick, for comparison).
+    max_latch_solves : int or None, optional
+        Stop solves the latch's search from the measured state may do
+        (default :data:`drake_estop.planning.planner.MAX_LATCH_SOLVES`; None: every tick of the next two
+        steps, up to a few hundred solves in one tick where no stop exists).
+        A search that finds none within them is infeasible (see
+        ``reference_fallback``). The search from the reference is not bounded.
     reference_fallback : bool, optional
         What the latch does when no stop exists from the measured state (a
         push under way at the signal; ``plan_stop`` raises InfeasibleStop):
@@ -630,7 +637,7 @@ class StopPlannerSystem(_ReferenceSystem):
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
                  relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
-                 reference_fallback: bool = True, timer=None):
+                 max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True, timer=None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -644,6 +651,7 @@ class StopPlannerSystem(_ReferenceSystem):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
         self._max_replan_solves = check_solve_bound(max_replan_solves, "max_replan_solves")
+        self._max_latch_solves = check_solve_bound(max_latch_solves, "max_latch_solves")
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
         self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
@@ -772,7 +780,8 @@ class StopPlannerSystem(_ReferenceSystem):
                 plan = plan_stop(self._pattern, planned_time, self._params)
             else:  # from the state measured now (this tick, at or after the signal's)
                 try:
-                    plan = plan_stop(self._pattern, planned_time, self._params, measured=measured)
+                    plan = plan_stop(self._pattern, planned_time, self._params, measured=measured,
+                                     max_solves=self._max_latch_solves)
                     plan.signal_time = min(plan.signal_time, signal_time)
                 except InfeasibleStop as error:
                     if not self._reference_fallback:
