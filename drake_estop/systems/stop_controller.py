@@ -774,11 +774,9 @@ class StopPlannerSystem(_ReferenceSystem):
             return EventStatus.Succeeded()
         planned_time, measured = self._plan_request(signal_time, max(signal_time, context.get_time()), measured)
         start = time.perf_counter()
-        fallback = None
+        plan = fallback = None
         try:
-            if measured is None:
-                plan = plan_stop(self._pattern, planned_time, self._params)
-            else:  # from the state measured now (this tick, at or after the signal's)
+            if measured is not None:  # from the state measured now (this tick, at or after the signal's)
                 try:
                     plan = plan_stop(self._pattern, planned_time, self._params, measured=measured,
                                      max_solves=self._max_latch_solves)
@@ -789,7 +787,8 @@ class StopPlannerSystem(_ReferenceSystem):
                     # no stop from the measured state: the paper's stop from the reference keeps the robot
                     # controlled, and the re-plans below keep trying from the measured state every tick
                     fallback, measured = str(error), None
-                    plan = plan_stop(self._pattern, signal_time, self._params)
+            if plan is None:  # from the reference, at the signal's tick (planned_time without a measurement)
+                plan = plan_stop(self._pattern, signal_time, self._params)
         except (InfeasibleStop, ValueError) as error:
             # raised, not returned as EventStatus.Failed: Drake formats a failed status's message by
             # asking pydrake for this Python system's type name while AdvanceTo has released the GIL,
