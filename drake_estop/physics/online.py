@@ -456,7 +456,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         ``gait_params`` and ``pattern`` that disagree, an unknown ``planner_options``,
         ``foot_compliance`` or ``swing_tilt`` setting (values the systems reject raise their own).
     drake_estop.planning.plan.InfeasibleStop
-        When no stop can be planned at the signal.
+        When no stop can be planned at the signal from the reference either, or, with
+        ``planner_options={"reference_fallback": False}``, from the measured state (by default the latch
+        then plans from the reference: ``online["latch_fallback"]``).
     """
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
