@@ -23,6 +23,14 @@ warm-up run, and prints:
   both feet, servos holding the walk's start pose, no controller), CPU per
   5 ms tick, measured before and after the scenarios. On this shared machine
   every figure above follows the hour; this one says which hour it was.
+* where the loop's time goes (:func:`loop_parts`, the paper's 3.4 s stop,
+  walk, stop and rest): the controller's own work, the simulated robot alone
+  walking the same motion (the run's servo commands replayed into the plant,
+  nothing else in the diagram) and the rest between them (Drake's event
+  dispatch and cache invalidation over the diagram's systems, the simulated
+  sensors and CoP, the servo interpolation, the loggers). Their ratios change
+  little with the hour: they say how fast the controller must be for real
+  time at any hour (a controller of no cost at all still leaves the other two).
 
 The robustness benchmark (``benchmarks/robustness.py``) times 168 runs two at
 a time on the two cores; this one runs them one at a time, as a robot's single
@@ -35,7 +43,7 @@ import argparse
 import statistics
 import time
 
-from drake_estop.physics.online import controller_stop_parameters, run_online
+from drake_estop.physics.online import build_online_diagram, controller_stop_parameters, run_online
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import NominalPattern
 
@@ -71,6 +79,76 @@ def plant_alone(seconds: float = 2.0, servo_period: float = SERVO_PERIOD) -> flo
     start = time.process_time()
     simulator.AdvanceTo(0.1 + seconds)
     return (time.process_time() - start) / seconds * servo_period
+
+
+def loop_parts(pattern, estop_time: float = 3.4, after_halt: float = 2.5) -> dict:
+    """CPU seconds per servo tick of one online run's loop (the default ``simulate --physics`` diagram,
+    no perturbation; walk, stop and rest), split into ``controller`` (its own work every tick: the
+    :class:`drake_estop.timing.TickTimer`'s blocks), ``plant`` (the simulated robot alone walking the same
+    motion: the IK's positions of every tick, logged in the run, replayed through a first-order hold and
+    its derivative, a native ``TrajectorySource``, as the plant's ``desired_state``; no controller, sensors
+    or logs) and ``rest`` (the loop less those two). Also ``loop``, ``ticks`` and ``replay_pelvis_z`` (the
+    replayed robot's final pelvis height [m]: it walked, it did not fall, so its contacts were the run's)."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant, run_through_stop
+
+    handles = build_online_diagram(pattern, controller_stop_parameters(), estop_time)
+    simulator = Simulator(handles.diagram)
+    context = simulator.get_mutable_context()
+    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
+    simulator.Initialize()
+    start = time.process_time()
+    run_through_stop(simulator, handles.planner, estop_time, SERVO_PERIOD, after_halt, handles.planner.plans)
+    loop = time.process_time() - start
+    end = context.get_time()
+    ticks = end / SERVO_PERIOD
+    controller = float(handles.timer.per_tick(clock="cpu").sum())
+
+    log = handles.loggers["ik_q"].FindLog(context)
+    q_idx, _ = actuated_indices(handles.plant)
+    # the servo interpolator's first-order hold runs one tick behind the IK's positions
+    commands = PiecewisePolynomial.FirstOrderHold(log.sample_times() + SERVO_PERIOD, log.data()[q_idx])
+    builder = DiagramBuilder()
+    plant, _, instance, _ = add_physics_plant(builder, PhysicsParameters())
+    source = builder.AddSystem(TrajectorySource(commands, output_derivative_order=1))
+    builder.Connect(source.get_output_port(), plant.get_desired_state_input_port(instance))
+    replay = Simulator(builder.Build())
+    plant_context = plant.GetMyMutableContextFromRoot(replay.get_mutable_context())
+    plant.SetPositions(plant_context, handles.initial_q)
+    replay.Initialize()
+    start = time.process_time()
+    replay.AdvanceTo(end)
+    plant_alone_walking = time.process_time() - start
+    return {"loop": loop / ticks, "controller": controller / ticks, "plant": plant_alone_walking / ticks,
+            "rest": (loop - controller - plant_alone_walking) / ticks, "ticks": int(round(ticks)),
+            "replay_pelvis_z": float(plant.GetPositions(plant_context)[6])}
+
+
+def parts_report(parts: list) -> str:
+    """The markdown table of :func:`loop_parts` runs (medians over them) and the real-time factor that each
+    part alone leaves (what a controller of no cost would reach: the plant and the rest)."""
+    tick = SERVO_PERIOD * 1e3  # [ms]
+    rows = [("the simulated robot alone, walking the run's motion (plant, contact, PD servos)", "plant"),
+            ("the controller's own work (estimator, planner, IK, compliance, swing tilt)", "controller"),
+            ("the rest: Drake's event dispatch and cache invalidation over the diagram's systems, the "
+             "simulated sensors and CoP, the servo interpolation, the loggers", "rest")]
+    loop = statistics.median(p["loop"] for p in parts)
+    lines = [f"Where the loop's time goes (the paper's 3.4 s stop, walk, stop and rest; CPU per {tick:g} ms tick, "
+             f"median of {len(parts)} run(s)):", "",
+             "| part | CPU per tick | share of the loop |", "| --- | --- | --- |"]
+    for label, key in rows:
+        value = statistics.median(p[key] for p in parts)
+        lines.append(f"| {label} | {value * 1e3:.2f} ms | {value / loop:.0%} |")
+    lines.append(f"| the loop | {loop * 1e3:.2f} ms | 100% |")
+    without = statistics.median(p["plant"] + p["rest"] for p in parts)
+    lines += ["", f"Without the controller's work the loop would take {without * 1e3:.2f} ms a tick (real-time "
+              f"factor {SERVO_PERIOD / without:.2f}); real time leaves the controller "
+              f"{(SERVO_PERIOD - without) * 1e3:.2f} ms a tick at this hour."]
+    return "\n".join(lines)
 
 
 def run(estop_time, perturbations, pattern):
@@ -136,7 +214,9 @@ def main(argv=None):
     before = plant_alone()
     results = {name: [run(estop_time, perturbations, pattern) for _ in range(args.repeats)]
                for name, (estop_time, perturbations) in SCENARIOS.items()}
+    parts = [loop_parts(pattern) for _ in range(args.repeats)]
     text = report(results, args.repeats, time.perf_counter() - start, plant_ticks=(before, plant_alone()))
+    text += "\n\n" + parts_report(parts)
     print(text)
     if args.out:
         with open(args.out, "w") as out:

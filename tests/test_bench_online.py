@@ -49,3 +49,26 @@ def test_report_says_how_fast_the_machine_was(bench):
 def test_plant_alone_times_the_standing_plant(bench):
     tick = bench.plant_alone(seconds=0.05)
     assert 0.0 < tick < 0.05  # CPU seconds per 5 ms tick: positive, and not absurd on any machine
+
+
+def test_parts_report_splits_the_loop_and_says_what_real_time_leaves_the_controller(bench):
+    parts = [{"loop": 6.0e-3, "controller": 2.0e-3, "plant": 2.5e-3, "rest": 1.5e-3},
+             {"loop": 7.0e-3, "controller": 3.0e-3, "plant": 2.0e-3, "rest": 2.0e-3}]
+    text = bench.parts_report(parts)
+    assert "median of 2 run(s)" in text
+    assert "| the simulated robot alone, walking the run's motion (plant, contact, PD servos) | 2.25 ms | 35% |" in text
+    assert "| the controller's own work (estimator, planner, IK, compliance, swing tilt) | 2.50 ms | 38% |" in text
+    assert "| the loop | 6.50 ms | 100% |" in text
+    # plant + rest: 4.0 and 4.0 ms -> 4.00 ms, real-time factor 1.25, 1.00 ms left for the controller
+    assert "would take 4.00 ms a tick (real-time factor 1.25); real time leaves the controller 1.00 ms" in text
+
+
+def test_loop_parts_add_up_and_the_replayed_robot_walks(bench):
+    from drake_estop.planning.gait import NominalPattern
+
+    parts = bench.loop_parts(NominalPattern(), estop_time=1.2, after_halt=0.05)
+    assert parts["ticks"] > 200  # the walk to 1.2 s, the stop and its halt
+    for key in ("loop", "controller", "plant"):
+        assert 0.0 < parts[key] < 0.05, key  # CPU seconds per 5 ms tick: positive, and not absurd
+    assert parts["rest"] == pytest.approx(parts["loop"] - parts["controller"] - parts["plant"])
+    assert parts["replay_pelvis_z"] > 0.5  # the replayed commands walk the robot: it stands at the end
