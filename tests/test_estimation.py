@@ -15,6 +15,7 @@ from drake_estop.physics.estimation import (
     ENCODER_NOISE,
     GYRO_NOISE,
     SENSOR_SIGNALS,
+    SIGNALS,
     FootForceTorqueSensors,
     RobotSensors,
     StateEstimator,
@@ -402,3 +403,40 @@ def test_a_pelvis_push_is_seen_by_the_default_hybrid_filter():
     during = (t > 0.32) & (t < 0.4)
     assert vel_err[during].max() < 0.08  # measured 54 mm/s (force-only model: 182 mm/s)
     assert np.all(data["com_vel"][:len(t)][during, 0] > 0.0) and np.all(data["true_com_vel"][during, 0] > 0.0)
+
+
+class _CountingSource(LeafSystem):
+    """Vector output of zeros (size n) that counts its computations (a test instrument)."""
+
+    def __init__(self, n):
+        super().__init__()
+        self.calls = 0
+        self.DeclareVectorOutputPort("y", n, self._calc, prerequisites_of_calc={self.time_ticket()})
+
+    def _calc(self, context, output):
+        self.calls += 1
+        output.SetFromVector(np.zeros(output.size()))
+
+
+def test_the_estimators_signals_do_not_compute_the_feet_force_torque_sensors(plant, q0):
+    """The stop planner's update reads the estimate before the plant's step of each tick, the compliance
+    after it: the six-axis sensors (a Python system, twice a tick before) are computed for the latter only."""
+    builder = DiagramBuilder()
+    sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT))
+    foot_ft = builder.AddSystem(_CountingSource(12))
+    builder.Connect(foot_ft.get_output_port(), sensors.foot_ft_in_port)
+    builder.ExportInput(sensors.state_port, "state")
+    for port in (sensors.gyro_in_port, sensors.accelerometer_in_port, sensors.foot_forces_in_port,
+                 sensors.cop_in_port, sensors.wrench_in_port):
+        builder.ExportInput(port, port.get_name())
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    for k in range(diagram.num_input_ports()):
+        port = diagram.get_input_port(k)
+        port.FixValue(context, np.concatenate([q0, np.zeros(plant.num_velocities())]) if port.get_name() == "state"
+                      else np.ones(port.size()))
+    for name in SIGNALS:
+        sensors.GetOutputPort(name).Eval(sensors.GetMyContextFromRoot(context))
+    assert foot_ft.calls == 0
+    assert np.array_equal(sensors.foot_ft_port.Eval(sensors.GetMyContextFromRoot(context)), np.zeros(12))
+    assert foot_ft.calls == 1

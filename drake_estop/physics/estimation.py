@@ -220,22 +220,33 @@ class RobotSensors(LeafSystem):
         self.cop_in_port = self.DeclareVectorInputPort("cop_in", 2)
         self.wrench_in_port = self.DeclareVectorInputPort("wrench_in", 6)
         self.foot_ft_in_port = self.DeclareVectorInputPort("foot_ft_in", 12)
+        # the estimator's signals (noise added), without the feet's force/torque sensors: the stop planner's
+        # update reads the estimate before the plant's step of the tick and the compliance does not, so
+        # that six-axis signal (read by the compliance and the swing tilt after the step) passes through
+        self._estimator_size = self._slices["foot_ft"].start
         self._sample = self.DeclareCacheEntry(
-            "current sample", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(self._size)),
+            "current sample", ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(self._estimator_size)),
                                             calc=untimed(self._calc_sample, timer)),
-            {self.time_ticket(), self.all_input_ports_ticket()})
+            {self.time_ticket(), self.state_port.ticket(),
+             *(self.GetInputPort(f"{name}_in").ticket() for name in SIGNALS if name != "encoders")})
         if self._latency:
             self._buffer = self.DeclareDiscreteState(self._latency * self._size)
             self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._shift, timer))
             self.DeclareInitializationDiscreteUpdateEvent(self._fill)
-            prerequisites = {self.xd_ticket()}
-        else:
-            prerequisites = {self._sample.ticket()}
         ports = {}
         for name in SENSOR_SIGNALS:
-            ports[name] = self.DeclareVectorOutputPort(
-                name, self._sizes[name], lambda c, o, name=name: o.SetFromVector(self._delayed(c)[self._slices[name]]),
-                prerequisites_of_calc=prerequisites)
+            if self._latency:
+                calc, prerequisites = (lambda c, o, name=name: o.SetFromVector(self._delayed(c)[self._slices[name]]),
+                                       {self.xd_ticket()})
+            elif name == "foot_ft":
+                calc, prerequisites = (lambda c, o: o.SetFromVector(self.foot_ft_in_port.Eval(c)),
+                                       {self.foot_ft_in_port.ticket()})
+            else:
+                calc, prerequisites = (
+                    lambda c, o, name=name: o.SetFromVector(self._sample.Eval(c)[self._slices[name]]),
+                    {self._sample.ticket()})
+            ports[name] = self.DeclareVectorOutputPort(name, self._sizes[name], calc,
+                                                       prerequisites_of_calc=prerequisites)
         self.encoders_port = ports["encoders"]
         self.gyro_port = ports["gyro"]
         self.accelerometer_port = ports["accelerometer"]
@@ -256,27 +267,30 @@ class RobotSensors(LeafSystem):
         x = np.concatenate([
             self.state_port.Eval(context)[self._q_idx], self.gyro_in_port.Eval(context),
             self.accelerometer_in_port.Eval(context), self.foot_forces_in_port.Eval(context),
-            self.cop_in_port.Eval(context), self.wrench_in_port.Eval(context), self.foot_ft_in_port.Eval(context)])
+            self.cop_in_port.Eval(context), self.wrench_in_port.Eval(context)])
         if self._noise:
             k = self.tick(context.get_time())
             n = self._noisy.stop
             x[:n] += self._sigma[:n] * noise_sample(self._seed, 0, k, n)
         value.set_value(x)
 
+    def _full_sample(self, context):
+        """This tick's whole sample: the estimator's signals, then the feet's force/torque sensors."""
+        return np.concatenate([self._sample.Eval(context), self.foot_ft_in_port.Eval(context)])
+
     def _delayed(self, context):
-        if not self._latency:
-            return self._sample.Eval(context)
+        """The sample of ``latency_ticks`` ticks ago (with latency only: the buffer's oldest)."""
         return context.get_discrete_state(self._buffer).get_value()[:self._size]
 
     def _fill(self, context, discrete_state):
         discrete_state.get_mutable_vector(self._buffer).SetFromVector(
-            np.tile(self._sample.Eval(context), self._latency))
+            np.tile(self._full_sample(context), self._latency))
         return EventStatus.Succeeded()
 
     def _shift(self, context, discrete_state):
         old = context.get_discrete_state(self._buffer).get_value()
         discrete_state.get_mutable_vector(self._buffer).SetFromVector(
-            np.concatenate([old[self._size:], self._sample.Eval(context)]))
+            np.concatenate([old[self._size:], self._full_sample(context)]))
         return EventStatus.Succeeded()
 
 

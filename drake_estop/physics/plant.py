@@ -252,14 +252,12 @@ class CopEstimator(LeafSystem):
             if sign == 0.0:
                 continue
             px, py, pz = info.contact_point().tolist()
-            fx, fy, fz = (sign * info.contact_force()).tolist()
+            fx, fy, fz = info.contact_force().tolist()
+            fx, fy, fz = sign * fx, sign * fy, sign * fz  # sign is +-1: exact, as numpy's product was
             wrench = (py * fz - pz * fy, pz * fx - px * fz, px * fy - py * fx, fx, fy, fz)
-            for j in range(6):
-                total[j] += wrench[j]
+            total = [a + b for a, b in zip(total, wrench)]
             if owner >= 0:
-                mine = per_body[owner]
-                for j in range(6):
-                    mine[j] += wrench[j]
+                per_body[owner] = [a + b for a, b in zip(per_body[owner], wrench)]
             count += 1
         moment, force = np.array(total[:3]), np.array(total[3:])
         body_wrench = np.array(per_body, dtype=float).reshape(n_bodies, 6)

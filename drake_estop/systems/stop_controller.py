@@ -684,6 +684,11 @@ class StopPlannerSystem(_ReferenceSystem):
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
+        # the pattern's COG (x, y) position and velocity at every servo tick of the walk, for the tracking
+        # bias and the deviation that every tick before the latch measures against it (the pattern is the
+        # walk, computed before the run; the array path gives the bits of the one-instant one)
+        ticks = np.arange(int(math.ceil(pattern.end_time / params.servo_period)) + 1) * params.servo_period
+        self._pattern_com = pattern.com(ticks)[:2]
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer)
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
@@ -751,8 +756,8 @@ class StopPlannerSystem(_ReferenceSystem):
         state.get_mutable_discrete_state(self._filter_started).set_value([1.0])
         corrected = filtered - bias
         if track_bias:
-            pos, vel, _, _ = self._pattern.com([context.get_time()])
-            bias = bias + self._bias_alpha * (filtered - np.concatenate([pos[0], vel[0]]) - bias)
+            pos, vel = self._pattern_com_at(context.get_time())
+            bias = bias + self._bias_alpha * (filtered - np.concatenate([pos, vel]) - bias)
             state.get_mutable_discrete_state(self._bias_state).set_value(bias)
         return corrected[:2], corrected[2:]
 
@@ -811,7 +816,7 @@ class StopPlannerSystem(_ReferenceSystem):
         command); else tick ``now`` and the measured ``(com_xy, com_vel_xy)``.
         Used by the latch and by the one-step feasibility of every tick.
         """
-        if measured is not None and self._deviation(self._pattern, now, measured) <= self._replan_threshold:
+        if measured is not None and self._pattern_deviation(now, measured) <= self._replan_threshold:
             measured = None
         return (signal_time, None) if measured is None else (now, measured)
 
@@ -826,6 +831,23 @@ class StopPlannerSystem(_ReferenceSystem):
     def one_step_feasible(self, context) -> bool:
         """The ``one_step_feasible`` output in ``context`` as a bool."""
         return bool(context.get_discrete_state(self._feasible_state).value()[0] > 0.5)
+
+    def _pattern_com_at(self, t: float):
+        """The pattern's COG (x, y) position and velocity at ``t`` [m, m/s]: looked up on a servo tick
+        of the walk, else evaluated (the same bits either way)."""
+        dt = self._params.servo_period
+        k = int(round(t / dt))
+        positions, velocities = self._pattern_com
+        if 0 <= k < len(positions) and k * dt == t:
+            return positions[k], velocities[k]
+        pos, vel, _, _ = self._pattern.com([t])
+        return pos[0], vel[0]
+
+    def _pattern_deviation(self, t: float, measured) -> float:
+        """:meth:`_deviation` from the pattern at ``t``, its COG looked up (:meth:`_pattern_com_at`)."""
+        pos, vel = self._pattern_com_at(t)
+        omega = self._pattern.w
+        return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos + vel / omega)))
 
     @staticmethod
     def _deviation(reference, t, measured):
