@@ -440,3 +440,47 @@ def test_the_estimators_signals_do_not_compute_the_feet_force_torque_sensors(pla
     assert foot_ft.calls == 0
     assert np.array_equal(sensors.foot_ft_port.Eval(sensors.GetMyContextFromRoot(context)), np.zeros(12))
     assert foot_ft.calls == 1
+
+
+class _SlowForceTorque(LeafSystem):
+    """Six-axis readings of zero that take 20 ms of CPU to compute (the simulated sensors' work)."""
+
+    def __init__(self):
+        super().__init__()
+        self.DeclareVectorOutputPort("y", 12, self._calc, prerequisites_of_calc={self.time_ticket()})
+
+    def _calc(self, context, output):
+        end = time.thread_time() + 0.02
+        while time.thread_time() < end:
+            pass
+        output.SetFromVector(np.zeros(12))
+
+
+@pytest.mark.parametrize("latency", [0, 1])
+def test_the_feet_force_torque_readings_stay_out_of_the_controllers_tick_time(plant, q0, latency):
+    """The six-axis sensors are the simulated robot's work: a controller block that reads them (the swing
+    tilt, the compliance; with latency the sensors' own buffer update) is timed without it."""
+    from drake_estop.timing import TickTimer
+
+    timer = TickTimer(DT)
+    builder = DiagramBuilder()
+    sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT, latency_ticks=latency, timer=timer))
+    slow = builder.AddSystem(_SlowForceTorque())
+    builder.Connect(slow.get_output_port(), sensors.foot_ft_in_port)
+    for port in (sensors.state_port, sensors.gyro_in_port, sensors.accelerometer_in_port,
+                 sensors.foot_forces_in_port, sensors.cop_in_port, sensors.wrench_in_port):
+        builder.ExportInput(port, port.get_name())
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    for k in range(diagram.num_input_ports()):
+        port = diagram.get_input_port(k)
+        port.FixValue(context, np.concatenate([q0, np.zeros(plant.num_velocities())]) if port.get_name() == "state"
+                      else np.ones(port.size()))
+    if latency:
+        # the buffer's periodic updates (timed) at 0 and DT; the second reads the sensors anew
+        Simulator(diagram, context).AdvanceTo(DT + 1e-4)
+    else:
+        timer.wrap(lambda c: sensors.foot_ft_port.Eval(c), "reader")(sensors.GetMyContextFromRoot(context))
+    ticks = timer.per_tick(clock="cpu")
+    assert len(ticks) == 1 + latency
+    assert np.all(ticks < 0.01)  # not the 20 ms of the sensors

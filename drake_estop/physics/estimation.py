@@ -233,13 +233,16 @@ class RobotSensors(LeafSystem):
             self._buffer = self.DeclareDiscreteState(self._latency * self._size)
             self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, timed(self._shift, timer))
             self.DeclareInitializationDiscreteUpdateEvent(self._fill)
+        # the six-axis reading is the simulated robot's work (the F/T sensors' own), left out of the
+        # controller's tick time like the sample's (the swing tilt's or the latency buffer's update pulls it)
+        self._foot_ft_reading = untimed(lambda context: self.foot_ft_in_port.Eval(context), timer)
         ports = {}
         for name in SENSOR_SIGNALS:
             if self._latency:
                 calc, prerequisites = (lambda c, o, name=name: o.SetFromVector(self._delayed(c)[self._slices[name]]),
                                        {self.xd_ticket()})
             elif name == "foot_ft":
-                calc, prerequisites = (lambda c, o: o.SetFromVector(self.foot_ft_in_port.Eval(c)),
+                calc, prerequisites = (lambda c, o: o.SetFromVector(self._foot_ft_reading(c)),
                                        {self.foot_ft_in_port.ticket()})
             else:
                 calc, prerequisites = (
@@ -276,7 +279,7 @@ class RobotSensors(LeafSystem):
 
     def _full_sample(self, context):
         """This tick's whole sample: the estimator's signals, then the feet's force/torque sensors."""
-        return np.concatenate([self._sample.Eval(context), self.foot_ft_in_port.Eval(context)])
+        return np.concatenate([self._sample.Eval(context), self._foot_ft_reading(context)])
 
     def _delayed(self, context):
         """The sample of ``latency_ticks`` ticks ago (with latency only: the buffer's oldest)."""
