@@ -51,15 +51,18 @@ def test_plant_alone_times_the_standing_plant(bench):
     assert 0.0 < tick < 0.05  # CPU seconds per 5 ms tick: positive, and not absurd on any machine
 
 
-def test_parts_report_splits_the_loop_and_says_what_real_time_leaves_the_controller(bench):
-    parts = [{"loop": 6.0e-3, "controller": 2.0e-3, "plant": 2.5e-3, "rest": 1.5e-3},
-             {"loop": 7.0e-3, "controller": 3.0e-3, "plant": 2.0e-3, "rest": 2.0e-3}]
+def test_parts_report_splits_the_median_run_and_says_what_real_time_leaves_the_controller(bench):
+    parts = [{"loop": 7.0e-3, "controller": 3.0e-3, "plant": 2.0e-3, "rest": 2.0e-3},
+             {"loop": 6.0e-3, "controller": 2.0e-3, "plant": 2.5e-3, "rest": 1.5e-3},
+             {"loop": 5.0e-3, "controller": 1.5e-3, "plant": 2.4e-3, "rest": 1.1e-3}]
     text = bench.parts_report(parts)
-    assert "median of 2 run(s)" in text
-    assert "| the simulated robot alone, walking the run's motion (plant, contact, PD servos) | 2.25 ms | 35% |" in text
-    assert "| the controller's own work (estimator, planner, IK, compliance, swing tilt) | 2.50 ms | 38% |" in text
-    assert "| the loop | 6.50 ms | 100% |" in text
-    # plant + rest: 4.0 and 4.0 ms -> 4.00 ms, real-time factor 1.25, 1.00 ms left for the controller
+    assert "the run with the median loop time of 3" in text
+    # the median run (6 ms) and each part's range over the three runs
+    assert ("| the simulated robot alone, walking the run's motion (plant, contact, PD servos) | 2.50 ms | 42% "
+            "| 2.00-2.50 ms |") in text
+    assert "| the controller's own work (estimator, planner, IK, compliance, swing tilt) | 2.00 ms | 33% |" in text
+    assert "| the loop | 6.00 ms | 100% | 5.00-7.00 ms |" in text
+    # plant + rest of that run: 4.0 ms -> real-time factor 1.25, 1.00 ms left for the controller
     assert "would take 4.00 ms a tick (real-time factor 1.25); real time leaves the controller 1.00 ms" in text
 
 
