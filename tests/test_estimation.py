@@ -405,68 +405,31 @@ def test_a_pelvis_push_is_seen_by_the_default_hybrid_filter():
     assert np.all(data["com_vel"][:len(t)][during, 0] > 0.0) and np.all(data["true_com_vel"][during, 0] > 0.0)
 
 
-class _CountingSource(LeafSystem):
-    """Vector output of zeros (size n) that counts its computations (a test instrument)."""
+class _ForceTorqueSource(LeafSystem):
+    """Six-axis readings of zero that count their computations and take ``cpu_seconds`` of CPU each (a test
+    instrument standing for the simulated sensors' work)."""
 
-    def __init__(self, n):
+    def __init__(self, cpu_seconds=0.0):
         super().__init__()
         self.calls = 0
-        self.DeclareVectorOutputPort("y", n, self._calc, prerequisites_of_calc={self.time_ticket()})
-
-    def _calc(self, context, output):
-        self.calls += 1
-        output.SetFromVector(np.zeros(output.size()))
-
-
-def test_the_estimators_signals_do_not_compute_the_feet_force_torque_sensors(plant, q0):
-    """The stop planner's update reads the estimate before the plant's step of each tick, the compliance
-    after it: the six-axis sensors (a Python system, twice a tick before) are computed for the latter only."""
-    builder = DiagramBuilder()
-    sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT))
-    foot_ft = builder.AddSystem(_CountingSource(12))
-    builder.Connect(foot_ft.get_output_port(), sensors.foot_ft_in_port)
-    builder.ExportInput(sensors.state_port, "state")
-    for port in (sensors.gyro_in_port, sensors.accelerometer_in_port, sensors.foot_forces_in_port,
-                 sensors.cop_in_port, sensors.wrench_in_port):
-        builder.ExportInput(port, port.get_name())
-    diagram = builder.Build()
-    context = diagram.CreateDefaultContext()
-    for k in range(diagram.num_input_ports()):
-        port = diagram.get_input_port(k)
-        port.FixValue(context, np.concatenate([q0, np.zeros(plant.num_velocities())]) if port.get_name() == "state"
-                      else np.ones(port.size()))
-    for name in SIGNALS:
-        sensors.GetOutputPort(name).Eval(sensors.GetMyContextFromRoot(context))
-    assert foot_ft.calls == 0
-    assert np.array_equal(sensors.foot_ft_port.Eval(sensors.GetMyContextFromRoot(context)), np.zeros(12))
-    assert foot_ft.calls == 1
-
-
-class _SlowForceTorque(LeafSystem):
-    """Six-axis readings of zero that take 20 ms of CPU to compute (the simulated sensors' work)."""
-
-    def __init__(self):
-        super().__init__()
+        self._cpu = cpu_seconds
         self.DeclareVectorOutputPort("y", 12, self._calc, prerequisites_of_calc={self.time_ticket()})
 
     def _calc(self, context, output):
-        end = time.thread_time() + 0.02
+        self.calls += 1
+        end = time.thread_time() + self._cpu
         while time.thread_time() < end:
             pass
         output.SetFromVector(np.zeros(12))
 
 
-@pytest.mark.parametrize("latency", [0, 1])
-def test_the_feet_force_torque_readings_stay_out_of_the_controllers_tick_time(plant, q0, latency):
-    """The six-axis sensors are the simulated robot's work: a controller block that reads them (the swing
-    tilt, the compliance; with latency the sensors' own buffer update) is timed without it."""
-    from drake_estop.timing import TickTimer
-
-    timer = TickTimer(DT)
+def _sensors_reading(plant, q0, source, **options):
+    """``(diagram, context, sensors)``: RobotSensors (``options``) whose six-axis input is ``source``, the
+    other inputs fixed (the robot standing in ``q0``, ones)."""
     builder = DiagramBuilder()
-    sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT, latency_ticks=latency, timer=timer))
-    slow = builder.AddSystem(_SlowForceTorque())
-    builder.Connect(slow.get_output_port(), sensors.foot_ft_in_port)
+    sensors = builder.AddSystem(RobotSensors(plant=plant, servo_period=DT, **options))
+    builder.AddSystem(source)
+    builder.Connect(source.get_output_port(), sensors.foot_ft_in_port)
     for port in (sensors.state_port, sensors.gyro_in_port, sensors.accelerometer_in_port,
                  sensors.foot_forces_in_port, sensors.cop_in_port, sensors.wrench_in_port):
         builder.ExportInput(port, port.get_name())
@@ -476,6 +439,31 @@ def test_the_feet_force_torque_readings_stay_out_of_the_controllers_tick_time(pl
         port = diagram.get_input_port(k)
         port.FixValue(context, np.concatenate([q0, np.zeros(plant.num_velocities())]) if port.get_name() == "state"
                       else np.ones(port.size()))
+    return diagram, context, sensors
+
+
+def test_the_estimators_signals_do_not_compute_the_feet_force_torque_sensors(plant, q0):
+    """The stop planner's update reads the estimate before the plant's step of each tick, the compliance
+    after it: the six-axis sensors (a Python system, twice a tick before) are computed for the latter only."""
+    foot_ft = _ForceTorqueSource()
+    _, context, sensors = _sensors_reading(plant, q0, foot_ft)
+    sensor_context = sensors.GetMyContextFromRoot(context)
+    for name in SIGNALS:
+        sensors.GetOutputPort(name).Eval(sensor_context)
+    assert foot_ft.calls == 0
+    assert np.array_equal(sensors.foot_ft_port.Eval(sensor_context), np.zeros(12))
+    assert foot_ft.calls == 1
+
+
+@pytest.mark.parametrize("latency", [0, 1])
+def test_the_feet_force_torque_readings_stay_out_of_the_controllers_tick_time(plant, q0, latency):
+    """The six-axis sensors are the simulated robot's work: a controller block that reads them (the swing
+    tilt, the compliance; with latency the sensors' own buffer update) is timed without it."""
+    from drake_estop.timing import TickTimer
+
+    timer = TickTimer(DT)
+    diagram, context, sensors = _sensors_reading(plant, q0, _ForceTorqueSource(cpu_seconds=0.02),
+                                                 latency_ticks=latency, timer=timer)
     if latency:
         # the buffer's periodic updates (timed) at 0 and DT; the second reads the sensors anew
         Simulator(diagram, context).AdvanceTo(DT + 1e-4)
