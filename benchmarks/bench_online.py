@@ -2,7 +2,7 @@
 
 Run from the repository root, with the machine otherwise idle:
 
-    python benchmarks/bench_online.py [--repeats 3] [--out FILE.md]
+    python benchmarks/bench_online.py [--repeats 3] [--out FILE.md] [--parts-only]
 
 Imports the installed ``drake_estop`` (``pip install -e .``). For each
 scenario (the paper's stops at 3.4 and 3.5 s; a 17 N s push to the right at
@@ -206,18 +206,24 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", help="also write the report (markdown) to this file")
+    parser.add_argument("--parts-only", action="store_true",
+                        help="only where the loop's time goes (loop_parts, --repeats runs): the quick A/B of a "
+                             "speed change, about 25 s a run")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     pattern = NominalPattern()
     start = time.perf_counter()
     run(3.4, Perturbations(), pattern)  # warm-up: the IK plant, the planner's tables, first-call costs
-    before = plant_alone()
-    results = {name: [run(estop_time, perturbations, pattern) for _ in range(args.repeats)]
-               for name, (estop_time, perturbations) in SCENARIOS.items()}
-    parts = [loop_parts(pattern) for _ in range(args.repeats)]
-    text = report(results, args.repeats, time.perf_counter() - start, plant_ticks=(before, plant_alone()))
-    text += "\n\n" + parts_report(parts)
+    if args.parts_only:
+        text = parts_report([loop_parts(pattern) for _ in range(args.repeats)])
+    else:
+        before = plant_alone()
+        results = {name: [run(estop_time, perturbations, pattern) for _ in range(args.repeats)]
+                   for name, (estop_time, perturbations) in SCENARIOS.items()}
+        parts = [loop_parts(pattern) for _ in range(args.repeats)]
+        text = report(results, args.repeats, time.perf_counter() - start, plant_ticks=(before, plant_alone()))
+        text += "\n\n" + parts_report(parts)
     print(text)
     if args.out:
         with open(args.out, "w") as out:

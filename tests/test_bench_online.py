@@ -75,3 +75,17 @@ def test_loop_parts_add_up_and_the_replayed_robot_walks(bench):
         assert 0.0 < parts[key] < 0.05, key  # CPU seconds per 5 ms tick: positive, and not absurd
     assert parts["rest"] == pytest.approx(parts["loop"] - parts["controller"] - parts["plant"])
     assert parts["replay_pelvis_z"] > 0.5  # the replayed commands walk the robot: it stands at the end
+
+
+def test_parts_only_runs_just_the_loop_split(bench, monkeypatch, capsys, tmp_path):
+    calls = []
+    monkeypatch.setattr(bench, "run", lambda *args: calls.append("run"))
+    monkeypatch.setattr(bench, "plant_alone", lambda: calls.append("plant_alone") or 1e-3)
+    monkeypatch.setattr(bench, "loop_parts", lambda pattern: calls.append("parts") or
+                        {"loop": 5e-3, "controller": 2e-3, "plant": 2e-3, "rest": 1e-3})
+    out = tmp_path / "parts.md"
+    bench.main(["--parts-only", "--repeats", "2", "--out", str(out)])
+    assert calls == ["run", "parts", "parts"]  # the warm-up, then the two splits: no scenario, no plant alone
+    text = capsys.readouterr().out
+    assert text.startswith("Where the loop's time goes") and "| the loop | 5.00 ms | 100% |" in text
+    assert out.read_text() == text
