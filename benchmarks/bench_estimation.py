@@ -169,9 +169,8 @@ def _walk(pattern, before_build, duration):
         handles = online.build_online_diagram(pattern, online.controller_stop_parameters(), None)
     finally:
         online.DiagramBuilder = original
-    simulator = Simulator(handles.diagram)
+    simulator = online.online_simulator(handles)
     context = simulator.get_mutable_context()
-    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
     simulator.AdvanceTo(duration)
     return handles, context
 

@@ -28,9 +28,11 @@ warm-up run, and prints:
   walking the same motion (the run's servo commands replayed into the plant,
   nothing else in the diagram) and the rest between them (Drake's event
   dispatch and cache invalidation over the diagram's systems, the simulated
-  sensors and CoP, the servo interpolation, the loggers). Their ratios change
-  little with the hour: they say how fast the controller must be for real
-  time at any hour (a controller of no cost at all still leaves the other two).
+  sensors and CoP, the servo interpolation, the loggers), and the real-time
+  factor that the other two leave a controller of no cost. All three follow
+  the hour, the Python-heavy controller and rest more than the plant
+  (measured in session 20: the plant 1.8-2.4 ms a tick, the controller and
+  the rest together 2.7-6.2 ms).
 
 The robustness benchmark (``benchmarks/robustness.py``) times 168 runs two at
 a time on the two cores; this one runs them one at a time, as a robot's single
@@ -43,7 +45,7 @@ import argparse
 import statistics
 import time
 
-from drake_estop.physics.online import build_online_diagram, controller_stop_parameters, run_online
+from drake_estop.physics.online import build_online_diagram, controller_stop_parameters, online_simulator, run_online
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import NominalPattern
 
@@ -94,13 +96,11 @@ def loop_parts(pattern, estop_time: float = 3.4, after_halt: float = 2.5) -> dic
     from pydrake.systems.primitives import TrajectorySource
     from pydrake.trajectories import PiecewisePolynomial
 
-    from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant, run_through_stop
+    from drake_estop.physics.plant import actuated_indices, add_physics_plant, run_through_stop
 
     handles = build_online_diagram(pattern, controller_stop_parameters(), estop_time)
-    simulator = Simulator(handles.diagram)
+    simulator = online_simulator(handles)
     context = simulator.get_mutable_context()
-    handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), handles.initial_q)
-    simulator.Initialize()
     start = time.process_time()
     run_through_stop(simulator, handles.planner, estop_time, SERVO_PERIOD, after_halt, handles.planner.plans)
     loop = time.process_time() - start
@@ -113,7 +113,7 @@ def loop_parts(pattern, estop_time: float = 3.4, after_halt: float = 2.5) -> dic
     # the servo interpolator's first-order hold runs one tick behind the IK's positions
     commands = PiecewisePolynomial.FirstOrderHold(log.sample_times() + SERVO_PERIOD, log.data()[q_idx])
     builder = DiagramBuilder()
-    plant, _, instance, _ = add_physics_plant(builder, PhysicsParameters())
+    plant, _, instance, _ = add_physics_plant(builder, handles.physics)  # the run's plant settings
     source = builder.AddSystem(TrajectorySource(commands, output_derivative_order=1))
     builder.Connect(source.get_output_port(), plant.get_desired_state_input_port(instance))
     replay = Simulator(builder.Build())

@@ -14,6 +14,7 @@ from drake_estop.physics.online import (
     build_online_diagram,
     controller_stop_parameters,
     joint_velocity_violations,
+    online_simulator,
     run_online,
 )
 from drake_estop.physics.perturbations import Perturbations, Push
@@ -683,3 +684,17 @@ def test_reference_fallback_is_set_from_the_scenario_file_too(monkeypatch):
 def test_no_reference_fallback_needs_the_online_physics_run(mode, capsys):
     assert main(["simulate", *mode, "--no-reference-fallback"]) == 2
     assert "--no-reference-fallback" in capsys.readouterr().err
+
+
+def test_online_simulator_starts_the_robot_in_its_pose_with_the_model_errors_in_the_simulated_plant_only():
+    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
+    plant = handles.plant
+    simulator = online_simulator(handles, Perturbations(mass_scale=1.1))
+    plant_context = plant.GetMyContextFromRoot(simulator.get_context())
+    assert np.array_equal(plant.GetPositions(plant_context), handles.initial_q)
+    nominal = plant.CalcTotalMass(plant.CreateDefaultContext())
+    assert plant.CalcTotalMass(plant_context) == pytest.approx(1.1 * nominal)  # the simulated robot, x1.1
+    assert simulator.get_context().get_time() == 0.0
+    other = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
+    plain = online_simulator(other)  # without perturbations: the nominal masses
+    assert other.plant.CalcTotalMass(other.plant.GetMyContextFromRoot(plain.get_context())) == pytest.approx(nominal)

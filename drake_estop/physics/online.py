@@ -352,6 +352,18 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                          compliance, swing_tilt_system, push, q0, timer, physics)
 
 
+def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None = None) -> Simulator:
+    """An initialized ``Simulator`` of :func:`build_online_diagram`'s diagram: the robot in its start
+    pose (``handles.initial_q``) with ``perturbations``' mass and torso errors written into the plant's
+    context (the controller keeps the nominal model), ready to walk from t = 0."""
+    simulator = Simulator(handles.diagram)
+    plant_context = handles.plant.GetMyMutableContextFromRoot(simulator.get_mutable_context())
+    handles.plant.SetPositions(plant_context, handles.initial_q)
+    apply_model_errors(handles.plant, plant_context, perturbations or Perturbations())
+    simulator.Initialize()
+    return simulator
+
+
 def _per_tick(log, servo_period: float) -> np.ndarray:
     """Row k: the value a planner update of tick ``k * servo_period`` set, published at the next tick."""
     ticks = np.rint(log.sample_times() / servo_period).astype(int)
@@ -470,12 +482,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
                                    perturbations=perturbations, true_state=true_state,
                                    planner_options=planner_options, foot_compliance=foot_compliance,
                                    swing_tilt=swing_tilt)
-    simulator = Simulator(handles.diagram)
+    simulator = online_simulator(handles, perturbations)
     context = simulator.get_mutable_context()
-    plant_context = handles.plant.GetMyMutableContextFromRoot(context)
-    handles.plant.SetPositions(plant_context, handles.initial_q)
-    apply_model_errors(handles.plant, plant_context, perturbations)
-    simulator.Initialize()
     cpu = time.process_time()
     plan, wall = run_through_stop(simulator, handles.planner, estop_time, stop_params.servo_period, after_halt,
                                   handles.planner.plans)  # the plan and its re-plans, each from its start

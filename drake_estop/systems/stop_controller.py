@@ -320,6 +320,12 @@ class EStopTrigger(LeafSystem):
         return bool(stop[0] > 0.5), float(stop[1])
 
 
+def _dcm_distance(measured, pos, vel, omega: float) -> float:
+    """Distance [m] between the measured DCM ``x + v / omega`` (``measured = (com_xy, com_vel_xy)``) and the
+    DCM of COG position ``pos`` and velocity ``vel`` (x, y)."""
+    return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos + vel / omega)))
+
+
 class _PlanHandle:
     """Holder of an immutable StopPlan inside a ``Value[object]``.
 
@@ -845,16 +851,14 @@ class StopPlannerSystem(_ReferenceSystem):
 
     def _pattern_deviation(self, t: float, measured) -> float:
         """:meth:`_deviation` from the pattern at ``t``, its COG looked up (:meth:`_pattern_com_at`)."""
-        pos, vel = self._pattern_com_at(t)
-        omega = self._pattern.w
-        return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos + vel / omega)))
+        return _dcm_distance(measured, *self._pattern_com_at(t), self._pattern.w)
 
     @staticmethod
     def _deviation(reference, t, measured):
         """Distance [m] between the measured DCM ``x + v / omega`` and ``reference``'s at ``t``."""
         pos, vel, _, _ = reference.com([t])
         omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
-        return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos[0] + vel[0] / omega)))
+        return _dcm_distance(measured, pos[0], vel[0], omega)
 
     def _relanded(self, context, state, plan):
         """``({side: xy}, fresh)``: the soles that landed again off the plan's foothold, and whether one
