@@ -17,17 +17,35 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_estop.planning import solver
-from drake_estop.planning.plan import StopParameters, snap_to_tick
+from drake_estop.planning import lipm
+from drake_estop.planning.plan import SWING_GRID, StopParameters, snap_to_tick
 from drake_estop.planning.stop_condition import StopStart
 
 
-def descent_time(lift: float, params: StopParameters) -> float:
-    """Shortest landing duration from swing height ``lift`` [m], on the servo grid: the quintic
-    descent peaks at 15/8 of its mean speed, kept under ``max_swing_descent_speed``. Capped one
-    tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing window)."""
+def descent_time(lift: float, params: StopParameters, lift_rate: float = 0.0, lift_accel: float = 0.0) -> float:
+    """Shortest landing duration [s], on the servo grid, whose landing swing comes down no faster than
+    ``max_swing_descent_speed``: the swing's vertical quintic Hermite (:func:`~drake_estop.planning.plan.landing_swing`)
+    from height ``lift`` [m], vertical velocity ``lift_rate`` [m/s] and acceleration ``lift_accel`` [m/s^2]
+    to the floor at rest, checked on the swing's grid. From rest the quintic peaks at 15/8 of its mean
+    speed (closed form); a foot already coming down at the nominal swing's pace keeps that pace instead of
+    starting its descent again from rest, so the earliest touchdown does not move later as the foot
+    descends. Capped one tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing
+    window)."""
     dt = params.servo_period
-    shortest = snap_to_tick(1.875 * max(lift, 0.0) / params.max_swing_descent_speed, dt)
-    return min(shortest, params.max_landing_time - dt)
+    lift = max(lift, 0.0)
+    latest = params.max_landing_time - dt
+    if lift_rate == 0.0 and lift_accel == 0.0:
+        return min(snap_to_tick(1.875 * lift / params.max_swing_descent_speed, dt), latest)
+    durations = dt * np.arange(1, max(int(round(latest / dt)), 1) + 1)
+    T = durations[:, None]
+    # vertical speed of the Hermite at the grid points, for every duration (eq. of landing_swing)
+    speed = (-lift * _DESCENT_TERMS[0] + lift_rate * T * _DESCENT_TERMS[1] + lift_accel * T**2 * _DESCENT_TERMS[2]) / T
+    within = np.flatnonzero(-speed.min(axis=1) <= params.max_swing_descent_speed + 1e-12)
+    return float(durations[within[0]]) if len(within) else latest
+
+
+#: first derivatives of the landing swing's Hermite terms on its check grid (height, velocity, acceleration)
+_DESCENT_TERMS = [lipm.poly_eval(c, SWING_GRID, 1) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
 
 
 class StopProblem:
