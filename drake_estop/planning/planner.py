@@ -227,6 +227,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         swing = "right" if support == "left" else "left"
         touchdown = _nominal_touchdown(pattern, state)
         params = _lateral_reach(pattern, state, params)
+        params = _rear_lateral_reach(pattern, params, float(state.next_landing[1]) - float(state.feet[support][1]))
         params = _landing_shift_limit(state, params, swing)
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
@@ -237,6 +238,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"
+    params = _rear_lateral_reach(pattern, params, float(state.feet[fore][1]) - float(state.feet[rear][1]))
     fore_x = state.feet[fore][0]
     low = fore_x - sole.heel + params.zmp_margin - state.zmp[0]
     high = fore_x + sole.toe - params.zmp_margin - state.zmp[0]
@@ -331,6 +333,22 @@ def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> Stop
         return params
     reach = math.sqrt(max(params.max_fore_reach**2 + allowed**2 - lateral**2, 0.25 * params.max_fore_reach**2))
     return replace(params, max_fore_reach=reach)
+
+
+def _rear_lateral_reach(pattern, params: StopParameters, separation: float) -> StopParameters:
+    """``params`` with ``max_rear_reach`` shortened where the feet at rest stand further apart sideways than
+    on the straight walk (``separation`` [m]: the fore ankle's lateral offset from the rear one, in the
+    stop's frame): the COG comes to rest between them, so the horizontal COG-to-rear-ankle distance
+    ``hypot(dx, separation / 2)`` then stays within the straight walk's ``hypot(max_rear_reach,
+    step_width / 2)``. Measured on a +15 deg/step turn (feet 0.226 m apart in the stop's frame, 0.19 m on
+    the straight walk): with the full sagittal reach the rear knee straightened in the slowdown and the
+    IK drove it at 10.8 rad/s (limit 6)."""
+    lateral = 0.5 * abs(separation)
+    allowed = 0.5 * pattern.params.step_width
+    if lateral <= allowed + 1e-9:
+        return params
+    reach = math.sqrt(max(params.max_rear_reach**2 + allowed**2 - lateral**2, 0.25 * params.max_rear_reach**2))
+    return replace(params, max_rear_reach=reach)
 
 
 _MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into the zmp_margin band
