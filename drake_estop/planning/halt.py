@@ -71,7 +71,7 @@ def halt_axis(x3, v3, zmp3, target, shift, settle, w):
     problem (COG at ``target`` at rest) in the weighted least-norm sense, so
     the ZMP moves as little as the COG allows. Returns (shape weights ``mix``,
     ZMP samples at the probe points); coefficients per segment are
-    ``np.tensordot(mix, shapes, axes=1)`` (:func:`halt_coeffs`)."""
+    the shapes weighted by ``mix`` (:func:`halt_coeffs`)."""
     _, responses, homogeneous, (scaled_t, normal), samples = halt_basis(w, shift, settle)
     free = homogeneous @ np.array([x3, v3]) + zmp3 * responses[0] + target * responses[1]
     # weighted least norm: u = W S^T (S S^T)^-1 (end state wanted - end state without the unknowns)
@@ -95,7 +95,10 @@ def _solve2(matrix, rhs):
 
 def halt_coeffs(mix, shift, settle, w):
     """ZMP coefficients per halt segment of the shape weights from :func:`halt_axis`."""
-    return list(np.tensordot(mix, halt_basis(w, shift, settle)[0], axes=1))
+    shapes = halt_basis(w, shift, settle)[0]
+    # a vector-matrix product over the flattened shapes (tensordot's matrix-matrix product woke the BLAS
+    # threads: 1 ms a call on a busy 2-core machine, against microseconds)
+    return list((mix @ shapes.reshape(len(shapes), -1)).reshape(shapes.shape[1:]))
 
 
 def choose_halt(ends, midpoint, polygon, params, w):

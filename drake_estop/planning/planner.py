@@ -58,7 +58,7 @@ from drake_estop.planning.plan import (
     soles_polygon,
 )
 from drake_estop.planning.problems import DoubleSupportProblem, SingleSupportProblem, descent_time
-from drake_estop.planning.solver import solve_continuous, solve_phases
+from drake_estop.planning.solver import infeasible_reason, solve_continuous, solve_phases
 from drake_estop.planning.stop_condition import StopStart, slowdown_time, target_zmp
 
 __all__ = [  # the planner's interface, including the names other modules import from here
@@ -631,8 +631,8 @@ def _trivial_plan(pattern, state, params, signal_time, case):
 
 
 def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
-    """Plan once (single and double support) so the compiled solver is loaded before the
-    robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
+    """Plan once (mid and late single support, double support) and name the limits of an infeasible
+    attempt once, so the compiled solver is loaded before the robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
     compile after an install or an edit of the solver), which must not land on the servo
     tick of a real stop. The time objective (planning/brake.py) falls back to the compiled
     solver where its own search finds no stop, so it is warmed up too. Returns the seconds it
@@ -641,11 +641,19 @@ def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> fl
     start, end = pattern.stride()
     params = params or StopParameters()
     for variant in (params, replace(params, objective="paper")) if params.objective != "paper" else (params,):
-        for fraction in (0.3, 0.9):
+        # mid single support, its last ticks (where the marginal case's tries run) and double support
+        for fraction in (0.3, 0.79, 0.9):
             try:
                 plan_stop(pattern, start + fraction * (end - start), variant)
             except InfeasibleStop:
                 pass
+    # the message of a failed attempt names its limits by a scan of its own (loaded once here)
+    try:
+        problem, kind, _ = stop_problem(pattern, pattern.state(start), replace(params, max_step_length=1e-3,
+                                                                               min_step_length=0.0))
+        infeasible_reason(problem, kind)
+    except (InfeasibleStop, ValueError):
+        pass
     return time.perf_counter() - wall
 
 
@@ -765,7 +773,7 @@ def _search(pattern, signal_time, params, measured, first_only, max_solves=None)
         except InfeasibleStop as error:
             if first_only:
                 return None
-            reasons.append(str(error))
+            reasons.append(error)  # its message is read only if the search ends without a stop
             t = _next_try(pattern, t, dt, support, index, first=case == "one-step")
             case = "next-step"
     detail = f"; at the signal: {reasons[0]}; last try: {reasons[-1]}" if reasons else ""

@@ -579,10 +579,28 @@ def _arguments(problem, kind):
     return (d, *grid_axes(kind, bounds), TARGET_SAMPLES)
 
 
+class NoFeasibleStart(InfeasibleStop):
+    """No grid point meets the limits. The message, which names the limits (:func:`infeasible_reason`,
+    a scan of the whole grid), is worked out when it is first read: a planner that tries another
+    landing after a failure (the marginal case, III.C) does not pay for the messages it drops."""
+
+    def __init__(self, problem, kind):
+        super().__init__()
+        self._problem, self._kind, self._message = problem, kind, None
+
+    def __str__(self):
+        if self._message is None:
+            self._message = infeasible_reason(self._problem, self._kind)
+        return self._message
+
+    def __reduce__(self):  # pickled (a worker process's error) as the plain error with its message
+        return InfeasibleStop, (str(self),)
+
+
 def _raise_for(status, problem, kind):
     """:class:`InfeasibleStop` (ValueError: a bug) for the solver's status codes."""
     if status == NO_GRID_START:
-        raise InfeasibleStop(infeasible_reason(problem, kind))
+        raise NoFeasibleStart(problem, kind)
     if status == NO_QUANTISATION:
         raise InfeasibleStop("no servo-tick quantisation of the optimum meets the limits")
     if status == NO_SLOWDOWN:
