@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reference import reference_solve
 
+from drake_estop.planning import planner as planner_module
 from drake_estop.planning.gait import (
     MAX_TURN_DEG,
     Footstep,
@@ -121,15 +122,22 @@ def test_lipm_residual_by_independent_integration(gait_plans):
 
 def test_one_step_wherever_a_generic_solver_finds_one(gait_plans):
     """Every fallback (III.C) comes from a state where the SLSQP reference solver, on the same
-    problem in the stop's heading frame, finds no one-step parameters either."""
+    problem in the stop's heading frame, finds no one-step parameters either, or, at most twice a
+    stride, where the phase parameters exist but no halt keeps the ZMP ``zmp_margin`` inside the
+    turned soles (a limit the reference does not model: +15 deg at 2.925 s, short of it by 0.1 mm)."""
     name, pattern, plans = gait_plans
     fallbacks = [plan for plan in plans if plan.case != "one-step"]
-    assert len(fallbacks) <= 0.4 * len(plans), name  # measured 56 of 160 at +15 deg (outer foot), 51 at -15
+    assert len(fallbacks) <= 0.15 * len(plans), name  # measured: 1 of 160 at +15 deg (outer foot), 6 at -15
+    halts = 0
     for plan in fallbacks[::3]:
         state = pattern.state(plan.signal_time)
         frame = HeadingFrame(stop_heading(state))
         problem, kind, _ = stop_problem(FramedPattern(pattern, frame), frame.state(state), PARAMS)
-        assert reference_solve(problem, kind, margin=0.005) is None, (name, plan.signal_time)
+        if reference_solve(problem, kind, margin=0.005) is not None:
+            with pytest.raises(InfeasibleStop, match="zmp_margin"):
+                planner_module._plan_from(pattern, state, PARAMS, plan.signal_time, "one-step")
+            halts += 1
+    assert halts <= 2, name
 
 
 def test_one_step_feasible_agrees_with_the_planner_on_turning_walks(gait_plans):

@@ -357,22 +357,41 @@ _MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into
 def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
                zmp_region: str = "fore"):
     """The stop from ``state``, solved in the heading frame of the foot that carries it
-    (:mod:`drake_estop.planning.heading`; the world frame on a straight walk). In single support, where no
-    landing within the limits stops the robot and the nominal touchdown is sooner than ``min_landing_time``,
-    the landing may also come at the nominal touchdown (:func:`_nominal_landing_window`)."""
+    (:mod:`drake_estop.planning.heading`; the world frame on a straight walk). Where the limits as given
+    find no stop, in single support it tries again with the slowdown ZMP at the landing ankle (the paper's
+    eq. 20, where ``landing_zmp_offset`` is not 0: a walk stepping in place has no forward speed for a
+    ZMP ahead of the ankle to stop), then with the landing also allowed at the nominal touchdown where that
+    is sooner than ``min_landing_time`` (:func:`_nominal_landing_window`), with either ZMP."""
     def plan(limits):
         return solve_turned(lambda view, local: _plan_local(view, local, limits, signal_time, case, zmp_region),
                             pattern, state)
 
     try:
         return plan(params)
-    except InfeasibleStop:
-        window = _nominal_landing_window(pattern, state, params)
-        if window is None:
-            raise
-    found = plan(window)
-    found.params = params  # the plan's own limits (a re-plan treats it as any other landing)
-    return found
+    except InfeasibleStop as error:
+        failure = error
+    for limits in _retry_limits(pattern, state, params):
+        try:
+            found = plan(limits)
+        except InfeasibleStop:
+            continue
+        found.params = params  # the plan's own limits (a re-plan treats it as any other landing)
+        return found
+    raise failure
+
+
+def _retry_limits(pattern: NominalPattern, state: PatternState, params: StopParameters):
+    """The limits :func:`_plan_from` tries, in order, after the given ones found no stop (single support)."""
+    if state.support != "single":
+        return
+    paper = replace(params, landing_zmp_offset=0.0) if params.landing_zmp_offset != 0.0 else None
+    if paper is not None:
+        yield paper
+    window = _nominal_landing_window(pattern, state, params)
+    if window is not None:
+        yield window
+        if paper is not None:
+            yield replace(window, landing_zmp_offset=0.0)
 
 
 def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParameters, signal_time, case,
@@ -515,10 +534,11 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
         brake = held_brake(state.com, state.com_vel, zmp, state.feet[support][:2], landing, paper_landing[1],
                            polygon_for(landing), params, w, required)
     else:
+        descent = descent_time(float(state.feet[swing][2]), params, *_descending(state, swing))
+
         def search(y):
             return swing_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel, state.feet[support][:2],
-                               state.feet[swing][:2], y, descent_time(float(state.feet[swing][2]), params, *_descending(state, swing)),
-                               support_polygon, polygon_for, params, w, required)
+                               state.feet[swing][:2], y, descent, support_polygon, polygon_for, params, w, required)
 
         brake = search(landing_y)
         if brake is not None:  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
@@ -632,11 +652,11 @@ def _trivial_plan(pattern, state, params, signal_time, case):
 
 def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
     """Plan once (mid and late single support, double support) and name the limits of an infeasible
-    attempt once, so the compiled solver is loaded before the robot walks: the first call in a process loads numba's cache (~0.5 s; 20-30 s to
-    compile after an install or an edit of the solver), which must not land on the servo
-    tick of a real stop. The time objective (planning/brake.py) falls back to the compiled
-    solver where its own search finds no stop, so it is warmed up too. Returns the seconds it
-    took."""
+    attempt once, so the compiled solver is loaded before the robot walks: the first call in a
+    process loads numba's cache (~0.5 s; 20-30 s to compile after an install or an edit of the
+    solver), which must not land on the servo tick of a real stop. The time objective
+    (planning/brake.py) falls back to the compiled solver where its own search finds no stop, so
+    it is warmed up too. Returns the seconds it took."""
     wall = time.perf_counter()
     start, end = pattern.stride()
     params = params or StopParameters()

@@ -16,8 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drake_estop.planning import solver
-from drake_estop.planning import lipm
+from drake_estop.planning import lipm, solver
 from drake_estop.planning.plan import SWING_GRID, StopParameters, snap_to_tick
 from drake_estop.planning.stop_condition import StopStart
 
