@@ -189,6 +189,47 @@ def plan_rest_bound(plan, monotone=False):
     return plan.start_time - plan.signal_time + bound
 
 
+def backward_speed(plan):
+    """The largest COG speed backwards along the walk (negative x velocity) [m/s] at the servo ticks from
+    the plan start to the rest, and the largest lateral overshoot: how far the COG passes the midpoint
+    sideways, from the side it starts on [m]."""
+    dt = plan.params.servo_period
+    times = plan.start_time + dt * np.arange(int(round((plan.halt_end - plan.start_time) / dt)) + 1)
+    pos, vel, _, _ = plan.com(times)
+    midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+    side = np.sign(pos[0, 1] - midpoint[1])
+    return max(0.0, float(-vel[:, 0].min())), max(0.0, float((-side * (pos[:, 1] - midpoint[1])).max()))
+
+
+def time_objective_report(plans, to_rest, bound_every):
+    """The time objective's backward COG speed, and its times to rest next to the LIPM's own bound."""
+    backward, lateral = np.array([backward_speed(p) for p in plans]).T
+    swing = np.array([p.support == "single" and p.case == "one-step" for p in plans])
+    print(f"COG backwards along the walk: max {backward.max() * 1e3:.1f} mm/s;"
+          f" {int(np.sum(backward > 5e-3))}/{len(plans)} plans above 5 mm/s"
+          f" (single-support one-step: {int(np.sum(backward[swing] > 5e-3))});"
+          f" lateral overshoot of the midpoint max {lateral.max() * 1e3:.1f} mm")
+    dt = plans[0].params.servo_period
+    rates = [np.abs(np.diff(p.com(p.start_time + dt * np.arange(int(round((p.halt_end - p.start_time) / dt)) + 1))[3],
+                            axis=0)).max() / dt for p in plans]
+    sample = list(range(0, len(plans), bound_every))
+    start = time.perf_counter()
+    bound = np.array([plan_rest_bound(plans[i]) for i in sample])
+    forward = np.array([plan_rest_bound(plans[i], monotone=True) for i in sample])
+    elapsed = time.perf_counter() - start
+    ours = to_rest[sample]
+    single = np.array([plans[i].support == "single" for i in sample])
+    print(f"LIPM bound (LP, ZMP {plans[0].params.zmp_margin * 1e3:.0f} mm inside the plan's footholds,"
+          f" |dZMP/dt| <= {MAX_ZMP_RATE} m/s) at every {bound_every}th tick ({len(sample)}, {elapsed:.0f} s):"
+          f" median {np.median(bound):.3f} s   max {bound.max():.3f} s;"
+          f" the plans there: median {np.median(ours):.3f} s   max {ours.max():.3f} s")
+    print(f"  single support ({int(single.sum())}): bound median {np.median(bound[single]):.3f} s,"
+          f" plans {np.median(ours[single]):.3f} s; plans below the bound (their ZMP moves faster,"
+          f" up to {max(rates):.1f} m/s): {int(np.sum(ours < bound - 1e-9))}")
+    print(f"  without backing up (COG velocity along x >= 0): possible at {int(np.isfinite(forward).sum())}"
+          f"/{len(sample)}; bound median {np.median(forward[np.isfinite(forward)]):.3f} s where possible")
+
+
 def scipy_comparison(pattern, params, times):
     ours, theirs, single_start, gaps = [], [], [], []
     for t in times:
@@ -216,6 +257,8 @@ def main():
     parser.add_argument("--scipy-every", type=int, default=8, help="compare with scipy at every k-th tick")
     parser.add_argument("--objective", choices=("paper", "time"), default="paper",
                         help="StopParameters.objective of the plans timed")
+    parser.add_argument("--bound-every", type=int, default=4,
+                        help="--objective time: the LIPM's least time to rest (an LP) at every k-th tick")
     args = parser.parse_args()
     pattern = NominalPattern()
     params = StopParameters(objective=args.objective)
@@ -242,6 +285,7 @@ def main():
     to_rest = np.array([p.halt_end - p.signal_time for p in plans])
     print(f"time to rest        median {np.median(to_rest):.3f} s   max {to_rest.max():.3f} s")
     if args.objective == "time":  # the rest is about the paper's phase-parameter solve
+        time_objective_report(plans, to_rest, args.bound_every)
         return
     rounded = StopParameters(quantisation="round")
     residual = []
