@@ -20,7 +20,13 @@ reach, step length, landing time, transition durations, ``zmp_margin``):
 
 * every other choice (durations on the servo grid, the landing time and step length) is
   enumerated in numpy at once, and the shortest candidate whose ZMP keeps the margin inside
-  the support polygon is taken. Transitions between levels run on straight segments when
+  the support polygon is taken; first among those along which the COG never moves backwards
+  along the walk. A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests on the
+  midpoint (orbital energy, :func:`forward_stop_possible`): a chain that carries the COG past
+  the midpoint and back loses time. The COG's velocity of the shortest candidates is checked
+  at the servo ticks (eq. 6-9), at most ``FORWARD_CHECKS`` of them, and only where such a stop
+  is possible at all; else (in double support the COG is at or past the midpoint) the
+  shortest. Transitions between levels run on straight segments when
   they start at rest, so in a convex polygon a level chain is inside iff its levels are;
   only a first transition that carries the walk's ZMP rate and acceleration (double
   support) curves, and it is checked at every servo tick.
@@ -40,7 +46,9 @@ The chains:
 
       ZMP (the support ankle) --rA--> a (held to the touchdown) --r1--> c (held h) --r3--> m
 
-  with ``a`` inside the support sole and ``c`` inside both soles' polygon;
+  with ``a`` inside the support sole and ``c`` inside both soles' polygon; ``rA`` is half of
+  ``min_transition_time`` (``SOLE_RAMP_FACTOR``), so that late in the swing the ZMP brakes on
+  the sole before the touchdown;
 
 * :func:`held_brake`, single support on a given landing (the paper's, where
   :func:`swing_brake` finds no stop): the ZMP held until the touchdown (eq. 19), then
