@@ -5,9 +5,10 @@ solve time, Newton iterations, the generic-solver (scipy SLSQP) time on the
 same problems and the ratio, the share of next-step fallbacks, and the
 quantisation residual with and without re-solving the ZMP value
 (``--objective time``: the plan times, fallbacks and times to rest of the time
-objective).
+objective, the largest backward COG speed along the walk, and next to the times to
+rest the LIPM's own lower bound, :func:`lipm_rest_bound`, on the plan's footholds).
 
-    python benchmarks/bench_planner.py [--repeats 3] [--objective paper|time]
+    python benchmarks/bench_planner.py [--repeats 3] [--objective paper|time] [--bound-every 4]
 
 Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
 no path set-up.
@@ -16,11 +17,14 @@ no path set-up.
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import time
 
 import numpy as np
+import scipy.sparse
 from reference import reference_solve
+from scipy.optimize import linprog
 
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
@@ -41,6 +45,189 @@ def sweep(pattern, params, repeats):
         compute.append(best.compute_time)
         solve.append(best.solve_time)
     return times, plans, np.array(compute), np.array(solve)
+
+
+MAX_ZMP_RATE = 3.0  # [m/s] the ZMP's speed limit of the LIPM bound
+
+
+def lipm_rest_bound(com, com_vel, zmp, midpoint, polygon_at, w, dt, margin, max_zmp_rate=MAX_ZMP_RATE,
+                    monotone=False, max_ticks=600):
+    """The least time [s] in which the LIPM can come to rest at ``midpoint``: a time-optimal LP over the ZMP.
+
+    The ZMP ``p_k`` is held over each servo tick ``[k dt, (k + 1) dt)`` (zero-order hold) and the COG
+    follows x'' = w^2 (x - p) (eq. 4) exactly over it; per axis, with the divergent and convergent
+    components ``xi = x + v/w``, ``zeta = x - v/w``, ``xi_{k+1} - p_k = e^a (xi_k - p_k)`` and
+    ``zeta_{k+1} - p_k = e^-a (zeta_k - p_k)``, ``a = w dt``. The LIPM is at rest at ``midpoint`` after
+    N ticks iff ``xi_N = zeta_N = midpoint`` and the ZMP is there from then on. Constraints: ``p_k``
+    at least ``margin`` inside ``polygon_at(k)``; ``|p_{k+1} - p_k| <= max_zmp_rate dt`` per axis, from
+    the start ZMP ``zmp`` to ``p_0`` and from ``p_{N-1}`` to the midpoint; with ``monotone``, the COG
+    velocity along x never negative. The smallest feasible N (LP feasibility, bisection on N: at rest
+    after N ticks is at rest after N + 1) times ``dt``; inf if none up to ``max_ticks``.
+
+    Parameters
+    ----------
+    com, com_vel, zmp, midpoint : array_like, (2,)
+        The COG position [m] and velocity [m/s] and the ZMP [m] at the start; the rest point [m].
+    polygon_at : callable
+        ``polygon_at(k)``: the support polygon (:class:`~drake_estop.planning.geometry.SupportPolygon`)
+        over tick ``k``.
+    w, dt, margin : float
+        LIPM natural frequency sqrt(g / z) [1/s], tick [s], ZMP distance kept from the edges [m].
+    max_zmp_rate : float
+        Largest ZMP speed per axis [m/s].
+    monotone : bool
+        Also require the COG velocity along x to stay non-negative (no backing up).
+    max_ticks : int
+        Longest horizon searched.
+
+    Returns
+    -------
+    float
+        The least time to rest [s] (a multiple of ``dt``), or inf.
+    """
+    com, com_vel, zmp, midpoint = (np.asarray(v, float)[:2] for v in (com, com_vel, zmp, midpoint))
+    if np.allclose(com, midpoint, atol=1e-12) and np.allclose(com_vel, 0.0, atol=1e-12) and np.allclose(
+            zmp, midpoint, atol=1e-12):
+        return 0.0
+    polygons = {}
+
+    def polygon(k):
+        if k not in polygons:
+            polygons[k] = polygon_at(k)
+        return polygons[k]
+
+    def feasible(ticks):
+        return _rest_lp(com, com_vel, zmp, midpoint, [polygon(k) for k in range(ticks)], w, dt, margin,
+                        max_zmp_rate, monotone)
+
+    low, high = 0, 8
+    while not feasible(high):
+        low, high = high, 2 * high
+        if high > max_ticks:
+            return math.inf
+    while high - low > 1:
+        middle = (low + high) // 2
+        low, high = (low, middle) if feasible(middle) else (middle, high)
+    return high * dt
+
+
+def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate, monotone):
+    """Whether a ZMP sequence over ``len(polygons)`` ticks brings the LIPM to rest at ``midpoint``
+    (:func:`lipm_rest_bound`'s LP; variables: ``p_x`` then ``p_y`` per tick)."""
+    n = len(polygons)
+    a = w * dt
+    xi0, zeta0 = com + com_vel / w, com - com_vel / w
+    ticks = np.arange(n)
+    # the terminal conditions, scaled by e^-Na (xi) so that both rows are of order one
+    xi_row = (1.0 - math.exp(a)) * np.exp(-(ticks + 1) * a)  # e^-Na xi_N = xi0 + sum xi_row p
+    zeta_row = (1.0 - math.exp(-a)) * np.exp(-(n - 1 - ticks) * a)  # zeta_N = e^-Na zeta0 + sum zeta_row p
+    equality, rhs = [], []
+    for axis in range(2):
+        for row, value in ((xi_row, midpoint[axis] * math.exp(-n * a) - xi0[axis]),
+                           (zeta_row, midpoint[axis] - math.exp(-n * a) * zeta0[axis])):
+            full = np.zeros(2 * n)
+            full[axis * n:(axis + 1) * n] = row
+            equality.append(full)
+            rhs.append(value)
+    # the support polygons: n . p_k <= offset - margin
+    rows, cols, values, bounds = [], [], [], []
+    count = 0
+    for k, poly in enumerate(polygons):
+        for normal, offset in zip(poly._normals, poly._offsets):
+            rows += [count, count]
+            cols += [k, n + k]
+            values += [normal[0], normal[1]]
+            bounds.append(offset - margin)
+            count += 1
+    # the ZMP rate: |p_k - p_{k-1}| <= max_zmp_rate dt, p_{-1} the start ZMP, and p_{n-1} to the midpoint
+    step = max_zmp_rate * dt
+    for axis in range(2):
+        for k in range(n + 1):
+            for sign in (1.0, -1.0):
+                known = 0.0
+                if k < n:
+                    rows.append(count)
+                    cols.append(axis * n + k)
+                    values.append(sign)
+                else:
+                    known += sign * midpoint[axis]
+                if k > 0:
+                    rows.append(count)
+                    cols.append(axis * n + k - 1)
+                    values.append(-sign)
+                else:
+                    known -= sign * zmp[axis]
+                bounds.append(step - known)
+                count += 1
+    upper = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(count, 2 * n))
+    bounds = np.array(bounds)
+    if monotone:  # v_k = w (xi_k - zeta_k) / 2 >= 0 along x, k = 1..n
+        k = ticks[:, None] + 1
+        j = ticks[None, :]
+        before = j < k
+        xi_gain = np.where(before, (1.0 - math.exp(a)) * np.exp((k - 1 - j) * a), 0.0)
+        zeta_gain = np.where(before, (1.0 - math.exp(-a)) * np.exp(-(k - 1 - j) * a), 0.0)
+        speed = np.zeros((n, 2 * n))
+        speed[:, :n] = -(xi_gain - zeta_gain)
+        upper = scipy.sparse.vstack([upper, scipy.sparse.csr_matrix(speed)]).tocsr()
+        bounds = np.concatenate([bounds, np.exp(k[:, 0] * a) * xi0[0] - np.exp(-k[:, 0] * a) * zeta0[0]])
+    result = linprog(np.zeros(2 * n), A_ub=upper, b_ub=bounds, A_eq=np.array(equality), b_eq=np.array(rhs),
+                     bounds=(None, None), method="highs")
+    return result.status == 0
+
+
+def plan_rest_bound(plan, monotone=False):
+    """:func:`lipm_rest_bound` from ``plan``'s start state on its own footholds (the support sole until
+    its landing time, then both soles at its landing position: ``plan.polygon`` at each tick's middle),
+    with its ``zmp_margin``; from the signal [s] (the plan starts at the signal or, finishing the nominal
+    step, at its touchdown)."""
+    state, dt = plan.start_state, plan.params.servo_period
+    midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+    bound = lipm_rest_bound(state.com, state.com_vel, state.zmp, midpoint,
+                            lambda k: plan.polygon(plan.start_time + (k + 0.5) * dt), plan.pattern.w, dt,
+                            plan.params.zmp_margin, monotone=monotone)
+    return plan.start_time - plan.signal_time + bound
+
+
+def backward_speed(plan):
+    """The largest COG speed backwards along the walk (negative x velocity) [m/s] at the servo ticks from
+    the plan start to the rest, and the largest lateral overshoot: how far the COG passes the midpoint
+    sideways, from the side it starts on [m]."""
+    dt = plan.params.servo_period
+    times = plan.start_time + dt * np.arange(int(round((plan.halt_end - plan.start_time) / dt)) + 1)
+    pos, vel, _, _ = plan.com(times)
+    midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+    side = np.sign(pos[0, 1] - midpoint[1])
+    return max(0.0, float(-vel[:, 0].min())), max(0.0, float((-side * (pos[:, 1] - midpoint[1])).max()))
+
+
+def time_objective_report(plans, to_rest, bound_every):
+    """The time objective's backward COG speed, and its times to rest next to the LIPM's own bound."""
+    backward, lateral = np.array([backward_speed(p) for p in plans]).T
+    swing = np.array([p.support == "single" and p.case == "one-step" for p in plans])
+    print(f"COG backwards along the walk: max {backward.max() * 1e3:.1f} mm/s;"
+          f" {int(np.sum(backward > 5e-3))}/{len(plans)} plans above 5 mm/s"
+          f" (single-support one-step: {int(np.sum(backward[swing] > 5e-3))});"
+          f" lateral overshoot of the midpoint max {lateral.max() * 1e3:.1f} mm")
+    dt = plans[0].params.servo_period
+    rates = [np.abs(np.diff(p.com(p.start_time + dt * np.arange(int(round((p.halt_end - p.start_time) / dt)) + 1))[3],
+                            axis=0)).max() / dt for p in plans]
+    sample = list(range(0, len(plans), bound_every))
+    start = time.perf_counter()
+    bound = np.array([plan_rest_bound(plans[i]) for i in sample])
+    forward = np.array([plan_rest_bound(plans[i], monotone=True) for i in sample])
+    elapsed = time.perf_counter() - start
+    ours = to_rest[sample]
+    single = np.array([plans[i].support == "single" for i in sample])
+    print(f"LIPM bound (LP, ZMP {plans[0].params.zmp_margin * 1e3:.0f} mm inside the plan's footholds,"
+          f" |dZMP/dt| <= {MAX_ZMP_RATE} m/s) at every {bound_every}th tick ({len(sample)}, {elapsed:.0f} s):"
+          f" median {np.median(bound):.3f} s   max {bound.max():.3f} s;"
+          f" the plans there: median {np.median(ours):.3f} s   max {ours.max():.3f} s")
+    print(f"  single support ({int(single.sum())}): bound median {np.median(bound[single]):.3f} s,"
+          f" plans {np.median(ours[single]):.3f} s; plans below the bound (their ZMP moves faster,"
+          f" up to {max(rates):.1f} m/s): {int(np.sum(ours < bound - 1e-9))}")
+    print(f"  without backing up (COG velocity along x >= 0): possible at {int(np.isfinite(forward).sum())}"
+          f"/{len(sample)}; bound median {np.median(forward[np.isfinite(forward)]):.3f} s where possible")
 
 
 def scipy_comparison(pattern, params, times):
@@ -70,6 +257,8 @@ def main():
     parser.add_argument("--scipy-every", type=int, default=8, help="compare with scipy at every k-th tick")
     parser.add_argument("--objective", choices=("paper", "time"), default="paper",
                         help="StopParameters.objective of the plans timed")
+    parser.add_argument("--bound-every", type=int, default=4,
+                        help="--objective time: the LIPM's least time to rest (an LP) at every k-th tick")
     args = parser.parse_args()
     pattern = NominalPattern()
     params = StopParameters(objective=args.objective)
@@ -96,6 +285,7 @@ def main():
     to_rest = np.array([p.halt_end - p.signal_time for p in plans])
     print(f"time to rest        median {np.median(to_rest):.3f} s   max {to_rest.max():.3f} s")
     if args.objective == "time":  # the rest is about the paper's phase-parameter solve
+        time_objective_report(plans, to_rest, args.bound_every)
         return
     rounded = StopParameters(quantisation="round")
     residual = []

@@ -228,3 +228,81 @@ def test_a_plan_failing_the_zmp_verification_is_never_handed_out(pattern, monkey
     for signal in (3.1, 3.55):
         with pytest.raises(InfeasibleStop):
             plan_stop(pattern, signal, TIME)
+
+
+def _backward_speed(plan):
+    """The largest COG speed backwards along the walk (negative x velocity) [m/s] at the servo ticks from
+    the plan start to the rest."""
+    _, vel, _, _ = plan.com(_ticks(plan, plan.start_time, plan.halt_end))
+    return max(0.0, float(-vel[:, 0].min()))
+
+
+def test_the_cog_never_backs_up_in_the_swing_where_the_step_is_replanned(time_plans):
+    """A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests on the midpoint (orbital
+    energy): coming back from past the midpoint is lost time. Over the single-support one-step ticks up
+    to 3.39 s (from 3.395 s on the swing foot lands too soon for a forward stop in the chains searched;
+    in double support the COG is already at or past the midpoint) no backward speed above 5 mm/s."""
+    swing = [plan for plan in time_plans if plan.case == "one-step" and plan.support == "single"
+             and plan.signal_time < 3.3925]
+    assert len(swing) >= 100
+    backward = {round(plan.signal_time, 3): _backward_speed(plan) for plan in swing}
+    assert max(backward.values()) <= 5e-3, {t: b for t, b in backward.items() if b > 5e-3}
+
+
+def test_late_in_the_swing_the_step_reaches_rest_without_coming_back(pattern):
+    """3.39 s: the swing foot lands 0.1 s later; the brake starts on the support sole and the COG comes
+    to rest at the midpoint from behind."""
+    plan = plan_stop(pattern, 3.39, TIME)
+    midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+    pos, _, _, _ = plan.com(_ticks(plan, plan.start_time, plan.halt_end))
+    assert _backward_speed(plan) <= 5e-3
+    assert pos[:, 0].max() <= midpoint[0] + 1e-6
+    assert plan.halt_end - plan.signal_time <= 0.35
+
+
+def test_forward_stop_possible_is_the_orbital_energy_condition():
+    """With the ZMP held at the polygon's front P the COG stops at P - sqrt((P - x)^2 - v^2 / w^2)."""
+    from drake_estop.planning.brake import forward_stop_possible
+    from drake_estop.planning.geometry import SupportPolygon
+
+    w, front, midpoint = 3.5, 0.3, np.array([0.1, 0.0])
+    polygon = SupportPolygon([[-0.2, -0.1], [front, -0.1], [front, 0.1], [-0.2, 0.1]])
+    x = 0.0
+    reach = w * math.sqrt((front - x) ** 2 - (front - midpoint[0]) ** 2)  # the speed that stops exactly there
+    assert forward_stop_possible([x, 0.0], [0.99 * reach, 0.0], midpoint, polygon, w)
+    assert not forward_stop_possible([x, 0.0], [1.01 * reach, 0.0], midpoint, polygon, w)
+    assert not forward_stop_possible([0.15, 0.0], [0.0, 0.0], midpoint, polygon, w)  # already past it
+    assert not forward_stop_possible([x, 0.0], [-0.1, 0.0], midpoint, polygon, w)  # moving backwards
+
+
+def _wide_polygon(front):
+    from drake_estop.planning.geometry import SupportPolygon
+
+    return SupportPolygon([[-2.0, -1.0], [front, -1.0], [front, 1.0], [-2.0, 1.0]])
+
+
+def test_lipm_rest_bound_is_zero_at_rest_on_the_midpoint():
+    from scripts import load_script
+
+    bench = load_script("benchmarks/bench_planner.py")
+    midpoint = np.array([0.3, 0.05])
+    assert bench.lipm_rest_bound(midpoint, [0.0, 0.0], midpoint, midpoint, lambda k: _wide_polygon(1.0), 3.5, 0.005,
+                                 0.01) == 0.0
+
+
+@pytest.mark.parametrize("monotone", [False, True])
+def test_lipm_rest_bound_matches_the_bang_bang_stop(monotone):
+    """The ZMP held at the front limit P brakes hardest (the COG's response to the ZMP is monotone, eq.
+    6-9), so from x0 = P - (P - m) cosh(w T), v0 = w (P - m) sinh(w T) the LIPM rests at m at T at the
+    soonest (with no ZMP rate limit; T a whole number of ticks, so the held ZMP is a zero-order hold):
+    the LP's least time is T, without backing up too."""
+    from scripts import load_script
+
+    bench = load_script("benchmarks/bench_planner.py")
+    w, dt, margin, front_limit, rest_time = 3.47, 0.005, 0.01, 0.1, 0.2
+    x0 = front_limit - front_limit * math.cosh(w * rest_time)
+    v0 = w * front_limit * math.sinh(w * rest_time)
+    bound = bench.lipm_rest_bound([x0, 0.0], [v0, 0.0], [front_limit, 0.0], [0.0, 0.0],
+                                  lambda k: _wide_polygon(front_limit + margin), w, dt, margin, max_zmp_rate=1e6,
+                                  monotone=monotone)
+    assert bound == pytest.approx(rest_time)

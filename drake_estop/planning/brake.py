@@ -20,7 +20,13 @@ reach, step length, landing time, transition durations, ``zmp_margin``):
 
 * every other choice (durations on the servo grid, the landing time and step length) is
   enumerated in numpy at once, and the shortest candidate whose ZMP keeps the margin inside
-  the support polygon is taken. Transitions between levels run on straight segments when
+  the support polygon is taken; first among those along which the COG never moves backwards
+  along the walk. A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests on the
+  midpoint (orbital energy, :func:`forward_stop_possible`): a chain that carries the COG past
+  the midpoint and back loses time. The COG's velocity of the shortest candidates is checked
+  at the servo ticks (eq. 6-9), at most ``FORWARD_CHECKS`` of them, and only where such a stop
+  is possible at all; else (in double support the COG is at or past the midpoint) the
+  shortest. Transitions between levels run on straight segments when
   they start at rest, so in a convex polygon a level chain is inside iff its levels are;
   only a first transition that carries the walk's ZMP rate and acceleration (double
   support) curves, and it is checked at every servo tick.
@@ -40,7 +46,9 @@ The chains:
 
       ZMP (the support ankle) --rA--> a (held to the touchdown) --r1--> c (held h) --r3--> m
 
-  with ``a`` inside the support sole and ``c`` inside both soles' polygon;
+  with ``a`` inside the support sole and ``c`` inside both soles' polygon; ``rA`` is half of
+  ``min_transition_time`` (``SOLE_RAMP_FACTOR``), so that late in the swing the ZMP brakes on
+  the sole before the touchdown;
 
 * :func:`held_brake`, single support on a given landing (the paper's, where
   :func:`swing_brake` finds no stop): the ZMP held until the touchdown (eq. 19), then
@@ -75,6 +83,10 @@ ONE, SIGMA, RATE, ACCEL = range(4)
 RAMP_FACTORS = (1.0, 1.5)  # the first transition (to c)
 CATCH_FACTORS = (1.0, 1.5, 2.0, 3.0)  # stop_brake: c to d
 RETURN_FACTORS = (1.0, 1.5)  # the last transition (to the midpoint)
+# the ZMP's transition on the support sole (swing_brake), in multiples of min_transition_time: the
+# double-support transition's floor would hold the braking ZMP back until after the touchdown, which
+# from late in the swing leaves no stop without backing up (at most 0.125 m on the sole: <= 4.7 m/s)
+SOLE_RAMP_FACTOR = 0.5
 STOP_HOLD_MAX = 0.6  # [s] longest hold of c in stop_brake (the servo grid up to it)
 SWING_HOLD_MAX = 0.25  # [s] longest hold of c in swing_brake
 STEP_GRID = 0.02  # [m] step lengths searched by swing_brake
@@ -202,11 +214,26 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
     """The shortest chain ``ZMP -> c (held) -> d -> m`` from the COG state ``com, com_vel`` and the ZMP
     ``zmp`` (rate ``zmp_rate``, acceleration ``zmp_accel``), all (2,) [m, m/s, m/s^2], that ends at rest
     at one of ``midpoints`` (k, 2) with its ZMP ``required`` [m] inside the matching one of
-    ``polygons``. Returns ``(index of the midpoint, Brake)``, among equally short ones the one with the
-    larger margin, or None."""
+    ``polygons``: the shortest along which the COG never moves backwards (:func:`_backs_up`) where the
+    LIPM can stop that way (:func:`forward_stop_possible`, and one of the first ``FORWARD_CHECKS``
+    candidates), else the shortest. Returns ``(index of the midpoint, Brake)``, among equally short ones
+    the one with the larger margin, or None."""
     midpoints = np.atleast_2d(np.asarray(midpoints, float))
     rows = len(midpoints)
     com, com_vel = (np.broadcast_to(np.asarray(v, float)[:2], (rows, 2)) for v in (com, com_vel))
+    forward = np.array([forward_stop_possible(com[i], com_vel[i], midpoints[i], polygons[i], w) for i in range(rows)])
+    if forward.any():
+        found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required,
+                             _ForwardOnly(forward))
+        if found is not None:
+            return found
+    return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, None)
+
+
+def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, forward_only):
+    """:func:`stop_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only over its rows and
+    the candidates along which the COG does not move backwards (None when its checks run out)."""
+    rows = len(midpoints)
     zmp = np.asarray(zmp, float)[:2]
     rate, accel = np.asarray(zmp_rate, float)[:2], np.asarray(zmp_accel, float)[:2]
     t = _stop_table(float(w), float(params.servo_period), _ticks(params, RAMP_FACTORS), _ticks(params, CATCH_FACTORS),
@@ -234,6 +261,8 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
         c = np.stack([levels[0][0], levels[1][0]], axis=-1)  # (rows, candidates, 2)
         d = np.stack([levels[0][1], levels[1][1]], axis=-1)
         margin = np.minimum(stacked_margin(planes, c), start_margin[:, None])
+        if forward_only is not None:
+            margin[~forward_only.rows] = -np.inf
         for i in np.nonzero(np.any(margin >= required, axis=1))[0]:  # d only where c fits
             fits = margin[i] >= required
             margin[i, fits] = np.minimum(margin[i, fits], polygons[i].margin(d[i, fits]))
@@ -250,12 +279,68 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
             if curved:  # the first transition carries the walk's ZMP rate and acceleration: check its ticks
                 points = _segment_points(coeffs, 0, durations[0], params.servo_period)
                 worst, peak = min(worst, float(polygons[i].margin(points).min())), max(peak, points[:, 0].max())
+            if worst >= required and forward_only is not None:
+                if forward_only.spent():
+                    return None
+                if _backs_up(coeffs[0], durations, com[i, 0], com_vel[i, 0], w, params.servo_period):
+                    continue
             if worst >= required:
                 r1, h, r2, r3 = durations
                 best = (float(total[i, j]), i, Brake(durations, coeffs, (0.0, r1, r1 + h + r2, r1 + h + r2 + r3),
                                                      None, worst, float(peak)))
                 break
     return None if best is None else best[1:]
+
+
+BACKWARD_TOLERANCE = 1e-3  # [m/s] COG speed against the walk taken as rounding
+# candidates checked for backing up per brake before taking the shortest one regardless: the stride's
+# forward stops are among the first three; where none is, the search ends early instead of checking all
+FORWARD_CHECKS = 12
+
+
+class _ForwardOnly:
+    """The forward-only pass of a brake search: the rows (midpoints) it covers and its check budget."""
+
+    def __init__(self, rows=None):
+        self.rows = rows
+        self.left = FORWARD_CHECKS
+
+    def spent(self) -> bool:
+        """Count one check; True once the budget is used up."""
+        self.left -= 1
+        return self.left < 0
+
+
+def forward_stop_possible(com, com_vel, midpoint, polygon, w: float) -> bool:
+    """Whether the LIPM (eq. 4) could come to rest at ``midpoint`` without moving backwards along x:
+    moving forward (or at rest) from behind it, and stopped short of it by the ZMP held at the front of
+    ``polygon`` (the strongest braking). With the ZMP held at ``P`` the orbital energy
+    ``v^2 - w^2 (x - P)^2`` is constant, so the COG comes to rest at ``P - sqrt((P - x)^2 - v^2 / w^2)``;
+    a ZMP anywhere behind ``P`` brakes less (eq. 6-9: the COG's response to the ZMP is monotone). A
+    necessary condition only (the ZMP's transitions and the landing come on top)."""
+    x, v, m = float(com[0]), float(com_vel[0]), float(midpoint[0])
+    front = float(np.max(polygon.vertices[:, 0]))
+    return v >= 0.0 and x <= m + 1e-9 and (front - x) ** 2 - (v / w) ** 2 >= (front - m) ** 2 - 1e-12
+
+
+def _backs_up(coeffs, durations, x0, v0, w, dt) -> bool:
+    """Whether the COG (along x, from ``x0`` [m], ``v0`` [m/s]) under the ZMP chain ``coeffs`` (one
+    axis's segments, eq. 1) of ``durations`` [s] moves backwards faster than ``BACKWARD_TOLERANCE`` at
+    a servo tick (eq. 6-9 per segment: the particular polynomial plus its cosh and sinh parts)."""
+    x, v = float(x0), float(v0)
+    for c, duration in zip(coeffs, durations):
+        poly = lipm.cog_particular_coeffs(c, w)
+        cosh_part, sinh_part = x - poly[0], (v - poly[1]) / w
+        tau = dt * np.arange(1, int(round(duration / dt)) + 1)
+        wt = w * tau
+        speed = (np.polynomial.polynomial.polyval(tau, poly[1:] * _POWERS[1:len(poly)])
+                 + w * (cosh_part * np.sinh(wt) + sinh_part * np.cosh(wt)))
+        if speed.min() < -BACKWARD_TOLERANCE:
+            return True
+        x = float(np.polynomial.polynomial.polyval(tau[-1], poly) + cosh_part * math.cosh(wt[-1])
+                  + sinh_part * math.sinh(wt[-1]))
+        v = float(speed[-1])
+    return False
 
 
 def _shortest(margin, total, required):
@@ -328,7 +413,9 @@ def _swing_table(w, dt, ramps, returns, hold_min, hold_max):
 def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
                 polygon_for, params, w: float, required: float) -> Brake | None:
     """Single support: the soonest rest over the landing choices (step lengths on a grid, the earliest
-    touchdown each allows) with the ZMP chain ``ZMP -> a (held) -> touchdown -> c (held) -> m``.
+    touchdown each allows) with the ZMP chain ``ZMP -> a (held) -> touchdown -> c (held) -> m``: the
+    soonest along which the COG never moves backwards (:func:`_backs_up`, among the first
+    ``FORWARD_CHECKS`` candidates that fit) if the COG moves forward, else the soonest.
 
     ``com, com_vel, zmp, zmp_rate, zmp_accel`` (2,): the COG and the ZMP at the plan start (the ZMP
     on the support sole: at the ankle and at rest where the walk is interrupted, eq. 19);
@@ -338,11 +425,25 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     foot landed there. Limits: ``min/max_step_length`` (from the support ankle),
     ``min/max_landing_time``, ``max_swing_speed``, ``max_fore_reach`` (landing ankle ahead of the COG
     at touchdown), ``max_rear_reach`` (the COG at rest at the midpoint ahead of the support ankle),
-    ``min_transition_time`` (every transition). Returns None where no candidate keeps ``required`` [m]."""
+    ``min_transition_time`` (every transition after the touchdown). Returns None where no candidate keeps
+    ``required`` [m]."""
+    args = (com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
+            polygon_for, params, w, required)
+    if float(np.asarray(com_vel, float)[0]) >= 0.0:
+        found = _swing_search(*args, _ForwardOnly())
+        if found is not None:
+            return found
+    return _swing_search(*args, None)
+
+
+def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
+                  polygon_for, params, w, required, forward_only):
+    """:func:`swing_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only the candidates
+    along which the COG does not move backwards (None when its checks run out)."""
     com, com_vel, zmp, rate, accel, ankle, swing_xy = (np.asarray(v, float)[:2] for v in (
         com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy))
     dt = params.servo_period
-    ramp = _ticks(params, (1.0,))[0]  # the ZMP's transition on the support sole
+    ramp = _ticks(params, (SOLE_RAMP_FACTOR,))[0]  # the ZMP's transition on the support sole
     steps, landing, t1 = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params)
     if not len(steps):
         return None
@@ -415,6 +516,11 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
                 if curved:  # the first transition carries the ZMP's rate and acceleration: check its ticks
                     points = _segment_points(brake.coeffs, 0, ramp, dt)
                     brake.margin = min(brake.margin, float(support_polygon.margin(points).min()))
+                if brake.margin >= required and forward_only is not None:
+                    if forward_only.spent():
+                        raise _Spent
+                    if _backs_up(brake.coeffs[0], brake.durations, com[0], com_vel[0], w, dt):
+                        continue
                 if brake.margin >= required:
                     best = (float(total[low + j]), float(both[j]), brake)
                     break
@@ -423,15 +529,22 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     # the step lengths with the earliest touchdowns first; the later ones only if they can still be sooner
     order = np.argsort(t1, kind="stable")
     first = order[t1[order] <= t1[order[0]] + SWING_FIRST + 1e-9]
-    best = search(first)
-    rest = order[len(first):]
-    if best is not None:
-        rest = rest[t1[rest] + t["total"][0] < best.duration - 1e-9]
-    if len(rest):
-        other = search(rest)
-        if other is not None and (best is None or other.duration < best.duration - 1e-9):
-            best = other
+    try:
+        best = search(first)
+        rest = order[len(first):]
+        if best is not None:
+            rest = rest[t1[rest] + t["total"][0] < best.duration - 1e-9]
+        if len(rest):
+            other = search(rest)
+            if other is not None and (best is None or other.duration < best.duration - 1e-9):
+                best = other
+    except _Spent:
+        return None
     return best
+
+
+class _Spent(Exception):
+    """The forward-only pass of :func:`swing_brake` ran out of checks."""
 
 
 def _swing_chain(t, ramp, i, k, land, hold, xy, mid, zmp, rate, accel, a, c, margin) -> Brake:
