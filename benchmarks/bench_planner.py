@@ -8,7 +8,11 @@ quantisation residual with and without re-solving the ZMP value
 objective, the largest backward COG speed along the walk, and next to the times to
 rest the LIPM's own lower bound, :func:`lipm_rest_bound`, on the plan's footholds).
 
-    python benchmarks/bench_planner.py [--repeats 3] [--objective paper|time] [--bound-every 4]
+    python benchmarks/bench_planner.py [--repeats 3] [--objective paper|time] [--bound-every 4] [--table]
+
+``--table`` prints instead one markdown table of both objectives (the paper's, with the default and with
+eq. 20's slowdown ZMP, and the time objective): fallbacks, monotonicity, plan time, time to rest, backward
+COG speed and the LIPM bound (:func:`planner_table`, the table of benchmarks/RESULTS.md).
 
 Imports the installed ``drake_estop`` (``pip install -e .`` or ``pip install .``);
 no path set-up.
@@ -230,6 +234,57 @@ def time_objective_report(plans, to_rest, bound_every):
           f"/{len(sample)}; bound median {np.median(forward[np.isfinite(forward)]):.3f} s where possible")
 
 
+def monotone_one_step(plans) -> bool:
+    """Whether one-step feasibility is monotone over each single support: once a signal falls back to the
+    next step (III.C), no later signal of that support phase stops in one step."""
+    fell_back = False
+    for previous, plan in zip([None, *plans], plans):
+        if previous is None or plan.support != "single" or previous.support != "single":
+            fell_back = False
+        if plan.support != "single":
+            continue
+        if plan.case != "one-step":
+            fell_back = True
+        elif fell_back:
+            return False
+    return True
+
+
+#: the rows of :func:`planner_table`: label, StopParameters overrides
+TABLE_ROWS = (
+    ("paper objective (J_ss, J_ds; slowdown ZMP 5 cm ahead of the landing ankle, the default)", {}),
+    ("paper objective, slowdown ZMP at the landing ankle (eq. 20)", {"landing_zmp_offset": 0.0}),
+    ('`objective="time"` (soonest rest at the feet\'s midpoint)', {"objective": "time"}),
+)
+
+
+def planner_table(pattern, repeats=3, bound_every=4):
+    """Markdown lines: both objectives over every servo tick of the stride, measured in this run. Per row:
+    the next-step fallbacks (III.C) and where, whether feasibility is monotone over single support, the plan
+    compute time (min of ``repeats`` per tick after :func:`warm_up`), the time to rest, the largest backward
+    COG speed along the walk, and the LIPM's own least time to rest (:func:`plan_rest_bound`, every
+    ``bound_every``-th tick, on each plan's own footholds)."""
+    lines = ["| planner | one-step (fallbacks) | monotone | plan median / max [ms] | rest median / worst [s] |"
+             " COG backwards max [mm/s] (plans > 5 mm/s) | LIPM bound median / worst [s] |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for label, overrides in TABLE_ROWS:
+        params = StopParameters(**overrides)
+        times, plans, compute, _ = sweep(pattern, params, repeats)
+        fallbacks = [round(float(p.signal_time), 3) for p in plans if p.case != "one-step"]
+        where = f" at {fallbacks[0]:.3f}-{fallbacks[-1]:.3f} s" if fallbacks else ""
+        to_rest = np.array([p.halt_end - p.signal_time for p in plans])
+        backward = np.array([backward_speed(p)[0] for p in plans])
+        bound = np.array([plan_rest_bound(plans[i]) for i in range(0, len(plans), bound_every)])
+        lines.append(
+            f"| {label} | {len(plans) - len(fallbacks)}/{len(plans)} ({len(fallbacks)}{where}) |"
+            f" {'yes' if monotone_one_step(plans) else 'no'} |"
+            f" {np.median(compute) * 1e3:.2f} / {compute.max() * 1e3:.2f} |"
+            f" {np.median(to_rest):.3f} / {to_rest.max():.3f} |"
+            f" {backward.max() * 1e3:.0f} ({int(np.sum(backward > 5e-3))}) |"
+            f" {np.median(bound):.3f} / {bound.max():.3f} |")
+    return lines
+
+
 def scipy_comparison(pattern, params, times):
     ours, theirs, single_start, gaps = [], [], [], []
     for t in times:
@@ -259,10 +314,15 @@ def main():
                         help="StopParameters.objective of the plans timed")
     parser.add_argument("--bound-every", type=int, default=4,
                         help="--objective time: the LIPM's least time to rest (an LP) at every k-th tick")
+    parser.add_argument("--table", action="store_true",
+                        help="only the markdown table of both objectives (benchmarks/RESULTS.md's planner table)")
     args = parser.parse_args()
     pattern = NominalPattern()
     params = StopParameters(objective=args.objective)
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
+    if args.table:
+        print("\n".join(planner_table(pattern, args.repeats, args.bound_every)))
+        return
     from drake_estop.planning import backend
     print("solver backend: " + (f"compiled (numba {backend.numba.__version__}, planning.solver)" if backend.COMPILED
                                 else "plain Python (numba missing, DRAKE_ESTOP_PURE_PYTHON or NUMBA_DISABLE_JIT set)"))

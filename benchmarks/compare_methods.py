@@ -33,6 +33,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import alternatives
+import bench_planner
 import numpy as np
 from reference import reference_solve
 
@@ -118,6 +119,7 @@ def evaluate(times, pattern, params):
     for t in _progress(times, desc="instants", unit="tick"):
         row = {"t": float(t), "support": pattern.support_at(t)[0]}
         for name, planner, variant in (("planner", plan_stop, params),
+                                       ("planner_eq20", plan_stop, replace(params, landing_zmp_offset=0.0)),
                                        ("planner_toe", plan_stop, toe_params(pattern, params)),
                                        ("planner_time", plan_stop, replace(params, objective="time")),
                                        ("finish_step", alternatives.finish_the_step, params)):
@@ -149,6 +151,9 @@ def scipy_ratio(times, pattern, params):
     return float(np.median(ours)), float(np.median(theirs))
 
 
+DIAGRAM_SIGNALS = (3.2, 3.4, 3.485, 3.5)  # [s] mid and late single support (3.485: its last tick), double support
+
+
 def diagram_rtfs(estop_time=3.4):
     """Real-time factors of the kinematic diagram and of the physics diagram on one paper scenario."""
     import warnings
@@ -161,7 +166,15 @@ def diagram_rtfs(estop_time=3.4):
         warnings.simplefilter("ignore", RuntimeWarning)
         kinematic = simulate_diagram(GaitParameters(), StopParameters(), estop_time)
     physics = run_physics(GaitParameters(), StopParameters(), estop_time)
+    latch = {}
+    with warnings.catch_warnings():  # the plan's time in the diagram, mid and late single support, double support
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for signal in DIAGRAM_SIGNALS:
+            latch[signal] = simulate_diagram(GaitParameters(), StopParameters(), signal).plan_wall_time
     return [
+        "Plan time in the kinematic diagram (the stop planner's latch on the signal's tick, after the warm-up at"
+        " build): " + ", ".join(f"{t:.3f} s {1e3 * v:.2f} ms" for t, v in latch.items()) + ".",
+        "",
         f"Diagram real-time factors (signal {estop_time} s, one run each): kinematic diagram (planner, whole-body IK,"
         f" posed humanoid) {kinematic.realtime_factor:.1f}x over {kinematic.sim_time:.1f} s simulated;"
         f" physics diagram (1 ms SAP plant with contact, PD servos) {physics.realtime_factor:.2f}x,"
@@ -198,7 +211,8 @@ def figure(rows, path):
 
     t = [r["t"] for r in rows]
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-    names = {"planner": "this planner", "planner_toe": "this planner, ZMP to the toe",
+    names = {"planner": "this planner", "planner_eq20": "this planner, eq. 20",
+             "planner_toe": "this planner, ZMP to the toe",
              "planner_time": "this planner, objective 'time'", "finish_step": "finish the step",
              "zmp_planner": "Drake ZmpPlanner", "zmp_planner_tuned": "Drake ZmpPlanner, tuned"}
     for key, label in names.items():
@@ -304,7 +318,8 @@ def write_results(rows, summaries, ratio, path, figure_name, command, extra_line
         " min ZMP margin [cm] | plan time median / max [ms] |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
-    labels = {"planner": "this planner (paper: slowdown ZMP at the landing ankle, eq. 20)",
+    labels = {"planner": "this planner (paper objective; slowdown ZMP 5 cm ahead of the landing ankle, the default)",
+              "planner_eq20": "this planner, paper objective, slowdown ZMP at the landing ankle (eq. 20)",
               "planner_toe": "this planner, single-support slowdown ZMP at the fore toe (offset 0.125 m)",
               "planner_time": "this planner, `objective=\"time\"` (soonest rest at the feet's midpoint)",
               "finish_step": "finish the step (nominal landing)",
@@ -348,14 +363,20 @@ def main(argv=None):
     params = StopParameters()
     times = stride_ticks(pattern, params)[:: args.every]
     rows = evaluate(times, pattern, params)
-    summaries = {key: summarise(rows, key) for key in ("planner", "planner_toe", "planner_time", "finish_step",
+    summaries = {key: summarise(rows, key) for key in ("planner", "planner_eq20", "planner_toe", "planner_time",
+                                                       "finish_step",
                                                        "zmp_planner", "zmp_planner_tuned")}
     ratio = scipy_ratio(times[:: args.scipy_every], pattern, params)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     figure(rows, out / "compare_methods.png")
     command = "python benchmarks/compare_methods.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    extra = comparison_lines(rows, summaries) + zmp_planner_tuning(times[:: args.tuning_every], pattern, params)
+    extra = ["The planner over the stride, both objectives (`bench_planner.planner_table`: plan time the least of"
+             " 3 per tick after the warm-up; the LIPM bound is a time-optimal LP over the ZMP, held per servo tick,"
+             f" {params.zmp_margin * 1e3:.0f} mm inside each plan's own footholds, |dZMP/dt| <="
+             f" {bench_planner.MAX_ZMP_RATE:g} m/s, at every 4th tick):", ""]
+    extra += bench_planner.planner_table(pattern) + [""]
+    extra += comparison_lines(rows, summaries) + zmp_planner_tuning(times[:: args.tuning_every], pattern, params)
     extra += [""] + turning_lines(params, args.every)
     extra += [""] + ([] if args.no_diagrams else diagram_rtfs())
     write_results(rows, summaries, ratio, out / "RESULTS.md", "compare_methods.png", command.strip(), extra)
