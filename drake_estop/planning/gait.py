@@ -484,27 +484,45 @@ def initial_stance(params: GaitParameters) -> dict:
 def footstep_list(params: GaitParameters) -> tuple:
     """The walk's footsteps: ``params.footsteps``, or the generated ones.
 
-    Generated: the body frame advances by (``step_length``, ``side_step``) per step in its
-    heading halfway through the step's ``turn`` (an arc's chord) and turns by ``turn``; the
-    swing foot lands ``step_width / 2`` beside it, heading with it. The last step closes the
-    feet (no advance). Without a turn the positions are ``k * step_length``, exactly the
-    straight walk's.
+    Generated: the body frame advances by ``step_length`` per step in its heading halfway through
+    the step's ``turn`` (an arc's chord) and turns by ``turn``; the swing foot lands
+    ``step_width / 2`` beside it, heading with it. The last step closes the feet (no advance).
+    Without a turn the positions are ``k * step_length``, exactly the straight walk's.
+
+    A side step (``side_step`` != 0) is a lateral walk: the leading foot, on the side of travel,
+    swings first and steps out by ``|side_step|`` (the stance widens to ``step_width +
+    |side_step|``), then the trailing foot closes it to ``step_width`` again, so the stance never
+    narrows below ``step_width``. The body frame (the stance's midpoint) moves ``side_step / 2``
+    sideways per step, ``side_step`` per stride; the last step closes the feet at ``step_width``.
     """
     if params.footsteps:
         return params.footsteps
     half, turn, n = params.step_width / 2, math.radians(params.turn), int(params.num_steps)
+    # the foot on the side of travel; without a side step the right foot leads, as on a straight walk
+    leading = "left" if params.side_step > 0.0 else "right"
+    shift = 0.5 * params.side_step  # the stance midpoint's sideways advance per step
     x = y = heading = 0.0
-    steps, swing = [], "right"
+    steps, swing, shifts = [], leading, 0
     for k in range(1, n + 1):
-        if k < n:
-            if turn == 0.0:
-                x, y = k * params.step_length, k * params.side_step
-            else:
-                chord = heading + 0.5 * turn
-                x += params.step_length * math.cos(chord) - params.side_step * math.sin(chord)
-                y += params.step_length * math.sin(chord) + params.side_step * math.cos(chord)
-                heading += turn
+        closing = k == n  # the last step brings the feet together at step_width, no advance
+        # the leading foot widens the stance, the trailing one closes it: both move the midpoint
+        sideways = shift if not closing or swing != leading else 0.0
+        if turn == 0.0:
+            if not closing:
+                x = k * params.step_length
+            shifts += sideways != 0.0
+            y = shifts * shift
+        elif not closing:
+            chord = heading + 0.5 * turn
+            x += params.step_length * math.cos(chord) - sideways * math.sin(chord)
+            y += params.step_length * math.sin(chord) + sideways * math.cos(chord)
+            heading += turn
+        elif sideways:
+            x -= sideways * math.sin(heading)
+            y += sideways * math.cos(heading)
         offset = half if swing == "left" else -half
+        if swing == leading and not closing:
+            offset += shift  # out by side_step beyond the trailing foot's step_width / 2 (see above)
         foot_x = x - offset * math.sin(heading) if heading else x
         foot_y = y + offset * math.cos(heading) if heading else y + offset
         steps.append(Footstep(swing, foot_x, foot_y, heading))
