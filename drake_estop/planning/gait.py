@@ -122,8 +122,11 @@ class GaitParameters:
         Heading change per step [deg], positive to the left: the walk follows an
         arc (at most :data:`MAX_TURN_DEG`).
     side_step : float
-        Lateral displacement of the walk per step [m], positive to the left;
-        with ``step_length`` 0 the robot side-steps.
+        Side step [m], positive to the left: the leading foot (on that side)
+        steps out by ``side_step``, widening the stance to ``step_width +
+        |side_step|``, and the trailing foot closes it to ``step_width``; the
+        walk moves ``side_step`` sideways per stride. With ``step_length`` 0
+        the robot side-steps.
     footsteps : tuple of Footstep
         An explicit footstep list (replaces ``step_length``, ``turn``,
         ``side_step`` and ``num_steps``): the robot starts at the standing
@@ -149,7 +152,7 @@ class GaitParameters:
     arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
     sole: Sole = field(default_factory=Sole)
     turn: float = 0.0  # heading change per step [deg], positive to the left
-    side_step: float = 0.0  # lateral displacement per step [m], positive to the left
+    side_step: float = 0.0  # each foot's sideways step [m], positive to the left (widen, then close)
     footsteps: tuple = ()  # explicit Footstep list (replaces step_length / turn / side_step / num_steps)
 
     def __post_init__(self):
