@@ -157,11 +157,15 @@ def test_stops_of_a_side_stepping_walk_end_at_rest_inside_the_polygon(kwargs):
         assert np.abs(vel).max() < 1e-6, t
 
 
-def test_an_ordinary_side_step_stops_in_one_step_over_the_stride():
-    """Measured: 160 of 160 ticks one-step on the widening and on the closing step (8 cm, 0.1 m long)."""
-    pattern = NominalPattern(GaitParameters(side_step=0.08, step_length=0.1))
-    plans = [plan_stop(pattern, t, PARAMS) for t in stride_ticks(pattern, PARAMS)[::4]]
-    assert all(plan.case == "one-step" for plan in plans)
+@pytest.mark.parametrize("kwargs", [dict(side_step=0.08, step_length=0.1), dict(side_step=0.10, step_length=0.1),
+                                    dict(side_step=-0.10, step_length=0.0)],
+                         ids=lambda kw: "/".join(f"{k}={v}" for k, v in kw.items()))
+def test_an_ordinary_side_step_stops_in_one_step_over_the_stride(kwargs):
+    """Measured: 160 of 160 ticks one-step on the widening step's stride and on the closing one's."""
+    pattern = NominalPattern(GaitParameters(**kwargs))
+    for step_index in (2, 3):
+        plans = [plan_stop(pattern, t, PARAMS) for t in stride_ticks(pattern, PARAMS, step_index)[::4]]
+        assert all(plan.case == "one-step" for plan in plans), step_index
 
 
 @pytest.mark.parametrize("side_step", ["0.08", "-0.10"])
