@@ -489,7 +489,7 @@ def footstep_list(params: GaitParameters) -> tuple:
 
     Generated: the body frame advances by ``step_length`` per step in its heading halfway through
     the step's ``turn`` (an arc's chord) and turns by ``turn``; the swing foot lands
-    ``step_width / 2`` beside it, heading with it. The last step closes the feet (no advance).
+    ``step_width / 2`` beside it, heading with it. The last step closes the feet (no step_length).
     Without a turn the positions are ``k * step_length``, exactly the straight walk's.
 
     A side step (``side_step`` != 0) is a lateral walk: the leading foot, on the side of travel,
@@ -507,7 +507,7 @@ def footstep_list(params: GaitParameters) -> tuple:
     x = y = heading = 0.0
     steps, swing, shifts = [], leading, 0
     for k in range(1, n + 1):
-        closing = k == n  # the last step brings the feet together at step_width, no advance
+        closing = k == n  # the last step sets the feet step_width apart: no step_length, no turn
         # the leading foot widens the stance, the trailing one closes it: both move the midpoint
         sideways = shift if not closing or swing != leading else 0.0
         if turn == 0.0:
