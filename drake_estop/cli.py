@@ -93,8 +93,9 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
                    metavar="DEG", help=f"heading change per step [deg], positive to the left: walk on an arc "
                                        f"(|DEG| <= {MAX_TURN_DEG:g}; default %(default)s)")
     g.add_argument("--side-step", type=finite_float, default=_GAIT.side_step, metavar="M",
-                   help="lateral displacement per step [m], positive to the left, combined with --step-length "
-                        "(pure side-stepping: --step-length 0; default %(default)s)")
+                   help="side step [m], positive to the left: the leading foot steps out by M, the trailing "
+                        "one closes the stance, combined with --step-length (pure side-stepping: "
+                        "--step-length 0; default %(default)s)")
     g.add_argument("--footsteps", metavar="FILE.csv", default=None,
                    help="explicit footsteps: CSV with columns side, x, y [m], yaw [rad] and an optional "
                         "duration [s], one row per step from the standing stance (replaces --step-length, "

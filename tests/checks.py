@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.integrate import solve_ivp
+
+from drake_estop.planning.geometry import SupportPolygon
 
 
 def lipm_tracking_error(times, com, com_vel, zmp, w, window: float = 0.5) -> float:
@@ -40,3 +44,15 @@ def plan_lipm_error(plan, *, after_halt: float, lead: float = 0.1) -> float:
     sel = data.times >= plan.signal_time - lead
     return max(lipm_tracking_error(data.times[sel], data.com[sel, axis], data.com_vel[sel, axis],
                                    data.zmp[sel, axis], plan.pattern.w) for axis in (0, 1))
+
+
+def independent_polygon(plan, t) -> SupportPolygon:
+    """The soles on the ground at ``t``, turned by their headings (not the planner's polygon)."""
+    sole = plan.pattern.params.sole
+    feet, yaw = plan.feet(t), plan.feet_yaw(t)[0]
+    corners = []
+    for side in plan.support_sides(t, feet):
+        c, s = math.cos(yaw[side]), math.sin(yaw[side])
+        local = sole.corners((0.0, 0.0), side)
+        corners.append(feet[side][:2] + local @ np.array([[c, s], [-s, c]]))
+    return SupportPolygon(np.vstack(corners))

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from checks import lipm_tracking_error, plan_lipm_error
+from checks import independent_polygon, lipm_tracking_error, plan_lipm_error
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reference import reference_solve
@@ -26,7 +26,6 @@ from drake_estop.planning.gait import (
     footstep_list,
     load_footsteps,
 )
-from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.heading import FramedPattern, HeadingFrame, stop_heading
 from drake_estop.planning.lipm import LipmTrajectory
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop, stop_problem
@@ -52,18 +51,6 @@ def _ticks(plan, start, end):
     return start + dt * np.arange(int(round((end - start) / dt)) + 1)
 
 
-def independent_polygon(plan, t) -> SupportPolygon:
-    """The soles on the ground at ``t``, turned by their headings (not the planner's polygon)."""
-    sole = plan.pattern.params.sole
-    feet, yaw = plan.feet(t), plan.feet_yaw(t)[0]
-    corners = []
-    for side in plan.support_sides(t, feet):
-        c, s = math.cos(yaw[side]), math.sin(yaw[side])
-        local = sole.corners((0.0, 0.0), side)
-        corners.append(feet[side][:2] + local @ np.array([[c, s], [-s, c]]))
-    return SupportPolygon(np.vstack(corners))
-
-
 def test_the_gaits_really_turn_and_side_step(gait_plans):
     name, pattern, plans = gait_plans
     ends = [step["end"] for step in pattern.steps]
@@ -74,7 +61,8 @@ def test_the_gaits_really_turn_and_side_step(gait_plans):
         assert any(abs(plan.heading) > 0.5 for plan in plans)  # solved in a turned frame
     else:
         mid = 0.5 * (pattern.final_feet["left"] + pattern.final_feet["right"])
-        assert abs(mid[1]) == pytest.approx(0.04 * (len(ends) - 1), abs=1e-9)  # the body moved sideways
+        # the body moved sideways: side_step per stride (the leading foot out, the trailing one in)
+        assert abs(mid[1]) == pytest.approx(0.04 * (len(ends) // 2), abs=1e-9)
 
 
 def test_zmp_inside_the_turned_support_polygon_every_tick(gait_plans):
@@ -240,7 +228,7 @@ def test_the_straight_walk_is_the_generated_footsteps_without_turn():
     (dict(turn=MAX_TURN_DEG + 1), "turn"),
     (dict(turn=math.nan), "turn"),
     (dict(side_step=math.inf), "side_step"),
-    (dict(step_length=0.0, side_step=0.1), "overlap"),
+    (dict(step_length=0.0, step_width=0.12, turn=30.0), "overlap at step 1"),
     (dict(footsteps=(Footstep("right", 0.3, -0.1), Footstep("right", 0.6, -0.1))), "alternate"),
     (dict(footsteps=(Footstep("right", 0.3, math.nan), Footstep("left", 0.6, 0.1))), "footsteps[0].y"),
     (dict(footsteps=(Footstep("right", 0.3, 0.3), Footstep("left", 0.6, 0.1))), "cross"),
@@ -311,7 +299,7 @@ def test_side_step_option_and_footsteps_file_reach_the_pattern(tmp_path):
     from drake_estop.cli import main
 
     summary = tmp_path / "s.json"
-    assert main(["simulate", "--kinematic", "--step-length", "0", "--side-step", "0.03", "--estop-time", "3.3",
+    assert main(["simulate", "--kinematic", "--step-length", "0", "--side-step", "0.06", "--estop-time", "3.3",
                  "--summary", str(summary)]) == 0
     feet = json.loads(summary.read_text())["final_feet"]
     assert 0.5 * (feet["left"][1] + feet["right"][1]) > 0.05  # it walked to the left

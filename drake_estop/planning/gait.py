@@ -122,8 +122,11 @@ class GaitParameters:
         Heading change per step [deg], positive to the left: the walk follows an
         arc (at most :data:`MAX_TURN_DEG`).
     side_step : float
-        Lateral displacement of the walk per step [m], positive to the left;
-        with ``step_length`` 0 the robot side-steps.
+        Side step [m], positive to the left: the leading foot (on that side)
+        steps out by ``side_step``, widening the stance to ``step_width +
+        |side_step|``, and the trailing foot closes it to ``step_width``; the
+        walk moves ``side_step`` sideways per stride. With ``step_length`` 0
+        the robot side-steps.
     footsteps : tuple of Footstep
         An explicit footstep list (replaces ``step_length``, ``turn``,
         ``side_step`` and ``num_steps``): the robot starts at the standing
@@ -149,7 +152,7 @@ class GaitParameters:
     arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
     sole: Sole = field(default_factory=Sole)
     turn: float = 0.0  # heading change per step [deg], positive to the left
-    side_step: float = 0.0  # lateral displacement per step [m], positive to the left
+    side_step: float = 0.0  # each foot's sideways step [m], positive to the left (widen, then close)
     footsteps: tuple = ()  # explicit Footstep list (replaces step_length / turn / side_step / num_steps)
 
     def __post_init__(self):
@@ -484,27 +487,45 @@ def initial_stance(params: GaitParameters) -> dict:
 def footstep_list(params: GaitParameters) -> tuple:
     """The walk's footsteps: ``params.footsteps``, or the generated ones.
 
-    Generated: the body frame advances by (``step_length``, ``side_step``) per step in its
-    heading halfway through the step's ``turn`` (an arc's chord) and turns by ``turn``; the
-    swing foot lands ``step_width / 2`` beside it, heading with it. The last step closes the
-    feet (no advance). Without a turn the positions are ``k * step_length``, exactly the
-    straight walk's.
+    Generated: the body frame advances by ``step_length`` per step in its heading halfway through
+    the step's ``turn`` (an arc's chord) and turns by ``turn``; the swing foot lands
+    ``step_width / 2`` beside it, heading with it. The last step closes the feet (no step_length).
+    Without a turn the positions are ``k * step_length``, exactly the straight walk's.
+
+    A side step (``side_step`` != 0) is a lateral walk: the leading foot, on the side of travel,
+    swings first and steps out by ``|side_step|`` (the stance widens to ``step_width +
+    |side_step|``), then the trailing foot closes it to ``step_width`` again, so the stance never
+    narrows below ``step_width``. The body frame (the stance's midpoint) moves ``side_step / 2``
+    sideways per step, ``side_step`` per stride; the last step closes the feet at ``step_width``.
     """
     if params.footsteps:
         return params.footsteps
     half, turn, n = params.step_width / 2, math.radians(params.turn), int(params.num_steps)
+    # the foot on the side of travel; without a side step the right foot leads, as on a straight walk
+    leading = "left" if params.side_step > 0.0 else "right"
+    shift = 0.5 * params.side_step  # the stance midpoint's sideways advance per step
     x = y = heading = 0.0
-    steps, swing = [], "right"
+    steps, swing, shifts = [], leading, 0
     for k in range(1, n + 1):
-        if k < n:
-            if turn == 0.0:
-                x, y = k * params.step_length, k * params.side_step
-            else:
-                chord = heading + 0.5 * turn
-                x += params.step_length * math.cos(chord) - params.side_step * math.sin(chord)
-                y += params.step_length * math.sin(chord) + params.side_step * math.cos(chord)
-                heading += turn
+        closing = k == n  # the last step sets the feet step_width apart: no step_length, no turn
+        # the leading foot widens the stance, the trailing one closes it: both move the midpoint
+        sideways = shift if not closing or swing != leading else 0.0
+        if turn == 0.0:
+            if not closing:
+                x = k * params.step_length
+            shifts += sideways != 0.0
+            y = shifts * shift
+        elif not closing:
+            chord = heading + 0.5 * turn
+            x += params.step_length * math.cos(chord) - sideways * math.sin(chord)
+            y += params.step_length * math.sin(chord) + sideways * math.cos(chord)
+            heading += turn
+        elif sideways:
+            x -= sideways * math.sin(heading)
+            y += sideways * math.cos(heading)
         offset = half if swing == "left" else -half
+        if swing == leading and not closing:
+            offset += shift  # out by side_step beyond the trailing foot's step_width / 2 (see above)
         foot_x = x - offset * math.sin(heading) if heading else x
         foot_y = y + offset * math.cos(heading) if heading else y + offset
         steps.append(Footstep(swing, foot_x, foot_y, heading))
