@@ -117,6 +117,7 @@ def _solve_both_axes(pattern, state, params, zmp_region="fore"):
         touchdown = _nominal_touchdown(pattern, state)
         dt = params.servo_period
         nominal_landing = max(snap_to_tick(touchdown - state.time, dt), params.min_landing_time + dt)
+    solved = {}  # the limits of the last solve: a round that asks for the same limits again has converged
     for _ in range(_LATERAL_ROUNDS):
         wanted = target_zmp(start, w, solution.landing, solution.transition, solution.slowdown, derivatives=False)
         if low - _LATERAL_SLACK <= wanted <= high + _LATERAL_SLACK:
@@ -145,6 +146,9 @@ def _solve_both_axes(pattern, state, params, zmp_region="fore"):
                 limits.pop("min_slowdown_time", None)
             else:
                 break
+        if limits == solved:  # the same problem again (its floor is its own solution): the same answer
+            break
+        solved = dict(limits)
         try:
             problem, kind, feet = stop_problem(pattern, state, replace(params, **limits), zmp_region)
             solution = solve_phases(problem, kind)
@@ -358,10 +362,10 @@ def _plan_from(pattern: NominalPattern, state: PatternState, params: StopParamet
                zmp_region: str = "fore"):
     """The stop from ``state``, solved in the heading frame of the foot that carries it
     (:mod:`drake_estop.planning.heading`; the world frame on a straight walk). Where the limits as given
-    find no stop, in single support it tries again with the slowdown ZMP at the landing ankle (the paper's
-    eq. 20, where ``landing_zmp_offset`` is not 0: a walk stepping in place has no forward speed for a
-    ZMP ahead of the ankle to stop), then with the landing also allowed at the nominal touchdown where that
-    is sooner than ``min_landing_time`` (:func:`_nominal_landing_window`), with either ZMP."""
+    find no stop, in single support it tries again with the landing also allowed at the nominal touchdown
+    where that is sooner than ``min_landing_time`` (:func:`_nominal_landing_window`), then with the slowdown
+    ZMP at the landing ankle (the paper's eq. 20, where ``landing_zmp_offset`` is not 0: a walk stepping in
+    place has no forward speed for a ZMP ahead of the ankle to stop), without and with that window."""
     def plan(limits):
         return solve_turned(lambda view, local: _plan_local(view, local, limits, signal_time, case, zmp_region),
                             pattern, state)
@@ -384,13 +388,12 @@ def _retry_limits(pattern: NominalPattern, state: PatternState, params: StopPara
     """The limits :func:`_plan_from` tries, in order, after the given ones found no stop (single support)."""
     if state.support != "single":
         return
-    paper = replace(params, landing_zmp_offset=0.0) if params.landing_zmp_offset != 0.0 else None
-    if paper is not None:
-        yield paper
     window = _nominal_landing_window(pattern, state, params)
     if window is not None:
         yield window
-        if paper is not None:
+    if params.landing_zmp_offset != 0.0:
+        yield replace(params, landing_zmp_offset=0.0)
+        if window is not None:
             yield replace(window, landing_zmp_offset=0.0)
 
 
