@@ -137,6 +137,16 @@ def choose_halt(ends, midpoint, polygon, params, w):
     return [shift, settle], [halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
 
 
+def prepare_halts(w: float, params) -> None:
+    """Compute (and cache) the halt bases of every candidate duration for the LIPM frequency ``w``: a stop
+    that first needs one of them then does not pay for it on its servo tick."""
+    candidates = halt_candidates(params)
+    for shift, settle in candidates:
+        halt_basis(w, shift, settle)
+    if len(candidates) > HALT_ONE_BY_ONE:
+        _halt_batch(w, tuple(candidates[HALT_ONE_BY_ONE:]))
+
+
 @functools.lru_cache(maxsize=64)
 def _halt_batch(w: float, candidates: tuple):
     """:func:`halt_basis` of every ``(shift, settle)`` candidate, stacked: homogeneous transition (c, 2, 2),

@@ -44,7 +44,7 @@ from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing
 from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH, capture_landing_y
 from drake_estop.planning.gait import SIDES, NominalPattern, PatternState, rotation
 from drake_estop.planning.geometry import SupportPolygon
-from drake_estop.planning.halt import choose_halt
+from drake_estop.planning.halt import choose_halt, prepare_halts
 from drake_estop.planning.heading import solve_turned
 from drake_estop.planning.plan import (
     PHASES,
@@ -654,8 +654,9 @@ def _trivial_plan(pattern, state, params, signal_time, case):
 
 
 def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
-    """Plan once (mid and late single support, double support) and name the limits of an infeasible
-    attempt once, so the compiled solver is loaded before the robot walks: the first call in a
+    """Plan once (lift-off, mid and late single support, double support), name the limits of an infeasible
+    attempt once and compute every halt duration's basis, so the compiled solver is loaded and the
+    caches are filled before the robot walks: the first call in a
     process loads numba's cache (~0.5 s; 20-30 s to compile after an install or an edit of the
     solver), which must not land on the servo tick of a real stop. The time objective
     (planning/brake.py) falls back to the compiled solver where its own search finds no stop, so
@@ -663,9 +664,11 @@ def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> fl
     wall = time.perf_counter()
     start, end = pattern.stride()
     params = params or StopParameters()
+    prepare_halts(pattern.w, params)  # every halt duration's basis, not only those of the plans below
     for variant in (params, replace(params, objective="paper")) if params.objective != "paper" else (params,):
-        # mid single support, its last ticks (where the marginal case's tries run) and double support
-        for fraction in (0.3, 0.79, 0.9):
+        # lift-off (the lateral rounds' own functions), mid single support, its last ticks (where the
+        # marginal case's tries run) and double support
+        for fraction in (0.0, 0.3, 0.79, 0.9):
             try:
                 plan_stop(pattern, start + fraction * (end - start), variant)
             except InfeasibleStop:
