@@ -35,9 +35,9 @@ from drake_estop.planning.planner import StopParameters, plan_stop, solve_contin
 from drake_estop.planning.rollout import stride_ticks
 
 
-def sweep(pattern, params, repeats):
+def sweep(pattern, params, repeats, every=1):
     warm_up(pattern, params)  # load the compiled solver first, as the stop-planner system does
-    times = stride_ticks(pattern, params)
+    times = stride_ticks(pattern, params)[::every]
     plans, compute, solve = [], [], []
     for t in times:
         best = None
@@ -258,18 +258,18 @@ TABLE_ROWS = (
 )
 
 
-def planner_table(pattern, repeats=3, bound_every=4):
+def planner_table(pattern, repeats=3, bound_every=4, every=1):
     """Markdown lines: both objectives over every servo tick of the stride, measured in this run. Per row:
     the next-step fallbacks (III.C) and where, whether feasibility is monotone over single support, the plan
     compute time (min of ``repeats`` per tick after :func:`warm_up`), the time to rest, the largest backward
     COG speed along the walk, and the LIPM's own least time to rest (:func:`plan_rest_bound`, every
-    ``bound_every``-th tick, on each plan's own footholds)."""
+    ``bound_every``-th tick, on each plan's own footholds); every ``every``-th tick of the stride."""
     lines = ["| planner | one-step (fallbacks) | monotone | plan median / max [ms] | rest median / worst [s] |"
              " COG backwards max [mm/s] (plans > 5 mm/s) | LIPM bound median / worst [s] |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for label, overrides in TABLE_ROWS:
         params = StopParameters(**overrides)
-        times, plans, compute, _ = sweep(pattern, params, repeats)
+        times, plans, compute, _ = sweep(pattern, params, repeats, every)
         fallbacks = [round(float(p.signal_time), 3) for p in plans if p.case != "one-step"]
         where = f" at {fallbacks[0]:.3f}-{fallbacks[-1]:.3f} s" if fallbacks else ""
         to_rest = np.array([p.halt_end - p.signal_time for p in plans])

@@ -375,7 +375,7 @@ def main(argv=None):
              " 3 per tick after the warm-up; the LIPM bound is a time-optimal LP over the ZMP, held per servo tick,"
              f" {params.zmp_margin * 1e3:.0f} mm inside each plan's own footholds, |dZMP/dt| <="
              f" {bench_planner.MAX_ZMP_RATE:g} m/s, at every 4th tick):", ""]
-    extra += bench_planner.planner_table(pattern) + [""]
+    extra += bench_planner.planner_table(pattern, every=args.every) + [""]
     extra += comparison_lines(rows, summaries) + zmp_planner_tuning(times[:: args.tuning_every], pattern, params)
     extra += [""] + turning_lines(params, args.every)
     extra += [""] + ([] if args.no_diagrams else diagram_rtfs())

@@ -40,10 +40,11 @@ def test_compare_script_on_a_few_instants(pattern, params, tmp_path):
     module = _compare_module()
     rows, summaries = module.main(["--every", "40", "--scipy-every", "2", "--no-diagrams", "--out", str(tmp_path)])
     assert len(rows) == 4
-    assert set(summaries) == {"planner", "planner_toe", "planner_time", "finish_step", "zmp_planner",
-                              "zmp_planner_tuned"}
+    assert set(summaries) == {"planner", "planner_eq20", "planner_toe", "planner_time", "finish_step",
+                              "zmp_planner", "zmp_planner_tuned"}
     text = (tmp_path / "RESULTS.md").read_text()
     assert "this planner" in text and "capture-point bound" in text
+    assert "| paper objective, slowdown ZMP at the landing ankle (eq. 20) | 4/4 (0) | yes |" in text
     assert 'objective="time"' in text and "ZmpPlanner, stop at next footstep, tuned" in text
     assert (tmp_path / "compare_methods.png").stat().st_size > 1000
 
