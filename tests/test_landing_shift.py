@@ -59,7 +59,9 @@ def test_a_foot_just_above_the_floor_keeps_its_landing(signal):
 @pytest.mark.parametrize("gait", [GaitParameters(), SHORT_STEP])
 def test_the_limit_holds_over_the_stride_and_changes_only_the_plans_it_must(gait):
     """Every plan of the stride (a signal every 20 ms) lands within the allowed shift; a plan whose
-    unlimited landing was already within it is unchanged. The default gait's stride is unchanged."""
+    unlimited landing was already within it is unchanged (to a millimetre: the narrowed bounds move the
+    solver's grid start). On the default gait only the last tick before the touchdown changes (3.47 s, the
+    foot 0.1 mm above the floor: its landing moves 1 mm, not 7)."""
     pattern = NominalPattern(gait)
     params = controller_stop_parameters()
     free_params = replace(params, max_landing_shift_per_height=math.inf)
@@ -78,11 +80,11 @@ def test_the_limit_holds_over_the_stride_and_changes_only_the_plans_it_must(gait
             assert limited.case == free.case
             assert limited.landing_time == pytest.approx(free.landing_time, abs=1e-9)
             for side in ("left", "right"):
-                assert limited.final_feet[side] == pytest.approx(free.final_feet[side])
+                assert limited.final_feet[side] == pytest.approx(free.final_feet[side], abs=1e-3)
         else:
             changed.append(float(t))
     if gait == GaitParameters():
-        assert changed == []
+        assert changed == [3.47]
     else:
         assert changed  # the short step's late signals
 

@@ -369,11 +369,10 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
 
 
 def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
-    """29 N s forward at 2.95 s (0.5 m/s, issue 13's target; early single support, the swing foot 0.57 m
-    from its landing). With the paper's landing swing (``braked_landing=False``) a re-plan 0.175 s before
-    the touchdown hurries the landing and the foot skims the floor: it strikes it at 2.4 kN, the robot
-    leaves the ground for 25 ms and the CoP leaves the planned support. The controller's braked landing
-    (BRAKED_LANDING, the default: that re-plan's landing is bounded by the braking limit and its swing
+    """29 N s forward at 2.95 s (0.5 m/s; early single support, the swing foot 0.57 m from its landing).
+    With the paper's landing swing (``braked_landing=False``) the re-plans hurry the landing and the foot
+    skims the floor: the CoP leaves the planned support and the robot falls. The controller's braked
+    landing (BRAKED_LANDING, the default: a re-plan's landing is bounded by the braking limit and its swing
     approaches the floor at the slope) meets every criterion."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 290.0, 0.0, 0.1),))
@@ -381,9 +380,7 @@ def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
                          stop_params=controller_stop_parameters(braked_landing=False))
-    assert not hurried.criteria["cop_in_support"]
-    assert not np.all(np.isfinite(hurried.cop_margin_plan[1:]))  # airborne ticks: no CoP
-    assert hurried.online["replans"] > stopped.online["replans"]
+    assert not hurried.criteria["cop_in_support"] and not hurried.criteria["no_fall"]
     assert any(plan.braked_swing for plan in stopped.plan.plans)
 
 

@@ -11,12 +11,19 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
 from drake_estop.systems.stop_controller import PlanSequence, StopPlannerSystem
 
 DT = 0.005
+
+
+@pytest.fixture(scope="module")
+def params():
+    """Re-plans are the online controller's: its slowdown ZMP is at the landing ankle (the paper's eq. 20,
+    ``controller_stop_parameters``), where the kinematic default puts it 5 cm ahead."""
+    return StopParameters(landing_zmp_offset=0.0)
 
 
 def _state_at(plan, t):
@@ -127,12 +134,13 @@ def test_replan_keeps_the_crouch_of_the_plan_it_replaces(pattern, params):
 
 def _left_push_state():
     """The plan of a signal at 2.95 s (the online controller's settings) and the state the robot measured
-    at 3.175 s after a 17 N s push to the left (physics run of session 6): the DCM over the left (support)
-    foot's outer edge."""
+    at 3.175 s after a 17 N s push to the left (a physics run), its lateral speed 1 cm/s higher: the DCM over
+    the left (support) foot's outer edge, where neither the held ZMP nor the whole ankle ZMP finds a stop
+    and the ankle ZMP's lateral part does (with the speed as measured the ankle ZMP already does)."""
     from drake_estop.physics.online import controller_stop_parameters
 
     plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
-    return plan, 3.175, np.array([0.60612853, 0.0693894]), np.array([0.23707723, 0.10288797])
+    return plan, 3.175, np.array([0.60612853, 0.0693894]), np.array([0.23707723, 0.11288797])
 
 
 def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
@@ -154,7 +162,8 @@ def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
     assert -sole.heel + margin - 1e-9 <= start_zmp[0] - ankle[0] <= sole.toe - margin + 1e-9
     assert -sole.inner + margin - 1e-9 <= start_zmp[1] - ankle[1] <= sole.outer - margin + 1e-9
     assert new.min_zmp_margin >= margin - 1e-9
-    assert np.all(np.abs(_slowdown_end_velocity(new)) < 1e-6)  # eq. 17
+    assert abs(_slowdown_end_velocity(new)[0]) < 1e-6  # eq. 17 (laterally the target sits on the fore sole's edge)
+    assert np.linalg.norm(new.com([new.halt_end])[1]) < 1e-6  # at rest after the halt
     monkeypatch.setattr(planner, "ankle_zmp", lambda *args: None)
     with pytest.raises(InfeasibleStop):
         replan_stop(plan, t, com, vel)
@@ -339,8 +348,10 @@ def test_plan_stop_bounds_its_search_by_max_solves(pattern, monkeypatch):
 
 
 def test_a_bound_that_the_search_does_not_reach_gives_the_same_plan(pattern, params):
-    """A next-step stop (III.C) found at the second try is the same plan with max_solves=2."""
-    t = next(t for t in np.arange(2.8, 3.6, DT) if plan_stop(pattern, t, params).case == "next-step")
+    """A next-step stop (III.C) found at the second try is the same plan with max_solves=2 (a 0.7 s walk
+    early in single support: the default walk has no next-step tick)."""
+    pattern = NominalPattern(GaitParameters(step_time=0.7))
+    t = next(t for t in np.arange(2.6, 3.4, DT) if plan_stop(pattern, t, params).case == "next-step")
     pos, vel, _, _ = pattern.com([t])
     measured = (pos[0], vel[0] + np.array([0.01, 0.0]))
     plan = plan_stop(pattern, t, params, measured=measured)

@@ -47,8 +47,9 @@ def _solutions():
                 s = solve_phases(problem, kind)
                 out["solve"].append([s.landing, s.transition, s.slowdown, s.target, s.cost, s.iterations,
                                      *s.continuous])
-            except (InfeasibleStop, ValueError) as error:
-                out["solve"].append([type(error).__name__, str(error)])
+            except (InfeasibleStop, ValueError) as error:  # (any InfeasibleStop, whatever its subclass)
+                out["solve"].append(["InfeasibleStop" if isinstance(error, InfeasibleStop) else "ValueError",
+                                     str(error)])
             if name == "paper" and gait == "default" and out["solve"][-1][0] != "InfeasibleStop":
                 free = list(problem.free)  # near the continuous optimum, off the active limits
                 x = np.array(out["solve"][-1][6:])[[0, 1, 3]][free] * rng.uniform(0.97, 0.99, len(free)) + 0.001

@@ -231,7 +231,7 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         swing = "right" if support == "left" else "left"
         touchdown = _nominal_touchdown(pattern, state)
         params = _lateral_reach(pattern, state, params)
-        params = _rear_lateral_reach(pattern, params, float(state.next_landing[1]) - float(state.feet[support][1]))
+        params = _rear_lateral_reach(pattern, state, params)
         params = _landing_shift_limit(state, params, swing)
         if not -(sole.heel - params.zmp_margin) <= params.landing_zmp_offset <= sole.toe - params.zmp_margin:
             raise ValueError(f"landing_zmp_offset {params.landing_zmp_offset} m puts the ZMP outside the fore sole")
@@ -242,7 +242,6 @@ def stop_problem(pattern: NominalPattern, state: PatternState, params: StopParam
         return problem, kind, {"support": support, "swing": swing}
     rear = state.rear_foot or "right"
     fore = "left" if rear == "right" else "right"
-    params = _rear_lateral_reach(pattern, params, float(state.feet[fore][1]) - float(state.feet[rear][1]))
     fore_x = state.feet[fore][0]
     low = fore_x - sole.heel + params.zmp_margin - state.zmp[0]
     high = fore_x + sole.toe - params.zmp_margin - state.zmp[0]
@@ -339,14 +338,18 @@ def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> Stop
     return replace(params, max_fore_reach=reach)
 
 
-def _rear_lateral_reach(pattern, params: StopParameters, separation: float) -> StopParameters:
-    """``params`` with ``max_rear_reach`` shortened where the feet at rest stand further apart sideways than
-    on the straight walk (``separation`` [m]: the fore ankle's lateral offset from the rear one, in the
-    stop's frame): the COG comes to rest between them, so the horizontal COG-to-rear-ankle distance
-    ``hypot(dx, separation / 2)`` then stays within the straight walk's ``hypot(max_rear_reach,
-    step_width / 2)``. Measured on a +15 deg/step turn (feet 0.226 m apart in the stop's frame, 0.19 m on
-    the straight walk): with the full sagittal reach the rear knee straightened in the slowdown and the
-    IK drove it at 10.8 rad/s (limit 6)."""
+def _rear_lateral_reach(pattern, state: PatternState, params: StopParameters) -> StopParameters:
+    """``params`` with ``max_rear_reach`` shortened where the walk's own footstep leaves the feet further
+    apart sideways than on the straight walk (in the stop's frame: the outer foot of a turn): the COG
+    comes to rest between them, so the horizontal COG-to-rear-ankle distance ``hypot(dx, separation / 2)``
+    then stays within the straight walk's ``hypot(max_rear_reach, step_width / 2)``. Measured on a
+    +15 deg/step turn (feet 0.226 m apart in the stop's frame, 0.19 m on the straight walk): with the full
+    sagittal reach the rear knee straightened in the slowdown and the IK drove it at 10.8 rad/s (limit 6).
+    The walk's footstep, not a capture-point landing (planning/capture.py): a sideways push that widens the
+    step moves the COG with it, and its stops keep the full reach."""
+    if state.recovery_touchdown is not None:  # no walk footstep: the step is aimed from the measured DCM
+        return params
+    separation = float(pattern.steps[state.step_index]["end"][1]) - float(state.feet[state.support_foot][1])
     lateral = 0.5 * abs(separation)
     allowed = 0.5 * pattern.params.step_width
     if lateral <= allowed + 1e-9:
