@@ -222,17 +222,22 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
     rows = len(midpoints)
     com, com_vel = (np.broadcast_to(np.asarray(v, float)[:2], (rows, 2)) for v in (com, com_vel))
     forward = np.array([forward_stop_possible(com[i], com_vel[i], midpoints[i], polygons[i], w) for i in range(rows)])
+    levels = {}  # each chunk's levels and margins: the same for both passes
     if forward.any():
         found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required,
-                             _ForwardOnly(forward))
+                             _ForwardOnly(forward), levels)
         if found is not None:
             return found
-    return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, None)
+    return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, None,
+                        levels)
 
 
-def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, forward_only):
+def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, forward_only,
+                 levels):
     """:func:`stop_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only over its rows and
-    the candidates along which the COG does not move backwards (None when its checks run out)."""
+    the candidates along which the COG does not move backwards (None when its checks run out). ``levels``:
+    a dict that keeps each chunk's levels ``c``, ``d`` and margins for a second pass (they do not depend on
+    ``forward_only``)."""
     rows = len(midpoints)
     zmp = np.asarray(zmp, float)[:2]
     rate, accel = np.asarray(zmp_rate, float)[:2], np.asarray(zmp_accel, float)[:2]
@@ -247,25 +252,13 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
         if best is not None and float(t["total"][low]) >= best[0] - 1e-9:
             break
         k = slice(low, low + CHUNK)
-        (fc, fd, fk), (bc, bd, bk) = ((c[k], d[k], known[:, k]) for c, d, known in (t["fwd"], t["bwd"]))
-        levels = []
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            for axis in range(2):
-                m = midpoints[:, axis][:, None]  # rows: midpoints, columns: candidates
-                start = (zmp[axis] - m, rate[axis], accel[axis])
-                rhs_f = (com[:, axis] + com_vel[:, axis] / w)[:, None] - m - sum(s * c for s, c in zip(start, fk))
-                rhs_b = (-((com[:, axis] - com_vel[:, axis] / w)[:, None] - m) * t["decay"][k]
-                         - sum(s * c for s, c in zip(start, bk)))
-                c, d = _solve2(fc, fd, bc, bd, rhs_f, rhs_b)
-                levels.append((m + c, m + d))
-        c = np.stack([levels[0][0], levels[1][0]], axis=-1)  # (rows, candidates, 2)
-        d = np.stack([levels[0][1], levels[1][1]], axis=-1)
-        margin = np.minimum(stacked_margin(planes, c), start_margin[:, None])
+        if low not in levels:
+            levels[low] = _stop_levels(t, k, com, com_vel, zmp, rate, accel, midpoints, polygons, planes,
+                                       start_margin, w, required)
+        c, d, margin = levels[low]
         if forward_only is not None:
+            margin = margin.copy()
             margin[~forward_only.rows] = -np.inf
-        for i in np.nonzero(np.any(margin >= required, axis=1))[0]:  # d only where c fits
-            fits = margin[i] >= required
-            margin[i, fits] = np.minimum(margin[i, fits], polygons[i].margin(d[i, fits]))
         total = np.broadcast_to(t["total"][k], margin.shape)
         for i, j in _shortest(margin, total, required):
             if best is not None and total[i, j] >= best[0] - 1e-9:
@@ -290,6 +283,30 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
                                                      None, worst, float(peak)))
                 break
     return None if best is None else best[1:]
+
+
+def _stop_levels(t, k, com, com_vel, zmp, rate, accel, midpoints, polygons, planes, start_margin, w, required):
+    """:func:`_stop_search`'s chunk ``k`` of candidates: the levels ``c``, ``d`` (rows, candidates, 2) that bring
+    the COG to rest at each midpoint (two end conditions per axis, a 2x2 solve), and the ZMP margin of each
+    chain: ``c``'s and the start's, and ``d``'s where ``c`` keeps ``required``."""
+    (fc, fd, fk), (bc, bd, bk) = ((c[k], d[k], known[:, k]) for c, d, known in (t["fwd"], t["bwd"]))
+    levels = []
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for axis in range(2):
+            m = midpoints[:, axis][:, None]  # rows: midpoints, columns: candidates
+            start = (zmp[axis] - m, rate[axis], accel[axis])
+            rhs_f = (com[:, axis] + com_vel[:, axis] / w)[:, None] - m - sum(s * c for s, c in zip(start, fk))
+            rhs_b = (-((com[:, axis] - com_vel[:, axis] / w)[:, None] - m) * t["decay"][k]
+                     - sum(s * c for s, c in zip(start, bk)))
+            c, d = _solve2(fc, fd, bc, bd, rhs_f, rhs_b)
+            levels.append((m + c, m + d))
+    c = np.stack([levels[0][0], levels[1][0]], axis=-1)  # (rows, candidates, 2)
+    d = np.stack([levels[0][1], levels[1][1]], axis=-1)
+    margin = np.minimum(stacked_margin(planes, c), start_margin[:, None])
+    for i in np.nonzero(np.any(margin >= required, axis=1))[0]:  # d only where c fits
+        fits = margin[i] >= required
+        margin[i, fits] = np.minimum(margin[i, fits], polygons[i].margin(d[i, fits]))
+    return c, d, margin
 
 
 BACKWARD_TOLERANCE = 1e-3  # [m/s] COG speed against the walk taken as rounding
@@ -429,17 +446,20 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     ``required`` [m]."""
     args = (com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
             polygon_for, params, w, required)
+    levels = {}  # the candidates' levels and margins by step lengths: the same for both passes
     if float(np.asarray(com_vel, float)[0]) >= 0.0:
-        found = _swing_search(*args, _ForwardOnly())
+        found = _swing_search(*args, _ForwardOnly(), levels)
         if found is not None:
             return found
-    return _swing_search(*args, None)
+    return _swing_search(*args, None, levels)
 
 
 def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
-                  polygon_for, params, w, required, forward_only):
+                  polygon_for, params, w, required, forward_only, levels):
     """:func:`swing_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only the candidates
-    along which the COG does not move backwards (None when its checks run out)."""
+    along which the COG does not move backwards (None when its checks run out). ``levels``: a dict that
+    keeps each set of step lengths' candidate levels, margins and order for a second pass (they do not
+    depend on ``forward_only``)."""
     com, com_vel, zmp, rate, accel, ankle, swing_xy = (np.asarray(v, float)[:2] for v in (
         com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy))
     dt = params.servo_period
@@ -459,8 +479,9 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
     curved = moving_zmp(rate, accel)
     support_planes = support_polygon._normals, support_polygon._offsets
 
-    def search(rows):
-        """The soonest candidate of the step lengths ``rows`` (a Brake) or None."""
+    def candidates(rows):
+        """The levels ``a``, ``c`` of every candidate of the step lengths ``rows``, and those that keep
+        ``required`` on the support sole and the fore reach, soonest first."""
         land, xy, mid = t1[rows], landing[rows], 0.5 * (landing[rows] + ankle)
         # before the touchdown: the transition to a over `ramp`, a held for `hold` (moments of its shapes)
         hold = land - ramp
@@ -494,10 +515,17 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
         margin = np.minimum(np.min(offsets[:, None, None] - normals[:, 0, None, None] * a[0]
                                    - normals[:, 1, None, None] * a[1], axis=0), start_margin)
         i, k = np.nonzero((margin >= required) & (a[0] <= farthest[:, None]))
-        # c inside both soles' polygon: checked lazily, soonest first (the polygon differs per step length)
         total = land[i] + t["total"][k]
         order = np.argsort(total, kind="stable")
-        i, k, total = i[order], k[order], total[order]
+        return land, xy, mid, hold, a, c, margin, i[order], k[order], total[order]
+
+    def search(rows):
+        """The soonest candidate of the step lengths ``rows`` (a Brake) or None."""
+        key = rows.tobytes()
+        if key not in levels:
+            levels[key] = candidates(rows)
+        land, xy, mid, hold, a, c, margin, i, k, total = levels[key]
+        # c inside both soles' polygon: checked lazily, soonest first (the polygon differs per step length)
         best = None
         for low in range(0, len(i), LAZY):
             if best is not None and total[low] > best[0] + 1e-9:
