@@ -101,9 +101,11 @@ def halt_coeffs(mix, shift, settle, w):
     return list((mix @ shapes.reshape(len(shapes), -1)).reshape(shapes.shape[1:]))
 
 
-#: halt candidates :func:`choose_halt` solves one at a time before it solves the rest together (the three
-#: shortest fit 60 % of the default stride's stops)
+#: halt candidates :func:`choose_halt` solves one at a time before it solves the rest in batches of
+#: ``HALT_BATCH``, shortest first (the three shortest fit 60 % of the default stride's stops, the next six
+#: nearly all the rest)
 HALT_ONE_BY_ONE = 3
+HALT_BATCH = 6
 
 
 def choose_halt(ends, midpoint, polygon, params, w):
@@ -112,9 +114,9 @@ def choose_halt(ends, midpoint, polygon, params, w):
     ZMP per axis at the slowdown end. Returns (durations, coeffs per axis, margin).
 
     The shortest :data:`HALT_ONE_BY_ONE` candidates are tried one at a time (most
-    stops fit one of them); the others are solved together (:func:`_halt_batch`:
-    the same least-norm problems, batched), so a long halt costs about what a
-    short one does."""
+    stops fit one of them); the others are solved :data:`HALT_BATCH` at a time
+    (:func:`_halt_batch`: the same least-norm problems, batched), so a long halt
+    costs little more than a short one."""
     candidates = halt_candidates(params)
     best = None
     for shift, settle in candidates[:HALT_ONE_BY_ONE]:
@@ -124,15 +126,17 @@ def choose_halt(ends, midpoint, polygon, params, w):
             best = ((shift, settle), [axis[0] for axis in axes], margin)
         if margin >= params.zmp_margin:
             break
-    rest = tuple(candidates[HALT_ONE_BY_ONE:])
-    if best[2] < params.zmp_margin and rest:
-        batch = _halt_batch(w, rest)
+    for low in range(HALT_ONE_BY_ONE, len(candidates), HALT_BATCH):
+        if best[2] >= params.zmp_margin:
+            break
+        chunk = tuple(candidates[low:low + HALT_BATCH])
+        batch = _halt_batch(w, chunk)
         mixes, samples = zip(*(_halt_axes(batch, x3, v3, zmp3, midpoint[a]) for a, (x3, v3, zmp3) in enumerate(ends)))
-        margins = polygon.margin(np.stack(samples, axis=2).reshape(-1, 2)).reshape(len(rest), -1).min(axis=1)
+        margins = polygon.margin(np.stack(samples, axis=2).reshape(-1, 2)).reshape(len(chunk), -1).min(axis=1)
         fits = np.flatnonzero(margins >= params.zmp_margin)
         index = int(fits[0]) if len(fits) else int(np.argmax(margins))
         if len(fits) or margins[index] > best[2]:
-            best = (rest[index], [mix[index] for mix in mixes], float(margins[index]))
+            best = (chunk[index], [mix[index] for mix in mixes], float(margins[index]))
     (shift, settle), mixes, margin = best
     return [shift, settle], [halt_coeffs(mix, shift, settle, w) for mix in mixes], margin
 
@@ -143,8 +147,8 @@ def prepare_halts(w: float, params) -> None:
     candidates = halt_candidates(params)
     for shift, settle in candidates:
         halt_basis(w, shift, settle)
-    if len(candidates) > HALT_ONE_BY_ONE:
-        _halt_batch(w, tuple(candidates[HALT_ONE_BY_ONE:]))
+    for low in range(HALT_ONE_BY_ONE, len(candidates), HALT_BATCH):
+        _halt_batch(w, tuple(candidates[low:low + HALT_BATCH]))
 
 
 @functools.lru_cache(maxsize=64)
