@@ -202,6 +202,7 @@ def _deterministic(table) -> list:
     return table.drop_columns(list(TIMING_COLUMNS)).to_pylist()
 
 
+@pytest.mark.slow
 def test_a_killed_campaign_resumes_to_the_uninterrupted_table(tmp_path):
     runs, out = 16, tmp_path / "killed"
     left = _start_and_kill(out, runs, tmp_path)
@@ -324,6 +325,7 @@ def test_the_row_keeps_the_cop_margin_the_criterion_checks():
     assert row["cop_margin_min"] == -0.0124
 
 
+@pytest.mark.slow
 def test_one_real_physics_run_gives_a_complete_row():
     params = sample_run(default_config(), run_seed(0, 0))
     row = guarded_run((simulate_run, params, 600.0))

@@ -154,6 +154,7 @@ def test_physics_run_logs_measurements_and_criteria(tmp_path):
     assert data["physics"]["success"]
 
 
+@pytest.mark.slow
 def test_sweep_writes_table_and_stop_map(tmp_path, capsys):
     table, figure = tmp_path / "sweep.csv", tmp_path / "map.png"
     code = main(["sweep", "--every", "0.4", "--csv", str(table), "--png", str(figure), "--no-progress"])

@@ -46,6 +46,7 @@ def paper_stop():
     return _online_with_nothing_ahead(3.4)
 
 
+@pytest.mark.slow
 def test_paper_stop_at_3_5_s_meets_every_criterion_online():
     """The paper's second scenario (3.5 s, just after the touchdown: double support), online."""
     result = _online_with_nothing_ahead(3.5)
@@ -55,6 +56,7 @@ def test_paper_stop_at_3_5_s_meets_every_criterion_online():
     assert result.numbers()["final_cog_offset_m"] < 0.02
 
 
+@pytest.mark.slow
 def test_paper_stop_meets_every_criterion_online(paper_stop):
     assert paper_stop.criteria == {name: True for name in CRITERIA}
     numbers = paper_stop.numbers()
@@ -171,6 +173,7 @@ def test_pushes_go_through_the_plants_applied_spatial_force_input():
     np.testing.assert_allclose(forces[0].F_Bq_W.translational(), [50.0, 0.0, 0.0])
 
 
+@pytest.mark.slow
 def test_a_push_changes_the_measured_motion_and_is_absorbed():
     """17 N s backward at 3.1 s (mid single support): the stop re-plans from the measured state."""
     pattern = NominalPattern()
@@ -181,6 +184,7 @@ def test_a_push_changes_the_measured_motion_and_is_absorbed():
     assert pushed.criteria["rests_at_midpoint"]
 
 
+@pytest.mark.slow
 def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypatch):
     """3.63 s (double support, two ticks before lift-off), with the IK's knee floor off: the IK holds
     the rear knee straight on its limit, then bends it at 8.9 rad/s (limit 6). The rate-limited servo
@@ -206,6 +210,7 @@ def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypa
     assert unlimited.online["joint_velocity_peak"]["ratio"] > 1.0
 
 
+@pytest.mark.slow
 def test_lift_off_signal_stops_without_rocking(monkeypatch):
     """2.85 s, the third step's lift-off: with the landing at most 50 ms before the nominal touchdown
     (the controller's ``max_early_landing``) the stop meets every criterion; the paper's free landing
@@ -226,6 +231,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
 
 
+@pytest.mark.slow
 def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     """17 N s forward at 3.55 s (double support), a cell of the issue's matrix: with the IK's knee floor
     (``IK_MIN_KNEE_BEND``) every criterion is met; without it the re-plan's COG stretched the rear knee
@@ -246,6 +252,7 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
 
 
+@pytest.mark.slow
 def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     """17 N s backward at 3.55 s (double support), a cell of the issue's matrix: with the ankles' foot-edge
     compliance (the default) every criterion is met and the ankles moved; without it the feet rock on their
@@ -260,6 +267,7 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     assert stiff.online["ankle_offset_max"] == 0.0
 
 
+@pytest.mark.slow
 def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     """A 0.2385 m step, signal at 3.45 s (the swing foot 0.6 mm above the floor, coming down): with the
     controller's landing-shift limit the foot lands on its nominal footstep and every criterion is met;
@@ -281,6 +289,7 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     assert rescued.online["replans"] >= 1
 
 
+@pytest.mark.slow
 def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypatch):
     """17 N s left at 2.95 s (early single support, left foot supporting), a cell of the issue's matrix.
     The push moves the DCM over the support foot's outer edge: no landing stops that with the ZMP held at
@@ -300,6 +309,7 @@ def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypa
     assert not held.criteria["cop_in_support"]
 
 
+@pytest.mark.slow
 def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     """17 N s right at 3.15 s (mid single support, left foot supporting, the push towards the swing
     side), a cell of the issue's matrix. The push rolls the body about 0.04 rad; without the swing foot's
@@ -316,6 +326,7 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     assert not tilted.criteria["cop_in_support"]
 
 
+@pytest.mark.slow
 def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foot_in_support():
     """17 N s right at 2.95 s (early single support, left foot supporting), the last failing cell of the
     issue's matrix in session 8. The swing foot lands 1.9 cm inside and 7 mm ahead of its re-planned
@@ -334,6 +345,7 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     assert not planned.criteria["cop_in_support"]
 
 
+@pytest.mark.slow
 def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     """15 N s left at 2.95 s (early single support): the DCM stays within the landed re-plan threshold,
     so no DCM re-plan comes, but the pushed swing foot lands off its target. Without a re-plan (the
@@ -351,6 +363,7 @@ def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     assert not kept.criteria["cop_in_support"]
 
 
+@pytest.mark.slow
 def test_a_recovery_step_catches_a_forward_push_in_double_support():
     """30 N s forward at 3.55 s (double support, 0.52 m/s): the COG runs past the fore foot, the rear leg
     reaches its limit and every double-support re-plan is infeasible. Without a recovery step the robot
@@ -368,6 +381,7 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     assert not held.criteria["no_fall"]
 
 
+@pytest.mark.slow
 def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
     """29 N s forward at 2.95 s (0.5 m/s; early single support, the swing foot 0.57 m from its landing).
     With the paper's landing swing (``braked_landing=False``) the re-plans hurry the landing and the foot
@@ -384,6 +398,7 @@ def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_
     assert any(plan.braked_swing for plan in stopped.plan.plans)
 
 
+@pytest.mark.slow
 def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands():
     """17 N s forward at 2.95 s (a matrix cell) with session 12's braked-landing option (the approach slope
     on every landing swing, given explicitly): in the halt the robot rocks onto the fore foot, the rear sole
@@ -577,6 +592,7 @@ def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_pat
     assert seen["true_state"] is False
 
 
+@pytest.mark.slow
 def test_physics_summary_reports_the_online_controller(tmp_path):
     summary, log = tmp_path / "s.json", tmp_path / "log.csv"
     code = main(["simulate", "--physics", "--estop-time", "3.4", "--mass-scale", "1.1",

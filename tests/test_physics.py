@@ -171,6 +171,7 @@ def physics_runs():
     return {t: run_physics(GaitParameters(), StopParameters(), t, pattern=pattern) for t in SCENARIOS}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estop_time", SCENARIOS)
 @pytest.mark.parametrize("criterion", CRITERIA)
 def test_paper_scenario_meets_criterion(physics_runs, estop_time, criterion):

@@ -56,6 +56,7 @@ def test_phase_boundaries_on_servo_ticks(stride_plans, params):
             assert abs(ticks - round(ticks)) < 1e-6
 
 
+@pytest.mark.slow
 def test_logged_cog_obeys_lipm_by_independent_integration(stride_plans, pattern):
     for plan in stride_plans[::4]:
         assert plan_lipm_error(plan, after_halt=1.0) < 1e-3, plan.signal_time

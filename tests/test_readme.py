@@ -27,6 +27,7 @@ def test_the_readme_has_a_python_block():
     assert BLOCKS, "README.md has no ```python block"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(BLOCKS)))
 def test_readme_python_block_runs(index, tmp_path):
     # in a fresh interpreter from another folder: the block may import only what a user has installed

@@ -381,6 +381,7 @@ def test_the_outer_foot_lands_with_a_bent_knee():
     assert result.velocity_limit_violations.sum() == 0
 
 
+@pytest.mark.slow
 def test_the_online_controller_stops_a_turning_walk_in_physics():
     """Physics (SAP plant, contact) under the online controller on a +10 deg/step walk, stopped in
     single support: every success criterion, CoP inside the *turned* planned soles included, and no

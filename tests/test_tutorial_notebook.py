@@ -19,6 +19,7 @@ def test_the_tutorial_is_committed_without_outputs():
     assert not stale, f"cells {stale} carry outputs; clear them before committing"
 
 
+@pytest.mark.slow
 def test_the_tutorial_runs(tmp_path, monkeypatch):
     # the kernel imports this checkout (as pytest's pythonpath does), from a scratch folder
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
