@@ -1,4 +1,4 @@
-"""Scaling of ``drake-estop campaign`` on this machine, measured in one run (issue 9).
+"""Scaling of ``drake-estop campaign`` on this machine, measured in one run.
 
     python benchmarks/bench_campaign.py [--runs 4] [--noop 400]
 

@@ -1,4 +1,4 @@
-"""Per-tick cost of the one-step feasibility check (issue 10) over every servo tick of one stride.
+"""Per-tick cost of the one-step feasibility check over every servo tick of one stride.
 
     python benchmarks/bench_feasibility.py [--repeats 3]
 

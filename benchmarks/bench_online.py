@@ -31,7 +31,7 @@ warm-up run, and prints:
   sensors and CoP, the servo interpolation, the loggers), and the real-time
   factor that the other two leave a controller of no cost. All three follow
   the hour, the Python-heavy controller and rest more than the plant
-  (measured in session 20: the plant 1.8-2.4 ms a tick, the controller and
+  (measured: the plant 1.8-2.4 ms a tick, the controller and
   the rest together 2.7-6.2 ms).
 
 The robustness benchmark (``benchmarks/robustness.py``) times 168 runs two at

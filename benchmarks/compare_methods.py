@@ -273,7 +273,7 @@ TURNING_GAITS = {"turning +15 deg per step": dict(turn=15.0), "turning -15 deg p
 
 
 def turning_lines(params, every=1):
-    """The stop methods on turning and side-stepping walks (issue 10): every tick of the third step's
+    """The stop methods on turning and side-stepping walks: every tick of the third step's
     stride. The ZmpPlanner peer is left out here: its stop (benchmarks/alternatives.py) places level,
     unturned soles."""
     lines = ["Turning and side-stepping walks (the same stride of the third step, every"

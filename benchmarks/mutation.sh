@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Mutation testing of the numeric core with mutmut, on the fast tests (issue 11).
+# Mutation testing of the numeric core with mutmut, on the fast tests.
 #
 #   benchmarks/mutation.sh [MODULE ...]     e.g. benchmarks/mutation.sh lipm stop_condition newton solver
 #

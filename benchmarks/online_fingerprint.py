@@ -12,8 +12,8 @@ positions, the estimated COG, the per-tick one-step feasibility).
 
 ``compare`` exits 0 when every series is equal to the last bit, else 1 and names the first series
 that differs, where and by how much. The bits depend on the machine (numpy's BLAS kernels are
-chosen per processor), so compare dumps made on one machine: before and after a change. Session
-15's speed-ups were checked this way.
+chosen per processor), so compare dumps made on one machine: before and after a change (a speed-up
+that must not change behaviour, for example).
 """
 
 from __future__ import annotations

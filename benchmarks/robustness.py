@@ -4,11 +4,11 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
     python benchmarks/robustness.py [--workers 2] [--out benchmarks/ROBUSTNESS.md] [--quick]
 
 * **Stride sweep**: a stop signal every 20 ms over the third step (single then double support).
-* **Matrix**: every perturbation cell of issue 13 (pushes of 17 N s over 0.1 s at the signal in four
+* **Matrix**: every perturbation cell (pushes of 17 N s over 0.1 s at the signal in four
   directions, mass x0.9 / x1.1, torso COM +-2 cm, friction 0.5, latency 1 tick, sensor noise) at
   signal times spread over the stride (early, mid and late single support, double support).
 * **Push recovery**: per direction and signal phase, the largest impulse (0.1 s push at the signal)
-  that still meets every criterion, searched on a 5 N s grid; and issue 13's target, 29 N s (0.5 m/s),
+  that still meets every criterion, searched on a 5 N s grid; and the target, 29 N s (0.5 m/s),
   run in every direction and phase.
 
 Runs are spread over ``--workers`` processes; the numbers are those of this machine (2 cores).
@@ -44,7 +44,7 @@ PHASES = {"early single support": 0.10, "mid single support": 0.30, "late single
 PUSH_PHASES = ("early single support", "late single support", "double support")
 DIRECTIONS = {"forward": (1.0, 0.0), "backward": (-1.0, 0.0), "left": (0.0, 1.0), "right": (0.0, -1.0)}
 PUSH_DURATION = 0.1  # [s]
-#: issue 13's push-recovery target: 0.5 m/s on the 58 kg robot, forward and backward (all four directions run)
+#: the push-recovery target: 0.5 m/s on the 58 kg robot, forward and backward (all four directions run)
 TARGET_IMPULSE = 29.0  # [N s]
 
 
@@ -168,7 +168,7 @@ def main(argv=None):
     print(Path(args.out).read_text())
 
 
-#: a run's controller tick (CPU) over either bound is re-run alone: issue 13's p99 and max per tick [s]
+#: a run's controller tick (CPU) over either bound is re-run alone: the p99 and max per tick asked of the controller [s]
 SLOW_P99, SLOW_MAX = 5e-3, 10e-3
 
 
@@ -307,7 +307,7 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
             cells.append(f"{best:g} N s ({best / 58.0:.2f} m/s)" if best else f"< {impulses[0]:g} N s")
         lines.append(f"| {phase} ({t:.2f} s) | " + " | ".join(cells) + " |")
     lines += ["", f"## The target: {TARGET_IMPULSE:g} N s ({TARGET_IMPULSE / 58.0:.2f} m/s) at the signal", "",
-              "Issue 13 asks for 0.5 m/s forward and backward; every direction is run. A run passes when it meets "
+              "The target is 0.5 m/s forward and backward; every direction is run. A run passes when it meets "
               "every criterion (it does not need the smaller impulses to pass).", "",
               "| phase | " + " | ".join(DIRECTIONS) + " |", "| --- |" + " --- |" * len(DIRECTIONS)]
     for phase in PUSH_PHASES:

@@ -1,4 +1,4 @@
-"""The API reference builds clean (issue 12): the documented pdoc command, warnings as errors."""
+"""The API reference builds clean: the documented pdoc command, warnings as errors."""
 
 import os
 import subprocess

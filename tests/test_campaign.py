@@ -1,4 +1,4 @@
-"""drake-estop campaign (issue 9): sampling, bad inputs, kill-and-resume, the run process, one physics run."""
+"""drake-estop campaign: sampling, bad inputs, kill-and-resume, the run process, one physics run."""
 
 import dataclasses
 import json
@@ -311,7 +311,7 @@ def test_a_timeout_becomes_a_row():
 def test_the_row_keeps_the_cop_margin_the_criterion_checks():
     """``cop_margin_min`` is the least CoP margin in the *planned* support (what ``cop_in_support``
     checks), not in the soles measured in contact (which physics keeps positive): a CoP 12.4 mm outside
-    the plan shows as -12.4 mm (session 6: the measured-sole margin had been stored, +4.8 mm there)."""
+    the plan shows as -12.4 mm (the margin in the measured soles would show +4.8 mm there)."""
     numbers = {"time_to_rest_s": 1.0, "rest_after_halt_s": 0.1, "final_cog_offset_m": 0.001,
                "cog_travel_m": 0.3, "pelvis_z_min_m": 0.6, "torso_tilt_max_rad": 0.02,
                "cop_margin_plan_min_m": -0.0124, "cop_margin_meas_min_m": 0.0048,

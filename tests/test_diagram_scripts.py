@@ -1,4 +1,4 @@
-"""The diagrams/ scripts use the public API only (issue 12): ``from drake_estop import ...``, no
+"""The diagrams/ scripts use the public API only: ``from drake_estop import ...``, no
 ``sys.path`` set-up, no machine paths; one paper scenario runs end to end."""
 
 import ast

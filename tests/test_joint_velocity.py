@@ -1,4 +1,4 @@
-"""Joint-velocity limits of the stop through the whole-body IK (issue 13, item 5).
+"""Joint-velocity limits of the stop through the whole-body IK.
 
 The planner keeps every joint under its URDF ``<limit velocity=...>`` at every servo tick:
 the landing knee stays bent (fore reach), the swing foot descends no faster than the walk's

@@ -196,7 +196,7 @@ def test_the_braked_landing_is_the_controllers_default_and_turns_off():
     assert paper.max_swing_acceleration == math.inf and paper.landing_approach_slope == 0.0
     assert not paper.landing_approach_when_braking
     assert paper.zmp_margin == default.zmp_margin  # the controller's own settings stay
-    # session 12's option: a slope given shapes every swing; a tighter limit or a steeper slope is kept
+    # an approach slope given explicitly shapes every swing; a tighter limit or a steeper slope is kept
     option = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
     assert option.landing_approach_slope == pytest.approx(0.6) and not option.landing_approach_when_braking
     tighter = controller_stop_parameters(replace(StopParameters(), max_swing_acceleration=10.0,

@@ -1,4 +1,4 @@
-"""Meshcat listens on this machine only unless asked otherwise (issue 12).
+"""Meshcat listens on this machine only unless asked otherwise.
 
 The bound address is tested by connecting: on 127.0.0.1 the server must answer, on
 this machine's non-loopback addresses it must refuse; a server opened with host "*"

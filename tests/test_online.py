@@ -214,7 +214,7 @@ def test_servo_rate_limit_keeps_the_rear_knee_within_its_velocity_limit(monkeypa
 def test_lift_off_signal_stops_without_rocking(monkeypatch):
     """2.85 s, the third step's lift-off: with the landing at most 50 ms before the nominal touchdown
     (the controller's ``max_early_landing``) the stop meets every criterion; the paper's free landing
-    (0.16 s early) rocks the robot from foot to foot and it comes to rest late (stride sweep, session 4).
+    (0.16 s early) rocks the robot from foot to foot and it comes to rest late.
     The counterfactual runs without the foot-edge compliance, which on its own also stops that rocking
     (measured: the free landing with it meets every criterion)."""
     import drake_estop.physics.online as online
@@ -233,7 +233,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
 
 @pytest.mark.slow
 def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
-    """17 N s forward at 3.55 s (double support), a cell of the issue's matrix: with the IK's knee floor
+    """17 N s forward at 3.55 s (double support), a cell of the matrix: with the IK's knee floor
     (``IK_MIN_KNEE_BEND``) every criterion is met; without it the re-plan's COG stretched the rear knee
     straight, bending it back dropped the pelvis and the robot left the floor for a tick (no CoP). The
     counterfactual runs without the foot-edge compliance, which on its own also keeps this robot on the
@@ -254,9 +254,9 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
 
 @pytest.mark.slow
 def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
-    """17 N s backward at 3.55 s (double support), a cell of the issue's matrix: with the ankles' foot-edge
+    """17 N s backward at 3.55 s (double support), a cell of the matrix: with the ankles' foot-edge
     compliance (the default) every criterion is met and the ankles moved; without it the feet rock on their
-    heels and the robot leaves the floor for a tick (no CoP), as in session 5's matrix."""
+    heels and the robot leaves the floor for a tick (no CoP)."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(3.55, -170.0, 0.0, 0.1),))
     compliant = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
@@ -271,8 +271,8 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
 def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     """A 0.2385 m step, signal at 3.45 s (the swing foot 0.6 mm above the floor, coming down): with the
     controller's landing-shift limit the foot lands on its nominal footstep and every criterion is met;
-    the paper's plan sends it 6.6 cm further and the robot falls with no push at all (session-6 campaign,
-    runs 219, 300 and 472). Since session 9 the double-support re-plan on the measured footholds also
+    the paper's plan sends it 6.6 cm further and the robot falls with no push at all (found as campaign
+    runs 219, 300 and 472). The double-support re-plan on the measured footholds also
     recovers the dragged landing (the plan then stands where the foot came down); without either the robot
     falls."""
     import drake_estop.physics.online as online
@@ -291,10 +291,10 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
 
 @pytest.mark.slow
 def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypatch):
-    """17 N s left at 2.95 s (early single support, left foot supporting), a cell of the issue's matrix.
+    """17 N s left at 2.95 s (early single support, left foot supporting), a cell of the matrix.
     The push moves the DCM over the support foot's outer edge: no landing stops that with the ZMP held at
     the ankle (eq. 19), so every single-support re-plan failed, the robot landed late and stood on one toe
-    with the CoP 27.9 mm outside the planned support (session 6). With the re-plan's ankle strategy
+    with the CoP 27.9 mm outside the planned support. With the re-plan's ankle strategy
     (``planner.ankle_zmp``) it re-plans, and every criterion is met."""
     from drake_estop.planning import planner
 
@@ -312,9 +312,9 @@ def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypa
 @pytest.mark.slow
 def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     """17 N s right at 3.15 s (mid single support, left foot supporting, the push towards the swing
-    side), a cell of the issue's matrix. The push rolls the body about 0.04 rad; without the swing foot's
+    side), a cell of the matrix. The push rolls the body about 0.04 rad; without the swing foot's
     tilt compensation the foot comes down rolled and low, strikes the floor early and short on its outer
-    edge, the stance foot unloads and slides and the CoP leaves the planned support (-16.1 mm, session 7);
+    edge, the stance foot unloads and slides and the CoP leaves the planned support (-16.1 mm);
     with it every criterion is met."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(3.15, 0.0, -170.0, 0.1),))
@@ -328,8 +328,8 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
 
 @pytest.mark.slow
 def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foot_in_support():
-    """17 N s right at 2.95 s (early single support, left foot supporting), the last failing cell of the
-    issue's matrix in session 8. The swing foot lands 1.9 cm inside and 7 mm ahead of its re-planned
+    """17 N s right at 2.95 s (early single support, left foot supporting), a cell of the
+    matrix. The swing foot lands 1.9 cm inside and 7 mm ahead of its re-planned
     target, the landing impact unloads the support foot and it slides 9 mm; the double-support re-plans on
     the plan's feet put the ZMP at the landed foot's outer edge and the CoP left the planned support by
     4.2 mm. Re-planned on the estimated footholds (sole targets blended onto them) every criterion is met."""
@@ -400,8 +400,8 @@ def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_
 
 @pytest.mark.slow
 def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands():
-    """17 N s forward at 2.95 s (a matrix cell) with session 12's braked-landing option (the approach slope
-    on every landing swing, given explicitly): in the halt the robot rocks onto the fore foot, the rear sole
+    """17 N s forward at 2.95 s (a matrix cell) with the approach slope given explicitly (on every landing
+    swing): in the halt the robot rocks onto the fore foot, the rear sole
     leaves the floor for 35 ms and comes down 6 mm behind its foothold; the CoP then runs to the rear heel,
     inside the measured sole but 0.4 mm outside the plan's without the re-landed footholds. With them (the
     default) the stop is re-planned where the sole stands."""
@@ -481,7 +481,7 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
     assert braked.zmp_margin == paper.zmp_margin == pytest.approx(0.03)
     assert paper.max_swing_acceleration == math.inf and paper.landing_approach_slope == 0.0
     assert tighter.max_swing_acceleration == 10.0 and tighter.landing_approach_slope == 0.8
-    assert not tighter.landing_approach_when_braking  # a slope given shapes every swing (session 12's option)
+    assert not tighter.landing_approach_when_braking  # a slope given shapes every swing
 
 
 @pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
@@ -673,7 +673,7 @@ def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners
 
 
 def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_reference(tmp_path, capsys):
-    """The campaign's run 181 (session 18: 29.9 N s forward-left starting 79 ms before a 3.275 s signal,
+    """The campaign's run 181 (29.9 N s forward-left starting 79 ms before a 3.275 s signal,
     model error, noise, one tick of latency): at the signal no stop within two steps exists from the
     measured state, and the run used to end there with exit status 2 ("stop planning failed"). The latch
     now plans the paper's stop from the reference and re-plans from the measured state: the run goes to

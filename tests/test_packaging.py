@@ -1,4 +1,4 @@
-"""Packaging (issue 8): the model ships in the wheel, and nothing needs the network.
+"""Packaging: the model ships in the wheel, and nothing needs the network.
 
 ``DRAKE_ALLOW_NETWORK=meshcat`` is Drake's setting for machines without
 downloads; with it, Drake's default PackageMap (remote ``drake_models``) makes

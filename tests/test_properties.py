@@ -2,8 +2,8 @@
 keeps every limit, the ZMP margin included.
 
 No ``InfeasibleStop`` is tolerated: for these gaits no state of the walk is known to be
-unreachable (issue 11: the exception used to be swallowed here and hid that stepping in
-place could not stop). Signals fall between the first lift-off and the last touchdown, so
+unreachable (an exception swallowed here would hide, for example, a walk stepping in place
+that cannot stop). Signals fall between the first lift-off and the last touchdown, so
 every example tests a stop from walking (none while standing or after the walk ended).
 """
 

@@ -1,4 +1,4 @@
-"""The public API of ``drake_estop`` (issue 12): every exported name imports, is documented with
+"""The public API of ``drake_estop``: every exported name imports, is documented with
 numpydoc sections and units, LeafSystems carry a ``.. pydrake_system::`` block, and
 ``AddEmergencyStop`` rejects bad arguments with errors that name them."""
 

@@ -1,4 +1,4 @@
-"""Every ```python block of README.md runs exactly as written (issue 12)."""
+"""Every ```python block of README.md runs exactly as written."""
 
 import re
 import subprocess

@@ -800,8 +800,8 @@ def _count_solves(monkeypatch):
 
 
 def _hopeless_left_push():
-    """The 2.95 s plan and the state measured at 3.05 s after a 29 N s push to the left (physics run of
-    session 16): no try gives a stop (the held ZMP and the ankle strategy's three each fail at the halt)."""
+    """The 2.95 s plan and the state measured at 3.05 s after a 29 N s push to the left (a physics
+    run): no try gives a stop (the held ZMP and the ankle strategy's three each fail at the halt)."""
     from drake_estop.physics.online import controller_stop_parameters
 
     plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())

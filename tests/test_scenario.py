@@ -1,4 +1,4 @@
-"""Scenarios as data (issue 8): YAML through Drake's yaml_load_typed, the CLI on top of it,
+"""Scenarios as data: YAML through Drake's yaml_load_typed, the CLI on top of it,
 the plant from MultibodyPlantConfig, and the shipped scenario files."""
 
 import json

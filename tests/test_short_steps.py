@@ -1,4 +1,4 @@
-"""Stepping in place and short steps stop in one step from every servo tick of a stride (issue 11)."""
+"""Stepping in place and short steps stop in one step from every servo tick of a stride."""
 
 import json
 
@@ -42,7 +42,7 @@ def test_zmp_margin_and_rest_between_the_feet(short_stride):
 def test_short_step_stops_last_within_reason(short_stride):
     """The lateral plane lengthens some stops, within reason (walking at 0.3 m: 1.4 s at most). Their plan
     time (measured 1.0-1.1 ms a plan against 0.65-0.8 ms for walking steps) is a benchmark figure, not a
-    test: a timed assertion failed here when other work shared the two cores (session 14)."""
+    test: a timed assertion fails here when other work shares the two cores."""
     _, plans = short_stride
     assert max(plan.halt_end - plan.signal_time for plan in plans) < 3.0
 

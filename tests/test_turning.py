@@ -1,4 +1,4 @@
-"""Stops of turning and side-stepping walks and of random footstep lists (issue 10).
+"""Stops of turning and side-stepping walks and of random footstep lists.
 
 The stride-wide checks of the straight walk (tests/test_planner.py), repeated on turning gaits
 of +-15 deg per step and on side-stepping: LIPM residual, continuity, the ZMP inside the

@@ -1,4 +1,4 @@
-"""CI executes diagrams/tutorial.ipynb (issue 12): every cell runs, in a fresh kernel, as written."""
+"""CI executes diagrams/tutorial.ipynb: every cell runs, in a fresh kernel, as written."""
 
 import os
 import time

@@ -1,4 +1,4 @@
-"""Robustness campaign (issue 9): thousands of randomised physics stops on Dask, resumable, with a report.
+"""Robustness campaign: thousands of randomised physics stops on Dask, resumable, with a report.
 
 * :mod:`drake_estop.campaign.config`: the sampled ranges (``default.yaml``) and per-run sampling.
 * :mod:`drake_estop.campaign.executor`: the Dask executor (local cluster or ``--scheduler``), shared

@@ -1,4 +1,4 @@
-"""Sensors and a state estimator from what a robot has (issue 13, item 2).
+"""Sensors and a state estimator from what a robot has.
 
 Blocks (all sampled at the servo period through periodic discrete events)::
 
@@ -67,7 +67,7 @@ from pydrake.systems.sensors import Accelerometer, Gyroscope
 from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
 from drake_estop.timing import timed, untimed
 
-#: Noise standard deviations of ``--sensor-noise`` (issue 13).
+#: Noise standard deviations of ``--sensor-noise``.
 ENCODER_NOISE = 1e-3  # [rad]
 GYRO_NOISE = 0.01  # [rad/s]
 ACCELEROMETER_NOISE = 0.05  # [m/s^2]

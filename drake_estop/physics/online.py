@@ -193,16 +193,16 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
                                             max_landing_shift_per_height=10.0, landing_zmp_offset=0.0)
 
 
-#: The controller's braked landing (on by default since session 14; ``braked_landing=False`` in
+#: The controller's braked landing (on by default; ``braked_landing=False`` in
 #: :func:`controller_stop_parameters`, ``simulate --physics --no-braked-landing``, for comparison). A
 #: single-support re-plan lands no sooner than the swing can brake to the landing point at 15 m/s^2
 #: (``max_swing_acceleration``, planner.swing_braking_time); where that limit bounds the landing, the
 #: re-planned swing also comes down onto its point no flatter than a slope of 0.6, up to 1 cm above the
 #: floor (``landing_approach_slope`` with ``landing_approach_when_braking``; StopParameters says why). Every
 #: other swing is the paper's quintic. Measured (README): the 0.5 m/s target forward and backward at every
-#: phase benchmarked, the matrix 44/44, the stride sweep 40/40. Session 12's option put the approach slope on
-#: every landing swing (the signal's plan too): on the first 99 runs of the campaign it passed 60 against the
-#: default's 68, so it is only that option now (an approach slope given explicitly, ``simulate --physics
+#: phase benchmarked, the matrix 44/44, the stride sweep 40/40. Putting the approach slope on
+#: every landing swing (the signal's plan too) passed 60 of the campaign's first 99 runs against the
+#: default's 68, so it is only an option (an approach slope given explicitly, ``simulate --physics
 #: --landing-approach-slope 0.6``, applies to every swing).
 BRAKED_LANDING = {"max_swing_acceleration": 15.0, "landing_approach_slope": 0.6}
 

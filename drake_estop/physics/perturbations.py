@@ -1,4 +1,4 @@
-"""Perturbations of the SIMULATED robot only (issue 13, item 6).
+"""Perturbations of the SIMULATED robot only.
 
 The controller keeps the nominal model; everything here changes the physics
 plant (its Context parameters, the ground friction, an external force) or
@@ -180,8 +180,8 @@ class Perturbations:
 
 def add_perturbation_arguments(parser: argparse.ArgumentParser,
                                defaults: Perturbations | None = None) -> argparse.ArgumentParser:
-    """Add ``--push``, ``--mass-scale``, ... (issue 13's table) to ``parser``, defaulting to ``defaults``
-    (a scenario's perturbations; ``--push`` adds to its pushes)."""
+    """Add ``--push``, ``--mass-scale``, ... (the robustness matrix's perturbations) to ``parser``,
+    defaulting to ``defaults`` (a scenario's perturbations; ``--push`` adds to its pushes)."""
     d = defaults or Perturbations()
     group = parser.add_argument_group("perturbations of the simulated robot (--physics)")
     group.add_argument("--push", nargs=4, type=float, action="append",

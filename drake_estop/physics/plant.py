@@ -361,7 +361,7 @@ def plant_config(params: PhysicsParameters) -> MultibodyPlantConfig:
     latency; ``--latency`` adds ticks). The stop planner's update is unrestricted too (its plan
     is abstract state): it reads the estimate of the robot at the tick, before the step, so the
     estimate is computed twice a tick (both counted in the tick's compute time). Measured
-    (session 13, the robustness benchmark's 208 runs): unsampled outputs (every block reading
+    (the robustness benchmark's 208 runs): unsampled outputs (every block reading
     the robot at the tick: one estimate, but 1 ms from reading to command) passed 182 against
     184, the estimator's update made unrestricted (one estimate, from the readings before the
     step) 180; both lose the 17 N s right push at 2.95 s of the acceptance matrix."""

@@ -845,12 +845,12 @@ class ReplanPending(InfeasibleStop):
 
 #: Stop solves a re-plan of the online controller may do in one servo tick (``StopPlannerSystem``'s
 #: ``max_replan_solves``): a double-support re-plan (held ZMP, recovery step) and a single-support one's
-#: held and ankle ZMP each fit one tick; the rest go on at the next tick (session 17's 27 captured re-plans).
+#: held and ankle ZMP each fit one tick; the rest go on at the next tick (measured on 27 captured re-plans).
 MAX_REPLAN_SOLVES = 2
 
 #: Stop solves the online controller's latch may spend searching from the measured state (``StopPlannerSystem``'s
 #: ``max_latch_solves``; :func:`plan_stop`'s ``max_solves``): the signal's support phase and the first three ticks
-#: of the next one (III.C), about 2 ms. Measured (session 19, the 153 runs of the 500-run campaign whose push
+#: of the next one (III.C), about 2 ms. Measured (the 153 runs of the 500-run campaign whose push
 #: starts before the signal): 4 latched from the measured state; the one that found a stop found it at its first
 #: try, the three that found none tried 202-268 times (60-100 ms in that tick) before the reference fallback.
 MAX_LATCH_SOLVES = 4
