@@ -224,8 +224,11 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
     forward = np.array([forward_stop_possible(com[i], com_vel[i], midpoints[i], polygons[i], w) for i in range(rows)])
     levels = {}  # each chunk's levels and margins: the same for both passes
     if forward.any():
-        found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required,
-                             _ForwardOnly(forward), levels)
+        try:
+            found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required,
+                                 _ForwardOnly(forward), levels)
+        except _Spent:
+            found = None
         if found is not None:
             return found
     return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, None,
@@ -235,7 +238,7 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, para
 def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, forward_only,
                  levels):
     """:func:`stop_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only over its rows and
-    the candidates along which the COG does not move backwards (None when its checks run out). ``levels``:
+    the candidates along which the COG does not move backwards (:class:`_Spent` when its checks run out). ``levels``:
     a dict that keeps each chunk's levels ``c``, ``d`` and margins for a second pass (they do not depend on
     ``forward_only``)."""
     rows = len(midpoints)
@@ -273,9 +276,7 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
                 points = _segment_points(coeffs, 0, durations[0], params.servo_period)
                 worst, peak = min(worst, float(polygons[i].margin(points).min())), max(peak, points[:, 0].max())
             if worst >= required and forward_only is not None:
-                if forward_only.spent():
-                    return None
-                if _backs_up(coeffs[0], durations, com[i, 0], com_vel[i, 0], w, params.servo_period):
+                if forward_only.backs_up(coeffs[0], durations, com[i, 0], com_vel[i, 0], w, params.servo_period):
                     continue
             if worst >= required:
                 r1, h, r2, r3 = durations
@@ -322,10 +323,12 @@ class _ForwardOnly:
         self.rows = rows
         self.left = FORWARD_CHECKS
 
-    def spent(self) -> bool:
-        """Count one check; True once the budget is used up."""
+    def backs_up(self, coeffs, durations, x0, v0, w, dt) -> bool:
+        """:func:`_backs_up`, counted against the budget; :class:`_Spent` once it is used up."""
         self.left -= 1
-        return self.left < 0
+        if self.left < 0:
+            raise _Spent
+        return _backs_up(coeffs, durations, x0, v0, w, dt)
 
 
 def forward_stop_possible(com, com_vel, midpoint, polygon, w: float) -> bool:
@@ -545,9 +548,7 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
                     points = _segment_points(brake.coeffs, 0, ramp, dt)
                     brake.margin = min(brake.margin, float(support_polygon.margin(points).min()))
                 if brake.margin >= required and forward_only is not None:
-                    if forward_only.spent():
-                        raise _Spent
-                    if _backs_up(brake.coeffs[0], brake.durations, com[0], com_vel[0], w, dt):
+                    if forward_only.backs_up(brake.coeffs[0], brake.durations, com[0], com_vel[0], w, dt):
                         continue
                 if brake.margin >= required:
                     best = (float(total[low + j]), float(both[j]), brake)
@@ -572,7 +573,7 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
 
 
 class _Spent(Exception):
-    """The forward-only pass of :func:`swing_brake` ran out of checks."""
+    """A forward-only pass (:class:`_ForwardOnly`) ran out of checks."""
 
 
 def _swing_chain(t, ramp, i, k, land, hold, xy, mid, zmp, rate, accel, a, c, margin) -> Brake:

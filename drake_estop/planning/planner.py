@@ -278,17 +278,16 @@ def _nominal_landing_window(pattern: NominalPattern, state: PatternState, params
     return replace(params, min_landing_time=soonest)
 
 
-def _descending(state: PatternState, swing: str):
-    """The swing foot's vertical velocity and acceleration where it is coming down (both 0 where it is
-    not: a foot still rising gets the landing swing's clearance bump, :func:`landing_swing`)."""
-    rate = float(state.feet_vel[swing][2])
-    return (rate, float(state.feet_acc[swing][2])) if rate < 0.0 else (0.0, 0.0)
+def _swing_descent_time(state: PatternState, params: StopParameters, swing: str) -> float:
+    """:func:`descent_time` of the ``swing`` foot from its height, vertical velocity and acceleration."""
+    return descent_time(float(state.feet[swing][2]), params, float(state.feet_vel[swing][2]),
+                        float(state.feet_acc[swing][2]))
 
 
 def _earliest_landing(state: PatternState, params: StopParameters, swing: str, touchdown: float) -> float:
     """Shortest time to touchdown [s]: the swing foot's descent (:func:`descent_time`), and no
     earlier than ``max_early_landing`` before the nominal touchdown (at most ``max_landing_time``)."""
-    descent = descent_time(float(state.feet[swing][2]), params, *_descending(state, swing))
+    descent = _swing_descent_time(state, params, swing)
     early = touchdown - state.time - params.max_early_landing
     return max(descent, min(early, params.max_landing_time - params.servo_period))
 
@@ -334,8 +333,13 @@ def _lateral_reach(pattern, state: PatternState, params: StopParameters) -> Stop
     allowed = 0.5 * pattern.params.step_width + LATERAL_REACH_ALLOWANCE
     if lateral <= allowed:
         return params
-    reach = math.sqrt(max(params.max_fore_reach**2 + allowed**2 - lateral**2, 0.25 * params.max_fore_reach**2))
-    return replace(params, max_fore_reach=reach)
+    return replace(params, max_fore_reach=_sideways_reach(params.max_fore_reach, allowed, lateral))
+
+
+def _sideways_reach(reach: float, allowed: float, lateral: float) -> float:
+    """The sagittal reach [m] that keeps ``hypot(reach, allowed)`` with the ankle ``lateral`` [m] to the
+    side of the COG instead of ``allowed`` (at least half of ``reach``)."""
+    return math.sqrt(max(reach**2 + allowed**2 - lateral**2, 0.25 * reach**2))
 
 
 def _rear_lateral_reach(pattern, state: PatternState, params: StopParameters) -> StopParameters:
@@ -354,8 +358,7 @@ def _rear_lateral_reach(pattern, state: PatternState, params: StopParameters) ->
     allowed = 0.5 * pattern.params.step_width
     if lateral <= allowed + 1e-9:
         return params
-    reach = math.sqrt(max(params.max_rear_reach**2 + allowed**2 - lateral**2, 0.25 * params.max_rear_reach**2))
-    return replace(params, max_rear_reach=reach)
+    return replace(params, max_rear_reach=_sideways_reach(params.max_rear_reach, allowed, lateral))
 
 
 _MARGIN_ROUNDS = 3  # lateral re-aims of a plan whose transition overshoots into the zmp_margin band
@@ -540,7 +543,7 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
         brake = held_brake(state.com, state.com_vel, zmp, state.feet[support][:2], landing, paper_landing[1],
                            polygon_for(landing), params, w, required)
     else:
-        descent = descent_time(float(state.feet[swing][2]), params, *_descending(state, swing))
+        descent = _swing_descent_time(state, params, swing)
 
         def search(y):
             return swing_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel, state.feet[support][:2],
@@ -657,13 +660,12 @@ def _trivial_plan(pattern, state, params, signal_time, case):
 
 
 def warm_up(pattern: NominalPattern, params: StopParameters | None = None) -> float:
-    """Plan once (lift-off, mid and late single support, double support), name the limits of an infeasible
-    attempt once and compute every halt duration's basis, so the compiled solver is loaded and the
-    caches are filled before the robot walks: the first call in a
-    process loads numba's cache (~0.5 s; 20-30 s to compile after an install or an edit of the
-    solver), which must not land on the servo tick of a real stop. The time objective
-    (planning/brake.py) falls back to the compiled solver where its own search finds no stop, so
-    it is warmed up too. Returns the seconds it took."""
+    """Plan once (lift-off, mid and late single support, double support), name the limits of an
+    infeasible attempt once and compute every halt duration's basis, so the compiled solver is loaded
+    and the caches are filled before the robot walks: the first call in a process loads numba's cache
+    (~0.5 s; 20-30 s to compile after an install or an edit of the solver), which must not land on the
+    servo tick of a real stop. The time objective (planning/brake.py) falls back to the compiled solver
+    where its own search finds no stop, so it is warmed up too. Returns the seconds it took."""
     wall = time.perf_counter()
     start, end = pattern.stride()
     params = params or StopParameters()

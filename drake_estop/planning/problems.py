@@ -25,15 +25,16 @@ def descent_time(lift: float, params: StopParameters, lift_rate: float = 0.0, li
     """Shortest landing duration [s], on the servo grid, whose landing swing comes down no faster than
     ``max_swing_descent_speed``: the swing's vertical quintic Hermite (:func:`~drake_estop.planning.plan.landing_swing`)
     from height ``lift`` [m], vertical velocity ``lift_rate`` [m/s] and acceleration ``lift_accel`` [m/s^2]
-    to the floor at rest, checked on the swing's grid. From rest the quintic peaks at 15/8 of its mean
-    speed (closed form); a foot already coming down at the nominal swing's pace keeps that pace instead of
-    starting its descent again from rest, so the earliest touchdown does not move later as the foot
-    descends. Capped one tick below ``max_landing_time`` (very high lifts of custom gaits keep a landing
-    window)."""
+    to the floor at rest, checked on the swing's grid. A foot at rest or still rising starts its descent
+    from rest, where the quintic peaks at 15/8 of its mean speed (closed form; a rising foot gets the
+    landing swing's clearance bump instead of its own rise). A foot already coming down at the nominal
+    swing's pace keeps that pace instead of starting again from rest, so the earliest touchdown does not
+    move later as the foot descends. Capped one tick below ``max_landing_time`` (very high lifts of custom
+    gaits keep a landing window)."""
     dt = params.servo_period
     lift = max(lift, 0.0)
     latest = params.max_landing_time - dt
-    if lift_rate == 0.0 and lift_accel == 0.0:
+    if lift_rate >= 0.0:
         return min(snap_to_tick(1.875 * lift / params.max_swing_descent_speed, dt), latest)
     durations = dt * np.arange(1, max(int(round(latest / dt)), 1) + 1)
     T = durations[:, None]
