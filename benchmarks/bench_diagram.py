@@ -22,7 +22,7 @@ import numpy as np
 from drake_estop.planning.gait import GaitParameters
 from drake_estop.planning.planner import StopParameters
 from drake_estop.systems.diagram import build_diagram, run
-from drake_estop.systems.stop_controller import reference_vector
+from drake_estop.systems.reference import reference_vector
 
 
 def one_run(signal, duration):

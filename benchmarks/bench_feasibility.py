@@ -30,7 +30,9 @@ from pydrake.systems.primitives import Adder, ConstantVectorSource
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, one_step_feasible, warm_up
 from drake_estop.planning.rollout import stride_ticks
-from drake_estop.systems.stop_controller import StopPlannerSystem, WalkingPatternSource, _table
+from drake_estop.systems.reference import WalkingPatternSource
+from drake_estop.systems.stop_controller import StopPlannerSystem
+from drake_estop.systems.stop_numerics import _table
 from drake_estop.timing import TickTimer
 
 

@@ -1,13 +1,22 @@
-"""StopPlannerSystem alone, the way Drake tests a LeafSystem: a default context, FixValue inputs,
-Simulator.AdvanceTo (shared by the re-plan and recovery-step tests)."""
+"""Shared by the re-plan and recovery-step tests: StopPlannerSystem alone, the way Drake tests a
+LeafSystem (a default context, FixValue inputs, Simulator.AdvanceTo), the re-plans' stop parameters and
+measured states."""
 
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import StopParameters, plan_stop
 from drake_estop.systems.stop_controller import StopPlannerSystem
 
 DT = 0.005
+
+
+def replan_params():
+    """Re-plans are the online controller's: its slowdown ZMP is at the landing ankle (the paper's eq. 20,
+    ``controller_stop_parameters``), where the kinematic default puts it 5 cm ahead."""
+    return StopParameters(landing_zmp_offset=0.0)
 
 
 def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
@@ -28,3 +37,48 @@ def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
     assert first.start_time == pytest.approx(t0)
     planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no measurement: no re-plan
     return planner, context, simulator, first
+
+
+def state_at(plan, t):
+    """COG position, COG velocity and ZMP (x, y) of ``plan`` at ``t``."""
+    pos, vel, _, zmp = plan.com([t])
+    return pos[0], vel[0], zmp[0]
+
+
+def left_push_state():
+    """The plan of a signal at 2.95 s (the online controller's settings) and the state the robot measured
+    at 3.175 s after a 17 N s push to the left (a physics run), its lateral speed 1 cm/s higher: the DCM over
+    the left (support) foot's outer edge, where neither the held ZMP nor the whole ankle ZMP finds a stop
+    and the ankle ZMP's lateral part does (with the speed as measured the ankle ZMP already does)."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.175, np.array([0.60612853, 0.0693894]), np.array([0.23707723, 0.11288797])
+
+
+def count_solves(monkeypatch):
+    """A list that grows by one for every stop the planner solves (``_plan_from``)."""
+    from drake_estop.planning import planner
+
+    solves, real = [], planner._plan_from
+    monkeypatch.setattr(planner, "_plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
+    return solves
+
+
+def sideways_at(pattern, t, speed):
+    """The measured COG of the walk at ``t`` with ``speed`` [m/s] sideways: no stop catches 3 m/s."""
+    pos, vel, _, _ = pattern.com([t])
+    return [*pos[0], 0.8], [vel[0][0], speed, 0.0]
+
+
+def inward(side):
+    """The sign of y towards the other foot."""
+    return -1.0 if side == "left" else 1.0
+
+
+def moved_feet(plan):
+    """The landing foot 7 mm ahead and 15 mm inside its target, the support foot slid 9 mm outward."""
+    landing = plan.landing_foot
+    support = next(s for s in ("left", "right") if s != landing)
+    return {landing: plan.final_feet[landing] + [0.007, 0.015 * inward(landing)],
+            support: plan.final_feet[support] + [-0.004, -0.009 * inward(support)]}

@@ -3,7 +3,7 @@
 The online controller lands at most 50 ms before the walk's own touchdown (its first plan): a
 signal at lift-off (2.85 s) otherwise lands 0.16 s early, with the lateral COG still over the
 support foot, and the 0.1 s lateral ZMP swing to the landing foot set the physics robot rocking
-from foot to foot for 2 s (tests/test_online.py has the physics run).
+from foot to foot for 2 s (tests/test_online_pushes.py has the physics run).
 """
 
 import math

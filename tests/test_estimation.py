@@ -10,7 +10,10 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
 from drake_estop.model import LEFT_SOLE, RIGHT_SOLE, nominal_standing_configuration
-from drake_estop.physics.estimation import (
+from drake_estop.physics.estimation import StateEstimator, add_state_estimation
+from drake_estop.physics.perturbations import Perturbations, Push, add_pelvis_push
+from drake_estop.physics.plant import CopEstimator, PhysicsParameters, actuated_indices, add_physics_plant
+from drake_estop.physics.sensors import (
     ACCELEROMETER_NOISE,
     ENCODER_NOISE,
     GYRO_NOISE,
@@ -18,13 +21,9 @@ from drake_estop.physics.estimation import (
     SIGNALS,
     FootForceTorqueSensors,
     RobotSensors,
-    StateEstimator,
     actuated_position_indices,
-    add_state_estimation,
     noise_sample,
 )
-from drake_estop.physics.perturbations import Perturbations, Push, add_pelvis_push
-from drake_estop.physics.plant import CopEstimator, PhysicsParameters, actuated_indices, add_physics_plant
 
 DT = 0.005
 G = 9.81

@@ -2,7 +2,7 @@
 
 Found by the robustness campaign: with a 0.2385 m step, a signal 20-60 ms before touchdown (swing foot
 0.1-2 mm above the floor) was planned as a one-step stop landing 6-8 cm past the nominal footstep. The
-foot was dragged over the floor and the physics robot fell with no push at all (tests/test_online.py
+foot was dragged over the floor and the physics robot fell with no push at all (tests/test_online_pushes.py
 has the physics run). The online controller allows 10 mm of landing shift per mm of swing height.
 """
 

@@ -15,7 +15,8 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop
 from drake_estop.planning.rollout import stride_ticks
 from drake_estop.systems import stop_controller
-from drake_estop.systems.stop_controller import StopPlannerSystem, nominal_one_step_table
+from drake_estop.systems.stop_controller import StopPlannerSystem
+from drake_estop.systems.stop_numerics import nominal_one_step_table
 from drake_estop.systems.visualization import ONE_STEP_INDICATOR, StopVisualizer, make_meshcat
 
 DT = 0.005

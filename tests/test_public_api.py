@@ -27,6 +27,14 @@ def test_every_public_name_imports_from_the_package():
         assert namespace[name] is getattr(drake_estop, name)
 
 
+def test_the_stop_controller_module_offers_the_stops_leaf_systems():
+    """The stop's public LeafSystems import from ``drake_estop.systems.stop_controller`` as well."""
+    from drake_estop.systems import stop_controller
+
+    for name in ("WalkingPatternSource", "EStopTrigger", "StopPlannerSystem"):
+        assert getattr(stop_controller, name) is getattr(drake_estop, name)
+
+
 def test_unknown_names_raise_attribute_error():
     with pytest.raises(AttributeError, match="no attribute 'NoSuchThing'"):
         drake_estop.NoSuchThing  # noqa: B018

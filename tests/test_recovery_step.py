@@ -17,7 +17,7 @@ from drake_estop.planning.planner import (
     plan_stop,
     replan_stop,
 )
-from drake_estop.systems.stop_controller import PlanSequence
+from drake_estop.systems.plan_sequence import PlanSequence
 
 DT = 0.005
 

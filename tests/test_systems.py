@@ -1,4 +1,4 @@
-"""Each LeafSystem of drake_estop.systems.stop_controller in isolation, Drake style."""
+"""The stop's LeafSystems (pattern source, e-stop trigger, stop planner) in isolation, Drake style."""
 
 import numpy as np
 import pytest
@@ -8,12 +8,10 @@ from pydrake.systems.framework import DiagramBuilder
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters, plan_stop
-from drake_estop.systems.stop_controller import (
-    EStopTrigger,
-    StopPlannerSystem,
-    WalkingPatternSource,
-    add_stop_controller,
-)
+from drake_estop.systems.reference import WalkingPatternSource
+from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
+from drake_estop.systems.stop_numerics import dcm_deviation
+from drake_estop.systems.trigger import EStopTrigger
 
 DT = 0.005
 
@@ -283,5 +281,5 @@ def test_planner_looks_the_patterns_cog_up_on_every_tick_with_the_bits_of_evalua
     pos, vel, _, _ = pattern.com([between])
     assert np.array_equal(planner._pattern_com_at(between)[0], pos[0])
     measured = (pos[0] + [0.01, 0.0], vel[0])
-    assert planner._pattern_deviation(between, measured) == StopPlannerSystem._deviation(pattern, between, measured)
-    assert planner._pattern_deviation(3.4, measured) == StopPlannerSystem._deviation(pattern, 3.4, measured)
+    assert planner._pattern_deviation(between, measured) == dcm_deviation(pattern, between, measured)
+    assert planner._pattern_deviation(3.4, measured) == dcm_deviation(pattern, 3.4, measured)

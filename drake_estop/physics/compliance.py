@@ -47,8 +47,8 @@ class FootEdgeCompliance(LeafSystem):
     Ports:
       - ``q`` in (nq): the IK's positions (the servo reference).
       - ``foot_ft`` (12): the soles' force/torque sensors, left then right, each ``[n, f]`` about the
-        sole frame's origin in the sole frame (:class:`drake_estop.physics.estimation.FootForceTorqueSensors`
-        through :class:`drake_estop.physics.estimation.RobotSensors`, so with the sensors' latency).
+        sole frame's origin in the sole frame (:class:`drake_estop.physics.sensors.FootForceTorqueSensors`
+        through :class:`drake_estop.physics.sensors.RobotSensors`, so with the sensors' latency).
       - ``q`` out (nq): ``q`` with the offsets added to the ankle joints.
       - ``offsets`` (4): ``[left roll, left pitch, right roll, right pitch]`` [rad].
 
@@ -112,7 +112,7 @@ class FootEdgeCompliance(LeafSystem):
 
 def add_foot_edge_compliance(builder, plant, sensors, ik, servo_period, *, timer=None, **settings):
     """A :class:`FootEdgeCompliance` between ``ik.q_port`` and the servo targets, reading the feet's
-    force/torque sensors from ``sensors`` (:class:`drake_estop.physics.estimation.RobotSensors`, e.g.
+    force/torque sensors from ``sensors`` (:class:`drake_estop.physics.sensors.RobotSensors`, e.g.
     ``estimator.sensors``). Returns the system (its ``q_port`` feeds the servo targets)."""
     compliance = builder.AddNamedSystem("foot_edge_compliance", FootEdgeCompliance(
         plant=plant, servo_period=servo_period, timer=timer, **settings))

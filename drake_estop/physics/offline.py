@@ -57,7 +57,7 @@ from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.planning.rollout import Rollout, rollout
 from drake_estop.systems.ik import WholeBodyIkSolver, converged_posture, shared_ik
-from drake_estop.systems.stop_controller import sole_pose
+from drake_estop.systems.reference import sole_pose
 
 
 def _sole(ro: Rollout, side: str, i: int):

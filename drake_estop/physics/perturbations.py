@@ -2,7 +2,7 @@
 
 The controller keeps the nominal model; everything here changes the physics
 plant (its Context parameters, the ground friction, an external force) or
-the sensors (:mod:`drake_estop.physics.estimation`: noise and latency).
+the sensors (:mod:`drake_estop.physics.sensors`: noise and latency).
 
 * :class:`Push` / :class:`Perturbations`: the settings, validated on
   construction; every ``ValueError`` names the command-line option

@@ -39,13 +39,8 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import PHASES, StopParameters
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
-from drake_estop.systems.stop_controller import (
-    REFERENCE_LAYOUT,
-    REFERENCE_SLICES,
-    add_stop_controller,
-    connect_reference,
-    reference_vector,
-)
+from drake_estop.systems.reference import REFERENCE_LAYOUT, REFERENCE_SLICES, reference_vector
+from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
 #: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
 IK_COM_BOUND = 1e-3

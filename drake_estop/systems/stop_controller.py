@@ -1,42 +1,35 @@
-"""Drake LeafSystems of the emergency stop: pattern source, trigger, planner.
+"""The stop planner system and the stop controller's wiring.
 
-* :class:`WalkingPatternSource` plays the nominal walking pattern
-  (:class:`drake_estop.planning.gait.NominalPattern`) at the context time.
-* :class:`EStopTrigger` latches the stop signal once, from a scheduled time,
-  an input port or a Meshcat button (the "emergency stop" a person presses).
 * :class:`StopPlannerSystem` plays the nominal pattern until it sees the latch,
   then calls :func:`drake_estop.planning.planner.plan_stop` once (Fig. 7 of the paper:
   the four-phase stop is planned in real time at the servo tick of the
   signal) and keeps the :class:`~drake_estop.planning.planner.StopPlan` in an abstract
-  state of its Context; from then on it plays the plan.
+  state of its Context; from then on it plays the plan, re-planning from the
+  measured state.
+* :func:`add_stop_controller` adds an :class:`~drake_estop.systems.trigger.EStopTrigger`
+  and a :class:`StopPlannerSystem` wired together; :func:`connect_reference`
+  connects a reference source to :class:`drake_estop.systems.ik.WholeBodyIK`.
 
-Reference layout shared by the two reference sources (all world frame, SI):
-``com`` (3) x, y, z of the COG; ``com_vel`` (3); ``zmp`` (2);
-``left_foot`` / ``right_foot`` (7) sole-frame pose ``[x, y, z, qw, qx, qy,
-qz]`` -- the sole frame lies directly below the ankle, so its xy is the ankle
-xy and its z is the ankle *lift* (the sole is on the floor at z = 0), which is
-what :class:`drake_estop.systems.ik.WholeBodyIK` expects; ``upper_body`` (18) joint
-targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
-``ARM_JOINTS`` written in, every other upper-body joint at 0); ``arm_joints``
-(4) the same arm angles in ``ARM_JOINTS`` order.
+The reference layout of the outputs, and the nominal walk's source
+:class:`~drake_estop.systems.reference.WalkingPatternSource`, are in
+:mod:`drake_estop.systems.reference`; the plan bookkeeping in
+:mod:`drake_estop.systems.plan_sequence`; the planner system's numeric rules
+in :mod:`drake_estop.systems.stop_numerics`.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
+from pydrake.systems.framework import EventStatus
 
-from drake_estop.model import UPPER_BODY_JOINTS
-from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
+from drake_estop.planning.gait import SIDES, NominalPattern
 from drake_estop.planning.planner import (
     MAX_LATCH_SOLVES,
     MAX_REPLAN_SOLVES,
-    PHASES,
     InfeasibleStop,
     ReplanPending,
     StopParameters,
@@ -48,6 +41,24 @@ from drake_estop.planning.planner import (
     snap_to_tick,
     warm_up,
 )
+from drake_estop.systems.plan_sequence import PlanHandle, PlanSequence, last_landing
+from drake_estop.systems.reference import (
+    REFERENCE_SLICES,
+    ReferenceSystem,
+    WalkingPatternSource,  # noqa: F401  a public building block, importable from here too
+    blended_reference,
+    reference_vector,
+)
+from drake_estop.systems.stop_numerics import (
+    SOLE_LIFTED,
+    SOLE_RELANDED,
+    dcm_deviation,
+    dcm_distance,
+    next_sole_stage,
+    nominal_one_step_table,
+    off_foothold,
+)
+from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
 
 #: With ``foothold_replan``, a measured foothold this far [m] from the plan's foot re-plans the stop on the
@@ -56,396 +67,8 @@ from drake_estop.timing import timed
 #: benchmark stood on feet 5-20 mm from the plan's, with the CoP inside the measured soles.
 FOOTHOLD_TOLERANCE = 0.005
 
-#: Stages of a sole in the stop (``StopPlannerSystem``'s re-landing tracking): where the plan has it in
-#: the air; standing (loaded ``foothold_ticks`` ticks where the plan has it down); lifted off the floor
-#: (unloaded) while the plan still has it down; landed again off the plan's foothold, until a re-plan
-#: stands on it.
-_AWAY, _STANDING, _LIFTED, _RELANDED = 0.0, 1.0, 2.0, 3.0
 
-
-def _off_foothold(xy, planned, tolerance: float) -> bool:
-    """Whether the measured sole ``xy`` lies more than ``tolerance`` [m] from the plan's ``planned`` (x, y first)."""
-    return bool(np.hypot(xy[0] - planned[0], xy[1] - planned[1]) > tolerance)
-
-#: Sizes of the reference outputs, in the order they sit in the cached vector.
-REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
-                    ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
-                    ("arm_joints", len(ARM_JOINTS)), ("phase", 1))
-#: name -> slice of the reference vector, in REFERENCE_LAYOUT order
-REFERENCE_SLICES = {}
-_start = 0
-for _name, _size in REFERENCE_LAYOUT:
-    REFERENCE_SLICES[_name] = slice(_start, _start + _size)
-    _start += _size
-REFERENCE_SIZE = _start
-_ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
-LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # a level sole heading along x
-_WALKING = float(PHASES.index("walking"))
-
-
-def upper_body_vector(arm_q):
-    """18-vector in UPPER_BODY_JOINTS order with ``arm_q`` (ARM_JOINTS order)."""
-    out = np.zeros(len(UPPER_BODY_JOINTS))
-    out[_ARM_IN_UPPER] = arm_q
-    return out
-
-
-def sole_pose(ankle, yaw: float = 0.0):
-    """Sole pose 7-vector ``[x, y, z, qw, qx, qy, qz]`` from an ankle ``(x, y, lift)`` and the foot's
-    heading ``yaw`` [rad]: the sole is level at z = lift, turned about the vertical."""
-    if yaw == 0.0:
-        return np.concatenate([np.asarray(ankle, float)[:3], LEVEL])
-    return np.concatenate([np.asarray(ankle, float)[:3], [math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)]])
-
-
-def reference_vector(t, *, pattern, plan=None):
-    """All reference outputs at time ``t`` as one REFERENCE_SIZE vector.
-
-    Before the plan starts (or without a plan) this is the nominal pattern;
-    the plan's evaluation functions return the nominal pattern before its
-    start, so the switch is continuous.
-    """
-    source = plan if plan is not None else pattern
-    pos, vel, _, zmp = source.com([t])
-    if plan is not None:
-        z, zd, _ = plan.com_height([t])
-        feet = plan.feet(t)
-        yaw = plan.feet_yaw(t)[0]
-        phase = float(PHASES.index(plan.phase(t)))
-    else:
-        z, zd = [pattern.params.com_height], [0.0]
-        feet = pattern.feet_at(t)[0]
-        yaw = pattern.feet_yaw_at(t)[0]
-        phase = _WALKING
-    arm_q = source.upper_body(t)[0]
-    return np.concatenate([
-        pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"], yaw["left"]),
-        sole_pose(feet["right"], yaw["right"]), upper_body_vector(arm_q), arm_q, [phase]])
-
-
-def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> np.ndarray:
-    """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
-    the end of the walk (bool array): the nominal walk's answer, computed before the run.
-
-    Without a measured state the answer depends on the tick alone, so the
-    stop-planner system looks it up instead of solving on the tick. Cached per
-    (gait, stop parameters) in the process (a :class:`NominalPattern` is a
-    function of its parameters); about 1.3 s for the default 8.5 s walk.
-    """
-    if type(pattern) is NominalPattern:
-        return _cached_table(pattern.params, params)
-    return _table(pattern, params)
-
-
-@functools.lru_cache(maxsize=8)
-def _cached_table(gait_params, params):
-    table = _table(NominalPattern(gait_params), params)
-    table.flags.writeable = False  # shared between systems
-    return table
-
-
-def _table(pattern, params):
-    dt = params.servo_period
-    ticks = math.ceil(pattern.end_time / dt - 1e-9) + 1  # past the end: "standing"
-    return np.array([one_step_feasible(pattern, k * dt, params) for k in range(ticks)], dtype=bool)
-
-
-class _ReferenceSystem(LeafSystem):
-    """Base: a cached reference vector and one output port per entry."""
-
-    def _declare_reference_outputs(self, prerequisites, timer=None):
-        """Cache the reference per context and declare its output ports (``timer``: the cache's
-        computation timed as ``"<class>.reference"``)."""
-        self._reference = self.DeclareCacheEntry(
-            "reference",
-            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(REFERENCE_SIZE)),
-                          calc=timed(self._calc_reference_value, timer, f"{type(self).__name__}.reference")),
-            prerequisites)
-        for name, size in REFERENCE_LAYOUT:  # one output port per entry, looked up by name
-            self.DeclareVectorOutputPort(name, size, self._output_calc(REFERENCE_SLICES[name]),
-                                         prerequisites_of_calc={self._reference.ticket()})
-
-    def _calc_reference_value(self, context, value):
-        value.set_value(self._calc_reference(context))
-
-    def _output_calc(self, entries):
-        def calc(context, output):
-            reference = self._reference.Eval(context)
-            output.SetFromVector(reference[entries])
-        return calc
-
-    def _calc_reference(self, context):
-        raise NotImplementedError
-
-    def reference(self, context):
-        """The whole cached reference vector (REFERENCE_LAYOUT order)."""
-        return self._reference.Eval(context)
-
-
-class WalkingPatternSource(_ReferenceSystem):
-    """The nominal walking pattern sampled at the context time (no state).
-
-    .. pydrake_system::
-
-        name: WalkingPatternSource
-        output_ports:
-        - com
-        - com_vel
-        - zmp
-        - left_foot
-        - right_foot
-        - upper_body
-        - arm_joints
-        - phase
-
-    Parameters
-    ----------
-    pattern : NominalPattern
-        The walk to play; its clock is the context time [s].
-
-    Notes
-    -----
-    Output ports (world frame, SI units): ``com`` (3) COG position [m];
-    ``com_vel`` (3) [m/s]; ``zmp`` (2) [m]; ``left_foot`` / ``right_foot``
-    (7) sole pose ``[x, y, z, qw, qx, qy, qz]`` ([m], unit quaternion, z is
-    the foot's lift above the floor); ``upper_body`` (18) joint targets in
-    ``UPPER_BODY_JOINTS`` order [rad]; ``arm_joints`` (4) the arm angles in
-    ``ARM_JOINTS`` order [rad]; ``phase`` (1) always the index of "walking"
-    in ``PHASES``.
-    """
-
-    def __init__(self, *, pattern: NominalPattern):
-        super().__init__()
-        self._pattern = pattern
-        self._declare_reference_outputs({self.time_ticket()})
-
-    @property
-    def pattern(self):
-        return self._pattern
-
-    def _calc_reference(self, context):
-        return reference_vector(context.get_time(), pattern=self._pattern)
-
-
-class EStopTrigger(LeafSystem):
-    """Latches the emergency-stop signal once, at a servo tick.
-
-    Sources, checked every ``servo_period``: (a) ``scheduled_time`` (the
-    first tick at or after it), (b) the optional ``stop_request`` input port
-    (any element > 0.5 requests the stop; leave it unconnected to ignore it),
-    (c) a Meshcat button ``button_name`` (a click since the context was
-    initialized).  The first request latches ``[1, t_tick]``; later requests
-    and presses change nothing.
-
-    .. pydrake_system::
-
-        name: EStopTrigger
-        input_ports:
-        - stop_request
-        output_ports:
-        - stop
-
-    Parameters
-    ----------
-    servo_period : float
-        Period of the latch check [s] (HRP-2: 0.005 s).
-    scheduled_time : float, optional
-        Time of a scheduled stop signal [s]; None for none.
-    meshcat : pydrake.geometry.Meshcat, optional
-        Adds the button ``button_name`` there; a click latches the stop.
-    button_name : str, optional
-        Label of the Meshcat button (default "Emergency stop").
-    request_size : int, optional
-        Size of the ``stop_request`` input (default 1).
-
-    Notes
-    -----
-    ``stop`` (2) is ``[latched (0 or 1), latch_time [s]]`` (latch_time is NaN
-    before the latch). State: discrete ``[latched, latch_time]`` plus the
-    button's click count at initialization (so a reused Meshcat button does
-    not fire at once).
-    """
-
-    def __init__(self, *, servo_period, scheduled_time=None, meshcat=None,
-                 button_name="Emergency stop", request_size=1):
-        super().__init__()
-        self._period = float(servo_period)
-        self._scheduled = None if scheduled_time is None else float(scheduled_time)
-        self._meshcat = meshcat
-        self._button = button_name
-        if meshcat is not None:
-            meshcat.AddButton(button_name)
-        self._latch_state = self.DeclareDiscreteState(np.array([0.0, np.nan]))
-        self._clicks_state = self.DeclareDiscreteState(1)
-        self.stop_request_port = self.DeclareVectorInputPort("stop_request", request_size)
-        self.stop_port = self.DeclareStateOutputPort("stop", self._latch_state)
-        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._period, 0.0, self._update)
-
-    @property
-    def button_name(self):
-        return self._button
-
-    def _clicks(self):
-        return 0 if self._meshcat is None else self._meshcat.GetButtonClicks(self._button)
-
-    def _initialize(self, context, discrete_state):
-        """Remember the button's click count when the simulation starts."""
-        discrete_state.set_value(self._clicks_state, [float(self._clicks())])
-        return EventStatus.Succeeded()
-
-    def _requested(self, context):
-        """True when any source asks for the stop at this tick."""
-        t = context.get_time()
-        if self._scheduled is not None and t >= self._scheduled - 1e-6 * self._period:
-            return True
-        if self.stop_request_port.HasValue(context) and np.any(
-                self.stop_request_port.Eval(context) > 0.5):
-            return True
-        baseline = context.get_discrete_state(self._clicks_state).value()[0]
-        return self._clicks() > baseline
-
-    def _update(self, context, discrete_state):
-        """Latch once; afterwards every request is ignored."""
-        if context.get_discrete_state(self._latch_state).value()[0] > 0.5:
-            return EventStatus.DidNothing()
-        if not self._requested(context):
-            return EventStatus.DidNothing()
-        discrete_state.set_value(self._latch_state, [1.0, context.get_time()])
-        return EventStatus.Succeeded()
-
-    @staticmethod
-    def latched(stop):
-        """(latched, latch_time) of a ``stop`` port value."""
-        return bool(stop[0] > 0.5), float(stop[1])
-
-
-def _dcm_distance(measured, pos, vel, omega: float) -> float:
-    """Distance [m] between the measured DCM ``x + v / omega`` (``measured = (com_xy, com_vel_xy)``) and the
-    DCM of COG position ``pos`` and velocity ``vel`` (x, y)."""
-    return float(np.linalg.norm((measured[0] + measured[1] / omega) - (pos + vel / omega)))
-
-
-class _PlanHandle:
-    """Holder of an immutable StopPlan inside a ``Value[object]``.
-
-    Drake clones abstract state (``copy.deepcopy`` for Python objects) every
-    time the Simulator prepares an unrestricted update; a plan is never
-    mutated after it is made, so sharing it is safe and keeps the tick cheap.
-    """
-
-    __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
-                 "last_try", "footholds_of", "pending", "latch_fallback")
-
-    def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None, last_try=-math.inf, footholds_of=None, pending=None, latch_fallback=None):
-        self.plan = plan
-        # why the latch planned from the reference although the measured state had left it (the
-        # InfeasibleStop message of the plan from the measured state), or None
-        self.latch_fallback = latch_fallback
-        self.last_try = last_try  # time of the last re-plan attempt's first tick
-        # (support, next_try) of a re-plan whose tries go on next tick (planner.ReplanPending), or None
-        self.pending = pending
-        # the landing (the plan of history that made it) whose measured footholds a re-plan has tried
-        self.footholds_of = footholds_of
-        self.history = history if history is not None else ((plan,) if plan is not None else ())
-        self.blend = blend  # (start, dp (2), dv (2), duration[, dfeet (2, 3)]): StopPlannerSystem._blended
-        self.wall_time = wall_time
-        self.replans = replans
-        self.replan_failures = replan_failures
-        self.max_wall_time = wall_time if max_wall_time is None else max_wall_time
-
-    def replaced(self, **changes) -> _PlanHandle:
-        """A copy with ``changes`` (field: value)."""
-        return _PlanHandle(**{**{name: getattr(self, name) for name in self.__slots__}, **changes})
-
-    def __deepcopy__(self, memo):
-        return self
-
-    def __copy__(self):
-        return self
-
-
-class PlanSequence:
-    """A stop plan and its re-plans, evaluated as one plan: each in force from its start time.
-
-    Offers what :func:`drake_estop.physics.plant.analyse` reads of a
-    :class:`drake_estop.planning.planner.StopPlan` (``com``, ``com_height``,
-    ``feet``, ``support_sides``, ``phase``; the last plan's end state).
-    """
-
-    def __init__(self, plans):
-        self.plans = tuple(plans)
-        self._starts = np.array([p.start_time for p in self.plans[1:]])
-
-    def __getattr__(self, name):  # the final plan's attributes (halt_end, final_feet, pattern, ...)
-        return getattr(self.plans[-1], name)
-
-    @property
-    def signal_time(self):
-        return self.plans[0].signal_time
-
-    def _index(self, t):
-        return int(np.searchsorted(self._starts, t + 1e-12, side="right"))
-
-    def _at(self, t):
-        return self.plans[self._index(t)]
-
-    def _stitched(self, method, times):
-        """``plan.method(times)`` of the plan in force at each time, stitched back in time order."""
-        times = np.atleast_1d(np.asarray(times, float))
-        index = np.searchsorted(self._starts, times + 1e-12, side="right")
-        out = None
-        for k in np.unique(index):
-            mask = index == k
-            values = getattr(self.plans[k], method)(times[mask])
-            if out is None:
-                out = [np.zeros((len(times),) + np.shape(v)[1:]) for v in values]
-            for o, v in zip(out, values):
-                o[mask] = v
-        return tuple(out)
-
-    def com(self, times):
-        return self._stitched("com", times)
-
-    def com_height(self, times):
-        return self._stitched("com_height", times)
-
-    def feet(self, t):
-        return self._at(t).feet(t)
-
-    def support_sides(self, t, feet=None):
-        return self._at(t).support_sides(t, feet)
-
-    def polygon(self, t):
-        return self._at(t).polygon(t)
-
-    def phase(self, t):
-        return self._at(t).phase(t)
-
-    def upper_body(self, t):
-        return self._at(t).upper_body(t)
-
-    def summary(self) -> dict:
-        """The last plan's summary, with the signal of the first and the number of re-plans."""
-        summary = self.plans[-1].summary()
-        # a re-plan after the landing starts in double support: the landing is the last plan that made one
-        landed = [p for p in self.plans if p.landing_foot is not None] or self.plans[:1]
-        summary["phase_times"]["landing_end"] = landed[-1].landing_time
-        # landings made: a plan's landing counts once no later re-plan replaced it before its touchdown
-        made = [p for p, nxt in zip(self.plans, self.plans[1:] + (None,))
-                if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
-        summary["steps_after_signal"] = self.plans[0].steps_after_signal - (self.plans[0].landing_foot is not None) \
-            + len(made)
-        summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
-                       recovery_steps=sum(p.recovery_step for p in made),
-                       first_plan={"case": self.plans[0].case, "step_length": self.plans[0].step_length,
-                                   "zmp_max": self.plans[0].zmp_max,
-                                   "halt_end": self.plans[0].halt_end})
-        return summary
-
-
-class StopPlannerSystem(_ReferenceSystem):
+class StopPlannerSystem(ReferenceSystem):
     """Nominal pattern until the stop latches, then the four-phase stop.
 
     Every ``params.servo_period`` an unrestricted update reads ``stop``; on
@@ -669,7 +292,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._blend_time = float(blend_time)
         self._replan_interval = float(replan_interval)
         self._landed_threshold = float(landed_replan_threshold)
-        self._plan_state = self.DeclareAbstractState(AbstractValue.Make(_PlanHandle()))
+        self._plan_state = self.DeclareAbstractState(AbstractValue.Make(PlanHandle()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
         # optional: the estimated COG; when connected the stop is planned (and re-planned) from it
         self.measured_com_port = self.DeclareVectorInputPort("measured_com", 3)
@@ -685,7 +308,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._bias_state = self.DeclareDiscreteState(4)
         self._filtered_state = self.DeclareDiscreteState(4)
         self._filter_started = self.DeclareDiscreteState(1)
-        # per sole (SIDES order): _AWAY, _STANDING, _LIFTED or _RELANDED since the latch (_relanded)
+        # per sole (SIDES order): its SOLE_* stage since the latch (_relanded, stop_numerics.next_sole_stage)
         self._sole_stages = self.DeclareDiscreteState(2)
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
@@ -697,7 +320,7 @@ class StopPlannerSystem(_ReferenceSystem):
         self._pattern_com = pattern.com(ticks)[:2]
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer)
         self.plan_port = self.DeclareAbstractOutputPort(
-            "plan", lambda: AbstractValue.Make(_PlanHandle()), self._calc_plan_output,
+            "plan", lambda: AbstractValue.Make(PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
         self.one_step_feasible_port = self.DeclareStateOutputPort("one_step_feasible", self._feasible_state)
         self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, timed(self._update, timer))
@@ -806,7 +429,7 @@ class StopPlannerSystem(_ReferenceSystem):
             # which crashed the process (SIGSEGV, drake 1.51.1). The exception reaches AdvanceTo's caller.
             raise InfeasibleStop(f"stop planning failed at t = {context.get_time():.3f} s: {error}") from error
         # a plan from the reference continues the command; one from the measured state is blended into
-        handle = _PlanHandle(plan, time.perf_counter() - start,
+        handle = PlanHandle(plan, time.perf_counter() - start,
                              blend=None if measured is None else self._blend_into(context, plan),
                              latch_fallback=fallback)
         state.get_mutable_abstract_state(self._plan_state).set_value(handle)
@@ -850,15 +473,8 @@ class StopPlannerSystem(_ReferenceSystem):
         return pos[0], vel[0]
 
     def _pattern_deviation(self, t: float, measured) -> float:
-        """:meth:`_deviation` from the pattern at ``t``, its COG looked up (:meth:`_pattern_com_at`)."""
-        return _dcm_distance(measured, *self._pattern_com_at(t), self._pattern.w)
-
-    @staticmethod
-    def _deviation(reference, t, measured):
-        """Distance [m] between the measured DCM ``x + v / omega`` and ``reference``'s at ``t``."""
-        pos, vel, _, _ = reference.com([t])
-        omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
-        return _dcm_distance(measured, pos[0], vel[0], omega)
+        """:func:`dcm_deviation` from the pattern at ``t``, its COG looked up (:meth:`_pattern_com_at`)."""
+        return dcm_distance(measured, *self._pattern_com_at(t), self._pattern.w)
 
     def _relanded(self, context, state, plan):
         """``({side: xy}, fresh)``: the soles that landed again off the plan's foothold, and whether one
@@ -886,20 +502,13 @@ class StopPlannerSystem(_ReferenceSystem):
         planned = plan.feet(t)
         relanded, fresh = {}, False
         for k, side in enumerate(SIDES):
-            loaded = feet[4 + k] >= self._foothold_ticks
             xy = feet[2 * k:2 * k + 2].copy()
-            off = _off_foothold(xy, planned[side], self._relanded_tolerance)
-            if planned[side][2] > 1e-9:
-                stages[k] = _AWAY
-            elif stages[k] == _AWAY and loaded:
-                stages[k] = _STANDING
-            elif stages[k] in (_STANDING, _RELANDED) and feet[4 + k] == 0.0:
-                stages[k] = _LIFTED
-            elif stages[k] == _LIFTED and loaded:
-                stages[k], fresh = (_RELANDED, True) if off else (_STANDING, fresh)
-            elif stages[k] == _RELANDED and not off:  # a plan stands on it now
-                stages[k] = _STANDING
-            if stages[k] == _RELANDED:
+            stage = next_sole_stage(stages[k], airborne=planned[side][2] > 1e-9,
+                                    loaded=feet[4 + k] >= self._foothold_ticks, unloaded=feet[4 + k] == 0.0,
+                                    off=off_foothold(xy, planned[side], self._relanded_tolerance))
+            fresh = fresh or (stages[k] == SOLE_LIFTED and stage == SOLE_RELANDED)
+            stages[k] = stage
+            if stage == SOLE_RELANDED:
                 relanded[side] = xy
         state.get_mutable_discrete_state(self._sole_stages).set_value(stages)
         return relanded, fresh
@@ -918,9 +527,9 @@ class StopPlannerSystem(_ReferenceSystem):
         if not (relanded and fresh) and pending is None and t - handle.last_try < self._replan_interval - 1e-9:
             return self._drop_pending(state, handle)  # let the last re-plan's blend act before judging it
         threshold = self._landed_threshold if landed else self._replan_threshold
-        deviated = self._deviation(plan, t, measured) > threshold
+        deviated = dcm_deviation(plan, t, measured) > threshold
         # the measured feet: for a re-plan after the landing, and (option) to see whether they left the plan's
-        landing = self._last_landing(handle.history) if landed else None
+        landing = last_landing(handle.history) if landed else None
         wanted = deviated or (self._foothold_tolerance is not None and t < plan.slowdown_end
                               and landing is not None and handle.footholds_of is not landing)
         feet = self._footholds(context, landing) if wanted else None
@@ -967,18 +576,13 @@ class StopPlannerSystem(_ReferenceSystem):
         if feet is None or self._foothold_tolerance is None:
             return False
         planned = plan.feet(t)
-        return any(_off_foothold(xy, planned[side], self._foothold_tolerance) for side, xy in feet.items())
-
-    @staticmethod
-    def _last_landing(history):
-        """The last plan of ``history`` with a landing (None for none)."""
-        return next((plan for plan in reversed(history) if plan.landing_foot is not None), None)
+        return any(off_foothold(xy, planned[side], self._foothold_tolerance) for side, xy in feet.items())
 
     def _footholds(self, context, landing):
         """``{side: xy}``: both soles' estimated positions, once the foot of ``landing`` (the stop's last
-        plan with a landing, :meth:`_last_landing`) has been loaded ``foothold_ticks`` ticks; None
-        without a measurement or before any landing of the stop (``landing`` None: a stop signalled in
-        double support keeps the walk's feet until a recovery step lands)."""
+        plan with a landing, :func:`~drake_estop.systems.plan_sequence.last_landing`) has been loaded
+        ``foothold_ticks`` ticks; None without a measurement or before any landing of the stop (``landing``
+        None: a stop signalled in double support keeps the walk's feet until a recovery step lands)."""
         if not self._measured_footholds or landing is None or not self.measured_feet_port.HasValue(context):
             return None
         feet = self.measured_feet_port.Eval(context)
@@ -989,39 +593,7 @@ class StopPlannerSystem(_ReferenceSystem):
     def _calc_reference(self, context):
         handle = self._handle(context)
         t = context.get_time()
-        return self._blended(reference_vector(t, pattern=self._pattern, plan=handle.plan), handle.blend, t)
-
-    @staticmethod
-    def _blended(reference, blend, t):
-        """``reference`` with the COG command blended from the previous command into a new plan.
-
-        A plan from the measured state starts where the robot is, not where
-        its command was; stepping the command there would step the joint
-        targets (the stiff servos then strike the floor). The COG command is
-        the plan plus a quintic that starts at the old command's offset
-        ``dp`` and rate ``dv`` and fades to zero, at rest, over ``duration``.
-        The fifth entry ``dfeet`` (2 x 3, left then right; optional) does the
-        same for the sole positions, which a plan on measured footholds moves
-        (a 1-2 cm step of a loaded foot's target kicked the robot off the
-        floor).
-        """
-        if blend is None:
-            return reference
-        start, dp, dv, duration = blend[:4]
-        s = (t - start) / duration
-        if not 0.0 <= s < 1.0:
-            return reference
-        h0 = 1 - 10 * s**3 + 15 * s**4 - 6 * s**5
-        h1 = s - 6 * s**3 + 8 * s**4 - 3 * s**5
-        d0 = (-30 * s**2 + 60 * s**3 - 30 * s**4) / duration
-        d1 = 1 - 18 * s**2 + 32 * s**3 - 15 * s**4
-        out = reference.copy()
-        out[REFERENCE_SLICES["com"]][:2] += dp * h0 + dv * duration * h1
-        out[REFERENCE_SLICES["com_vel"]][:2] += dp * d0 + dv * d1
-        if len(blend) > 4:  # sole positions moved onto measured footholds: faded the same way, at rest
-            for side, offset in zip(SIDES, blend[4]):
-                out[REFERENCE_SLICES[f"{side}_foot"]][:3] += offset * h0
-        return out
+        return blended_reference(reference_vector(t, pattern=self._pattern, plan=handle.plan), handle.blend, t)
 
     def _blend_into(self, context, plan):
         """The blend from the command now in force into ``plan`` (None if it starts continuous)."""

@@ -1,0 +1,245 @@
+"""`drake-estop simulate --physics` on the command line: the perturbation and controller options reach
+the online run, bad ones exit 2 naming the option, the summary reports the controller."""
+
+import json
+import math
+
+import pytest
+
+from drake_estop.cli import main
+from drake_estop.physics.criteria import CRITERIA
+from drake_estop.physics.perturbations import Push
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--mass-scale", "0"], "--mass-scale"),
+    (["--mass-scale", "nan"], "--mass-scale"),
+    (["--torso-mass-scale", "-1"], "--torso-mass-scale"),
+    (["--torso-com-offset", "0.5"], "--torso-com-offset"),
+    (["--friction", "0"], "--friction"),
+    (["--latency", "-1"], "--latency"),
+    (["--push", "3.4", "10", "0", "0"], "--push"),
+    (["--push", "3.4", "nan", "0", "0.1"], "--push"),
+    (["--seed", "-3"], "--seed"),
+])
+def test_bad_perturbations_exit_2_naming_the_option(args, option, capsys):
+    assert main(["simulate", "--physics", *args]) == 2
+    assert option in capsys.readouterr().err
+
+
+def test_perturbations_need_physics(capsys):
+    assert main(["simulate", "--kinematic", "--mass-scale", "1.1"]) == 2
+    assert "--physics" in capsys.readouterr().err
+
+
+def _online_run_keywords(monkeypatch, args):
+    """The keyword arguments `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
+    import drake_estop.physics.online as online
+
+    seen = {}
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.update(kwargs)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    assert main(["simulate", "--physics", *args]) == 2
+    return seen
+
+
+def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
+    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
+    over the controller's margin; ``--no-braked-landing`` gives the paper's landing swing; a tighter
+    limit from the command line is kept."""
+    import drake_estop.physics.online as online
+
+    seen = []
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.append(stop)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    assert main(["simulate", "--physics"]) == 2
+    assert main(["simulate", "--physics", "--no-braked-landing"]) == 2
+    assert main(["simulate", "--physics", "--max-swing-acceleration=10", "--landing-approach-slope=0.8"]) == 2
+    braked, paper, tighter = seen
+    assert braked.max_swing_acceleration == 15.0 and braked.landing_approach_slope == 0.6
+    assert braked.landing_approach_when_braking  # the slope only where the braking limit bounds the landing
+    assert braked.zmp_margin == paper.zmp_margin == pytest.approx(0.03)
+    assert paper.max_swing_acceleration == math.inf and paper.landing_approach_slope == 0.0
+    assert tighter.max_swing_acceleration == 10.0 and tighter.landing_approach_slope == 0.8
+    assert not tighter.landing_approach_when_braking  # a slope given shapes every swing
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_no_braked_landing_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--no-braked-landing"]) == 2
+    assert "--no-braked-landing" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
+def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
+    assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given
+
+
+@pytest.mark.parametrize("flag, given", [([], True), (["--no-swing-tilt"], False)])
+def test_no_swing_tilt_reaches_the_online_run(monkeypatch, flag, given):
+    assert _online_run_keywords(monkeypatch, flag)["swing_tilt"] is given
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
+                                  ["--physics", "--controller", "offline-filter", "--no-foot-compliance"]])
+def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    assert "--no-foot-compliance" in capsys.readouterr().err
+
+
+#: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
+PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
+                 "--no-relanded-footholds": "relanded_footholds", "--no-reference-fallback": "reference_fallback"}
+
+
+@pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
+def test_planner_flags_reach_the_online_run(monkeypatch, flag):
+    options = _online_run_keywords(monkeypatch, [flag] if flag else [])["planner_options"] or {}
+    for other, name in PLANNER_FLAGS.items():
+        assert options.get(name, True) is (other != flag), name
+
+
+def test_foothold_replan_flag_turns_the_option_on(monkeypatch):
+    assert (_online_run_keywords(monkeypatch, [])["planner_options"] or {}).get("foothold_replan", False) is False
+    options = _online_run_keywords(monkeypatch, ["--foothold-replan"])["planner_options"]
+    assert options == {"foothold_replan": True}  # and leaves the other options at their defaults
+
+
+@pytest.mark.parametrize("args, given", [
+    ([], "default"),
+    (["--max-replan-solves", "1"], 1),
+    (["--max-replan-solves", "unbounded"], None),
+    (["--scenario-text", "{max_replan_solves: null}"], None),
+    (["--scenario-text", "{max_replan_solves: 4}"], 4),
+])
+def test_max_replan_solves_reaches_the_online_run(monkeypatch, args, given):
+    options = _online_run_keywords(monkeypatch, args)["planner_options"] or {}
+    assert options.get("max_replan_solves", "default") == given
+    assert set(options) <= {"max_replan_solves"}  # the other planner options stay at their defaults
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", "nan"])
+def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
+    assert main(["simulate", "--physics", "--max-replan-solves", value]) == 2
+    assert "argument --max-replan-solves" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_max_replan_solves_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--max-replan-solves", "1"]) == 2
+    assert "--max-replan-solves" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_foothold_replan_flag_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--foothold-replan"]) == 2
+    assert "--foothold-replan" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", PLANNER_FLAGS)
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_planner_flags_need_the_online_physics_run(flag, mode, capsys):
+    assert main(["simulate", *mode, flag]) == 2
+    err = capsys.readouterr().err
+    assert flag in err and "--no-swing-tilt" not in err
+    assert all(other not in err for other in PLANNER_FLAGS if other != flag)
+
+
+@pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],
+                                  ["--physics", "--controller", "offline-filter", "--no-swing-tilt"]])
+def test_no_swing_tilt_needs_the_online_physics_run(args, capsys):
+    assert main(["simulate", *args]) == 2
+    assert "--no-swing-tilt" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, field, value", [
+    (["--push", "3.4", "170", "0", "0.1"], "pushes", (Push(3.4, 170.0, 0.0, 0.1),)),
+    (["--push", "3.4", "170", "0", "0.1", "--push", "3.6", "0", "-50", "0.2"], "pushes",
+     (Push(3.4, 170.0, 0.0, 0.1), Push(3.6, 0.0, -50.0, 0.2))),
+    (["--mass-scale", "1.1"], "mass_scale", 1.1),
+    (["--torso-mass-scale", "0.9"], "torso_mass_scale", 0.9),
+    (["--torso-com-offset", "-0.02"], "torso_com_offset", -0.02),
+    (["--friction", "0.5"], "friction", 0.5),
+    (["--latency", "1"], "latency_ticks", 1),
+    (["--sensor-noise"], "sensor_noise", True),
+    (["--seed", "7"], "seed", 7),
+])
+def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_path, args, field, value):
+    """Every option lands in the Perturbations the online run is given (the modules' own tests show
+    each one acting on the plant, the sensors and the push input)."""
+    seen = _online_run_keywords(monkeypatch, args)
+    assert getattr(seen["perturbations"], field) == value
+    assert seen["true_state"] is False
+
+
+@pytest.mark.slow
+def test_physics_summary_reports_the_online_controller(tmp_path):
+    summary, log = tmp_path / "s.json", tmp_path / "log.csv"
+    code = main(["simulate", "--physics", "--estop-time", "3.4", "--mass-scale", "1.1",
+                 "--summary", str(summary), "--log", str(log)])
+    data = json.load(open(summary))
+    assert code == (0 if data["success"] else 1)
+    assert data["controller"] == "online"
+    assert set(data["criteria"]) == set(CRITERIA)
+    assert set(data["tick_compute"]) >= {"median", "p99", "max"}
+    assert data["tick_compute"]["median"] > 0
+    assert set(data["tick_compute_cpu"]) >= {"median", "p99", "max"} and data["tick_compute_cpu"]["median"] > 0
+    assert data["tick_compute_by_block"]["WholeBodyIK._update"] > 0
+    worst = data["tick_compute_slowest"][0]  # the slowest tick after the signal, block by block
+    assert worst["total"] == pytest.approx(data["tick_compute_cpu"]["max"]) and worst["blocks"]
+    assert data["cpu_realtime_factor"] > 0  # how large is a benchmark (benchmarks/robustness.py), not a test
+    assert isinstance(data["replans"], int) and isinstance(data["joint_velocity_violations"], int)
+    assert 0.0 <= data["ankle_offset_max"] <= 0.05  # the foot-edge compliance's bound
+    assert 0.0 <= data["swing_tilt_max"] <= 0.17  # the swing-tilt compensation's cap
+    assert data["perturbations"]["mass_scale"] == 1.1
+    header = open(log).readline().strip().split(",")
+    for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
+                   "one_step_feasible"):
+        assert column in header
+
+
+#: The campaign's run 181 (docs/campaign): a push under way at the signal that no stop from the measured state catches.
+RUN_181 = ["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0.2234", "--step-time", "0.875",
+           "--step-width", "0.2034", "--push", "3.196", "412.98", "400.42", "0.052", "--mass-scale", "0.915",
+           "--torso-mass-scale", "1.0602", "--torso-com-offset", "-0.01243", "--friction", "0.8393",
+           "--latency", "1", "--seed", "1809849821110597283", "--sensor-noise"]
+
+
+def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners_reason(capsys):
+    assert main([*RUN_181, "--no-reference-fallback"]) == 2
+    assert "stop planning failed at t = 3.280 s: no feasible stop in the first 4 tries" in capsys.readouterr().err
+
+
+def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_reference(tmp_path, capsys):
+    """The campaign's run 181 (29.9 N s forward-left starting 79 ms before a 3.275 s signal,
+    model error, noise, one tick of latency): at the signal no stop within two steps exists from the
+    measured state, and the run used to end there with exit status 2 ("stop planning failed"). The latch
+    now plans the paper's stop from the reference and re-plans from the measured state: the run goes to
+    its end and the robot stays up (the CoP leaves the planned soles, so it still fails a criterion)."""
+    summary = tmp_path / "summary.json"
+    code = main([*RUN_181, "--summary", str(summary)])
+    data = json.loads(summary.read_text())
+    assert code == (0 if data["physics"]["success"] else 1)
+    assert "no feasible stop in the first 4 tries" in data["latch_fallback"]  # MAX_LATCH_SOLVES
+    assert "planned from the reference" in capsys.readouterr().out
+    assert data["physics"]["criteria"]["no_fall"]
+    assert data["replans"] >= 1
+
+
+def test_reference_fallback_is_set_from_the_scenario_file_too(monkeypatch):
+    options = _online_run_keywords(monkeypatch, ["--scenario-text", "{reference_fallback: false}"])["planner_options"]
+    assert options == {"reference_fallback": False}
+
+
+@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
+def test_no_reference_fallback_needs_the_online_physics_run(mode, capsys):
+    assert main(["simulate", *mode, "--no-reference-fallback"]) == 2
+    assert "--no-reference-fallback" in capsys.readouterr().err
