@@ -9,6 +9,7 @@ import pytest
 
 from drake_estop.cli import main
 from drake_estop.physics import offline
+from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.online import (
     build_online_diagram,
@@ -225,7 +226,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert bounded.numbers()["torso_tilt_max_rad"] < 0.03
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_early_landing=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    rocking = run_online(estop_time=2.85, pattern=pattern, foot_compliance=False)
+    rocking = run_online(estop_time=2.85, pattern=pattern, controller=ControllerOptions(foot_compliance=False))
     assert rocking.plan.plans[0].landing_time < bounded.plan.plans[0].landing_time - 0.1
     assert not rocking.criteria["comes_to_rest"]
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
@@ -247,7 +248,8 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     assert bent.online["replans"] >= 1
     assert np.all(np.isfinite(bent.cop_margin_plan[1:]))
     monkeypatch.setattr(online, "IK_MIN_KNEE_BEND", 0.0)
-    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
+    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
+                          controller=ControllerOptions(foot_compliance=False))
     assert not straight.criteria["cop_in_support"]
     assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
 
@@ -262,7 +264,8 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     compliant = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
     assert compliant.success, [name for name, ok in compliant.criteria.items() if not ok]
     assert compliant.online["ankle_offset_max"] > 1e-3
-    stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
+    stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
+                       controller=ControllerOptions(foot_compliance=False))
     assert not stiff.criteria["cop_in_support"]
     assert stiff.online["ankle_offset_max"] == 0.0
 
@@ -282,7 +285,7 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_landing_shift_per_height=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    dragged = run_online(estop_time=3.45, pattern=pattern, planner_options={"measured_footholds": False})
+    dragged = run_online(estop_time=3.45, pattern=pattern, controller=ControllerOptions(measured_footholds=False))
     assert not dragged.criteria["no_fall"]
     rescued = run_online(estop_time=3.45, pattern=pattern)
     assert rescued.success, [name for name, ok in rescued.criteria.items() if not ok]
@@ -321,7 +324,8 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     compensated = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes)
     assert compensated.success, [name for name, ok in compensated.criteria.items() if not ok]
     assert compensated.online["swing_tilt_max"] > 0.02
-    tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes, swing_tilt=False)
+    tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes,
+                        controller=ControllerOptions(swing_tilt=False))
     assert tilted.online["swing_tilt_max"] == 0.0
     assert not tilted.criteria["cop_in_support"]
 
@@ -341,7 +345,7 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     landed = measured.plan.final_feet["right"]
     assert abs(landed[1] - measured.plan.plans[1].final_feet["right"][1]) > 0.01  # re-planned where it landed
     planned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                         planner_options={"measured_footholds": False})
+                         controller=ControllerOptions(measured_footholds=False))
     assert not planned.criteria["cop_in_support"]
 
 
@@ -354,7 +358,7 @@ def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 0.0, 150.0, 0.1),))
     replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                           planner_options={"foothold_replan": True})
+                           controller=ControllerOptions(foothold_replan=True))
     assert replanned.success, [name for name, ok in replanned.criteria.items() if not ok]
     first, replan = replanned.plan.plans
     assert replanned.online["replans"] == 1 and replan.start_time > first.landing_time  # after the landing
@@ -377,23 +381,23 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
     assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the rear foot stepped
     held = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                      planner_options={"recovery_step": False})
+                      controller=ControllerOptions(recovery_step=False))
     assert not held.criteria["no_fall"]
 
 
 @pytest.mark.slow
 def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
     """29 N s forward at 2.95 s (0.5 m/s; early single support, the swing foot 0.57 m from its landing).
-    With the paper's landing swing (``braked_landing=False``) the re-plans hurry the landing and the foot
-    skims the floor: the CoP leaves the planned support and the robot falls. The controller's braked
-    landing (BRAKED_LANDING, the default: a re-plan's landing is bounded by the braking limit and its swing
-    approaches the floor at the slope) meets every criterion."""
+    With the paper's landing swing (``ControllerOptions(braked_landing=False)``) the re-plans hurry the
+    landing and the foot skims the floor: the CoP leaves the planned support and the robot falls. The
+    controller's braked landing (BRAKED_LANDING, the default: a re-plan's landing is bounded by the braking
+    limit and its swing approaches the floor at the slope) meets every criterion."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 290.0, 0.0, 0.1),))
     stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                         stop_params=controller_stop_parameters(braked_landing=False))
+                         controller=ControllerOptions(braked_landing=False))
     assert not hurried.criteria["cop_in_support"] and not hurried.criteria["no_fall"]
     assert any(plan.braked_swing for plan in stopped.plan.plans)
 
@@ -414,7 +418,7 @@ def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_sta
     stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     on_the_plan = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
-                             planner_options={"relanded_footholds": False})
+                             controller=ControllerOptions(relanded_footholds=False))
     assert not on_the_plan.criteria["cop_in_support"]
     assert np.nanmin(on_the_plan.cop_margin_plan[1:]) > -0.002  # a near miss, not a fall
     assert stopped.online["replans"] > on_the_plan.online["replans"]
@@ -459,10 +463,8 @@ def _online_run_keywords(monkeypatch, args):
     return seen
 
 
-def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
-    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
-    over the controller's margin; ``--no-braked-landing`` gives the paper's landing swing; a tighter
-    limit from the command line is kept."""
+def _online_run_stop_parameters(monkeypatch, args):
+    """The stop parameters `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
     import drake_estop.physics.online as online
 
     seen = []
@@ -472,10 +474,17 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(online, "run_online", fake_run_online)
-    assert main(["simulate", "--physics"]) == 2
-    assert main(["simulate", "--physics", "--no-braked-landing"]) == 2
-    assert main(["simulate", "--physics", "--max-swing-acceleration=10", "--landing-approach-slope=0.8"]) == 2
-    braked, paper, tighter = seen
+    assert main(["simulate", "--physics", *args]) == 2
+    return seen[0]
+
+
+def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
+    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
+    over the controller's margin; the scenario's ``controller: {braked_landing: false}`` gives the paper's
+    landing swing; a tighter limit from the command line is kept."""
+    braked = _online_run_stop_parameters(monkeypatch, [])
+    paper = _online_run_stop_parameters(monkeypatch, ["--scenario-text", "{controller: {braked_landing: false}}"])
+    tighter = _online_run_stop_parameters(monkeypatch, ["--max-swing-acceleration=10", "--landing-approach-slope=0.8"])
     assert braked.max_swing_acceleration == 15.0 and braked.landing_approach_slope == 0.6
     assert braked.landing_approach_when_braking  # the slope only where the braking limit bounds the landing
     assert braked.zmp_margin == paper.zmp_margin == pytest.approx(0.03)
@@ -484,92 +493,108 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
     assert not tighter.landing_approach_when_braking  # a slope given shapes every swing
 
 
+#: One value off its default for every field of the controller section but ``kind``.
+CHANGED = {"true_state": True, "foot_compliance": False, "swing_tilt": False, "measured_footholds": False,
+           "relanded_footholds": False, "recovery_step": False, "braked_landing": False,
+           "reference_fallback": False, "foothold_replan": True, "max_replan_solves": None}
+
+
+def _controller_text(name, value) -> str:
+    """``--scenario-text`` setting one field of the controller section (JSON values are YAML)."""
+    return f"{{controller: {{{name}: {json.dumps(value)}}}}}"
+
+
+def test_every_controller_field_has_a_changed_value_here():
+    assert set(CHANGED) == {name for name in ControllerOptions.__dataclass_fields__} - {"kind"}
+
+
+def test_the_controller_options_default_to_the_stop_planner_systems_own():
+    """The planner features left at their defaults change nothing: StopPlannerSystem has the same defaults."""
+    import inspect
+
+    from drake_estop.systems.stop_controller import StopPlannerSystem
+
+    own = inspect.signature(StopPlannerSystem).parameters
+    assert ControllerOptions().planner_options() == {name: own[name].default for name in PLANNER_FEATURES}
+
+
+def test_the_scenarios_controller_section_reaches_the_online_run(monkeypatch, tmp_path):
+    """A scenario file's controller section is what run_online receives, with --true-state on top."""
+    path = tmp_path / "scenario.yaml"
+    path.write_text("controller:\n  kind: online\n  foot_compliance: false\n  recovery_step: false\n"
+                    "  max_replan_solves: 5\n")
+    seen = _online_run_keywords(monkeypatch, ["--scenario-file", str(path), "--true-state"])
+    assert seen["controller"] == ControllerOptions(foot_compliance=False, recovery_step=False, max_replan_solves=5,
+                                                   true_state=True)
+    assert _online_run_keywords(monkeypatch, [])["controller"] == ControllerOptions()
+
+
+@pytest.mark.parametrize("name", CHANGED)
+def test_each_controller_field_reaches_the_online_run(monkeypatch, name):
+    seen = _online_run_keywords(monkeypatch, ["--scenario-text", _controller_text(name, CHANGED[name])])
+    assert seen["controller"].changed() == {name: CHANGED[name]}  # the others at their defaults
+
+
+@pytest.mark.parametrize("name", CHANGED)
 @pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_no_braked_landing_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--no-braked-landing"]) == 2
-    assert "--no-braked-landing" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
-def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
-    assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given
-
-
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-swing-tilt"], False)])
-def test_no_swing_tilt_reaches_the_online_run(monkeypatch, flag, given):
-    assert _online_run_keywords(monkeypatch, flag)["swing_tilt"] is given
-
-
-@pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
-                                  ["--physics", "--controller", "offline-filter", "--no-foot-compliance"]])
-def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
-    assert "--no-foot-compliance" in capsys.readouterr().err
-
-
-#: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
-PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
-                 "--no-relanded-footholds": "relanded_footholds", "--no-reference-fallback": "reference_fallback"}
-
-
-@pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
-def test_planner_flags_reach_the_online_run(monkeypatch, flag):
-    options = _online_run_keywords(monkeypatch, [flag] if flag else [])["planner_options"] or {}
-    for other, name in PLANNER_FLAGS.items():
-        assert options.get(name, True) is (other != flag), name
-
-
-def test_foothold_replan_flag_turns_the_option_on(monkeypatch):
-    assert (_online_run_keywords(monkeypatch, [])["planner_options"] or {}).get("foothold_replan", False) is False
-    options = _online_run_keywords(monkeypatch, ["--foothold-replan"])["planner_options"]
-    assert options == {"foothold_replan": True}  # and leaves the other options at their defaults
-
-
-@pytest.mark.parametrize("args, given", [
-    ([], "default"),
-    (["--max-replan-solves", "1"], 1),
-    (["--max-replan-solves", "unbounded"], None),
-    (["--scenario-text", "{max_replan_solves: null}"], None),
-    (["--scenario-text", "{max_replan_solves: 4}"], 4),
-])
-def test_max_replan_solves_reaches_the_online_run(monkeypatch, args, given):
-    options = _online_run_keywords(monkeypatch, args)["planner_options"] or {}
-    assert options.get("max_replan_solves", "default") == given
-    assert set(options) <= {"max_replan_solves"}  # the other planner options stay at their defaults
-
-
-@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", "nan"])
-def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
-    assert main(["simulate", "--physics", "--max-replan-solves", value]) == 2
-    assert "argument --max-replan-solves" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_max_replan_solves_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--max-replan-solves", "1"]) == 2
-    assert "--max-replan-solves" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_foothold_replan_flag_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--foothold-replan"]) == 2
-    assert "--foothold-replan" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("flag", PLANNER_FLAGS)
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_planner_flags_need_the_online_physics_run(flag, mode, capsys):
-    assert main(["simulate", *mode, flag]) == 2
+def test_each_controller_field_needs_the_online_physics_run(name, mode, capsys):
+    assert main(["simulate", *mode, "--scenario-text", _controller_text(name, CHANGED[name])]) == 2
     err = capsys.readouterr().err
-    assert flag in err and "--no-swing-tilt" not in err
-    assert all(other not in err for other in PLANNER_FLAGS if other != flag)
+    assert f"controller.{name}: only with" in err
+    assert all(f"controller.{other}" not in err for other in CHANGED if other != name)
 
 
-@pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],
-                                  ["--physics", "--controller", "offline-filter", "--no-swing-tilt"]])
-def test_no_swing_tilt_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
-    assert "--no-swing-tilt" in capsys.readouterr().err
+def test_the_offline_filter_needs_physics(capsys):
+    assert main(["simulate", "--kinematic", "--controller", "offline-filter"]) == 2
+    assert "controller.kind: only with --physics" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--no-foot-compliance", "--no-swing-tilt", "--no-measured-footholds",
+                                  "--no-braked-landing", "--no-relanded-footholds", "--no-recovery-step",
+                                  "--no-reference-fallback", "--foothold-replan", "--max-replan-solves=1"])
+def test_the_controller_features_are_not_command_line_options(flag, capsys):
+    """They are the scenario's controller section (--scenario-file / --scenario-text)."""
+    assert main(["simulate", "--physics", flag]) == 2
+    assert "unrecognized arguments" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan"])
+def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
+    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{max_replan_solves: {value}}}}}"]) == 2
+    assert "max_replan_solves" in capsys.readouterr().err
+
+
+def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
+    """ControllerOptions to the diagram: the planner features reach StopPlannerSystem, true_state the
+    estimator, and foot_compliance / swing_tilt False leave those systems out."""
+    import drake_estop.physics.online as online
+
+    seen = {}
+
+    def spy(name):
+        original = getattr(online, name)
+
+        def recorded(*args, **kwargs):
+            seen[name] = kwargs
+            return original(*args, **kwargs)
+        return recorded
+
+    for name in ("add_stop_controller", "add_state_estimation"):
+        monkeypatch.setattr(online, name, spy(name))
+    controller = ControllerOptions(true_state=True, foot_compliance=False, swing_tilt=False, recovery_step=False,
+                                   foothold_replan=True, max_replan_solves=None)
+    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller,
+                                   planner_options={"replan_threshold": 0.06})
+    assert {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES} == controller.planner_options()
+    assert seen["add_stop_controller"]["replan_threshold"] == 0.06
+    assert seen["add_state_estimation"]["true_state"] is True
+    assert handles.compliance is None and handles.swing_tilt is None
+    assert "ankle_offsets" not in handles.loggers and "swing_tilt" not in handles.loggers
+    default = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
+    assert default.compliance is not None and default.swing_tilt is not None
+    assert seen["add_state_estimation"]["true_state"] is False
+    default_features = {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES}
+    assert default_features == ControllerOptions().planner_options()
 
 
 @pytest.mark.parametrize("args, field, value", [
@@ -589,7 +614,7 @@ def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_pat
     each one acting on the plant, the sensors and the push input)."""
     seen = _online_run_keywords(monkeypatch, args)
     assert getattr(seen["perturbations"], field) == value
-    assert seen["true_state"] is False
+    assert seen["controller"] == ControllerOptions()
 
 
 @pytest.mark.slow
@@ -627,8 +652,9 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     ({"after_halt": float("inf")}, "after_halt"),
     ({"planner_options": {"replan_treshold": 0.05}}, "planner_options"),
     ({"planner_options": True}, "planner_options"),
-    ({"foot_compliance": {"damp": 80.0}}, "foot_compliance"),
-    ({"swing_tilt": 0.17}, "swing_tilt"),
+    ({"planner_options": {"recovery_step": False}}, r"controller=ControllerOptions\(recovery_step"),
+    ({"controller": "online"}, "controller must be a ControllerOptions"),
+    ({"controller": ControllerOptions(kind="offline-filter")}, "controller.kind"),
     ({"gait_params": GaitParameters(step_length=0.2), "pattern": NominalPattern()}, "gait_params and pattern"),
 ])
 def test_run_online_rejects_bad_arguments_naming_them(arguments, named, monkeypatch):
@@ -668,7 +694,7 @@ RUN_181 = ["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0
 
 
 def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners_reason(capsys):
-    assert main([*RUN_181, "--no-reference-fallback"]) == 2
+    assert main([*RUN_181, "--scenario-text", "{controller: {reference_fallback: false}}"]) == 2
     assert "stop planning failed at t = 3.280 s: no feasible stop in the first 4 tries" in capsys.readouterr().err
 
 
@@ -686,17 +712,6 @@ def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_refer
     assert "planned from the reference" in capsys.readouterr().out
     assert data["physics"]["criteria"]["no_fall"]
     assert data["replans"] >= 1
-
-
-def test_reference_fallback_is_set_from_the_scenario_file_too(monkeypatch):
-    options = _online_run_keywords(monkeypatch, ["--scenario-text", "{reference_fallback: false}"])["planner_options"]
-    assert options == {"reference_fallback": False}
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_no_reference_fallback_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--no-reference-fallback"]) == 2
-    assert "--no-reference-fallback" in capsys.readouterr().err
 
 
 def test_online_simulator_starts_the_robot_in_its_pose_with_the_model_errors_in_the_simulated_plant_only():
