@@ -308,7 +308,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     """
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
 
-    controller = controller or ControllerOptions()
+    controller = ControllerOptions() if controller is None else controller
     planner_settings = _planner_settings(controller, planner_options)
     perturbations = perturbations or Perturbations()
     physics = ground_friction(perturbations, physics or PhysicsParameters())
@@ -441,9 +441,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     gait_params : GaitParameters, optional
         The walk (step length [m], step time [s], ...); default the paper's. Give this or ``pattern``.
     stop_params : StopParameters, optional
-        Used as given; default :func:`controller_stop_parameters` with ``controller.braked_landing`` (the
-        controller's margins, as the CLI; stop parameters given are used as they are, so make them with
-        ``controller_stop_parameters(params, braked_landing=...)``).
+        Used as given (the CLI gives ``controller_stop_parameters(params, braked_landing=...)``); default
+        :func:`controller_stop_parameters` with ``controller.braked_landing`` (the controller's margins).
     estop_time : float, optional
         Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
     after_halt : float, optional
