@@ -1,7 +1,10 @@
 """Robustness of the online stop controller in physics: the stride sweep, the perturbation matrix and
-the push-recovery table, each run an independent `run_online` simulation (ROBUSTNESS.md).
+the push-recovery table, each run an independent `run_online` simulation (ROBUSTNESS.md); and, with
+``--ablation``, the matrix again with one setting of the controller or the plant changed per row.
 
     python benchmarks/robustness.py [--workers 2] [--out benchmarks/ROBUSTNESS.md] [--quick]
+                                    [--controller-option NAME=VALUE] [--time-step S]
+    python benchmarks/robustness.py --ablation [--workers 2] [--cells CELL] [--phases PHASE] [--changes KEY]
 
 * **Stride sweep**: a stop signal every 20 ms over the third step (single then double support).
 * **Matrix**: every perturbation cell (pushes of 17 N s over 0.1 s at the signal in four
@@ -10,6 +13,16 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
 * **Push recovery**: per direction and signal phase, the largest impulse (0.1 s push at the signal)
   that still meets every criterion, searched on a 5 N s grid; and the target, 29 N s (0.5 m/s),
   run in every direction and phase.
+* **Ablation** (``--ablation``): the matrix (44 runs) with the defaults, then with each feature of the
+  online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
+  braked landing, re-landed footholds, recovery step and reference fallback off; the foothold re-plan on;
+  the re-plan's solves a tick unbounded) and with the plant at a 2 ms step: 484 runs, about 5 s of CPU
+  each (about 20 min on 2 workers). Each row: the matrix's passes, its falls and the cells that fail.
+  ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
+
+ROBUSTNESS.md holds the main report and, under its own heading between the :data:`ABLATION_BEGIN` and
+:data:`ABLATION_END` markers, the ablation; each kind of run rewrites its own part and keeps the other
+(ROBUSTNESS.json likewise: the main run's rows, and the ablation's rows under ``"ablation"``).
 
 Runs are spread over ``--workers`` processes; the numbers are those of this machine (2 cores).
 """
@@ -24,6 +37,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 MATRIX_CELLS = {
     "push forward 17 N s": {"push": (170.0, 0.0)},
@@ -47,30 +61,72 @@ PUSH_DURATION = 0.1  # [s]
 #: the push-recovery target: 0.5 m/s on the 58 kg robot, forward and backward (all four directions run)
 TARGET_IMPULSE = 29.0  # [N s]
 
+#: The ablation's rows: the defaults, then one change each, as a scenario file says it (section: fields;
+#: the controller section is drake_estop.physics.controller_options.ControllerOptions).
+ABLATION = (
+    {},
+    {"controller": {"foot_compliance": False}},
+    {"controller": {"swing_tilt": False}},
+    {"controller": {"measured_footholds": False}},
+    {"controller": {"braked_landing": False}},
+    {"controller": {"relanded_footholds": False}},
+    {"controller": {"recovery_step": False}},
+    {"controller": {"reference_fallback": False}},
+    {"controller": {"foothold_replan": True}},
+    {"controller": {"max_replan_solves": None}},
+    {"plant": {"time_step": 0.002}},
+)
+#: The lines around the ablation's section of the report: each kind of run keeps the other's part.
+ABLATION_BEGIN = "<!-- ablation: written by `python benchmarks/robustness.py --ablation`; other runs keep it -->"
+ABLATION_END = "<!-- end of ablation -->"
+
+
+def settings(*, controller=None, time_step=None, planner_options=None, stop_overrides=None) -> dict:
+    """What a run changes from the default controller and plant: ControllerOptions fields, the plant's time
+    step [s], other StopPlannerSystem settings, StopParameters over the controller's."""
+    return {"controller": dict(controller or {}), "time_step": time_step,
+            "planner_options": dict(planner_options or {}), "stop_overrides": dict(stop_overrides or {})}
+
+
+def change_settings(change: dict) -> dict:
+    """The :func:`settings` of an :data:`ABLATION` row."""
+    return settings(controller=change.get("controller"), time_step=change.get("plant", {}).get("time_step"))
+
+
+def change_key(change: dict) -> str:
+    """``"defaults"``, or the field an :data:`ABLATION` row changes: ``"controller.swing_tilt"``."""
+    return ", ".join(f"{section}.{name}" for section, fields in change.items() for name in fields) or "defaults"
+
+
+def change_label(change: dict) -> str:
+    """The row's change as a scenario file writes it: ``controller.swing_tilt: false``."""
+    return ", ".join(f"{section}.{name}: {json.dumps(value)}" for section, fields in change.items()
+                     for name, value in fields.items()) or "defaults"
+
 
 def _run(job):
-    """One online physics stop: ``job`` = (signal time, perturbation keywords). Returns a row."""
-    from drake_estop.physics.online import run_online
+    """One online physics stop: ``job`` = (signal time, perturbation keywords, :func:`settings`). Returns a row."""
+    from dataclasses import replace
+
+    from drake_estop.physics.controller_options import ControllerOptions
+    from drake_estop.physics.online import controller_stop_parameters, run_online
     from drake_estop.physics.perturbations import Perturbations, Push
     from drake_estop.physics.plant import PhysicsParameters
     from drake_estop.planning.gait import NominalPattern
+    from drake_estop.planning.planner import StopParameters
 
-    t, options, planner_options, time_step, foot_compliance, swing_tilt, stop_overrides, braked_landing = job
+    t, options, setup = job
     options = dict(options)
     push = options.pop("push", None)
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
     start = time.perf_counter()
-    physics = PhysicsParameters() if time_step is None else PhysicsParameters(time_step=time_step)
-    from dataclasses import replace
-
-    from drake_estop.physics.online import controller_stop_parameters
-    from drake_estop.planning.planner import StopParameters
-    stop_params = controller_stop_parameters(replace(StopParameters(), **stop_overrides),
-                                             braked_landing=braked_landing)
+    physics = PhysicsParameters() if setup["time_step"] is None else PhysicsParameters(time_step=setup["time_step"])
+    controller = ControllerOptions(**setup["controller"])
+    stop_params = controller_stop_parameters(replace(StopParameters(), **setup["stop_overrides"]),
+                                             braked_landing=controller.braked_landing)
     try:
-        result = run_online(estop_time=t, pattern=NominalPattern(), planner_options=planner_options,
-                            stop_params=stop_params,
-                            foot_compliance=foot_compliance, swing_tilt=swing_tilt,
+        result = run_online(estop_time=t, pattern=NominalPattern(), controller=controller,
+                            planner_options=setup["planner_options"] or None, stop_params=stop_params,
                             perturbations=Perturbations(pushes=pushes, **options), physics=physics)
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
@@ -97,47 +153,90 @@ def _stride():
     return NominalPattern().stride()
 
 
-def main(argv=None):
+def _phase_times() -> dict:
+    """Signal time [s] of each of :data:`PHASES` on the default walk."""
+    start, _ = _stride()
+    return {name: round(start + offset, 3) for name, offset in PHASES.items()}
+
+
+def _parser():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(Path(__file__).with_name("ROBUSTNESS.md")))
     parser.add_argument("--quick", action="store_true", help="10 sweep signals and a coarse push search")
+    parser.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE",
+                        help="a field of the scenario's controller section (ControllerOptions) for every run, "
+                             "the value in YAML, e.g. foot_compliance=false or max_replan_solves=null (repeatable)")
     parser.add_argument("--planner-option", action="append", default=[], metavar="NAME=VALUE",
-                        help="a StopPlannerSystem setting, e.g. landed_replan_threshold=0.065 (repeatable)")
+                        help="another StopPlannerSystem setting, e.g. landed_replan_threshold=0.065 (repeatable)")
     parser.add_argument("--stop-parameter", action="append", default=[], metavar="NAME=VALUE",
                         help="a StopParameters setting over the controller's, e.g. max_swing_acceleration=15 "
                              "(repeatable; the braked landing: drake_estop.physics.online.BRAKED_LANDING)")
-    parser.add_argument("--no-braked-landing", action="store_true",
-                        help="the paper's landing swing instead of the controller's braked landing (for comparison)")
     parser.add_argument("--time-step", type=float, default=None,
                         help="the plant's discrete step [s] (default: PhysicsParameters' own)")
-    parser.add_argument("--no-foot-compliance", action="store_true",
-                        help="run without the stance ankles' foot-edge compliance (for comparison)")
-    parser.add_argument("--no-swing-tilt", action="store_true",
-                        help="run without the swing foot's tilt compensation (for comparison)")
     parser.add_argument("--recheck-only", metavar="JSON",
                         help="no new runs: re-check the slow runs of an earlier run's JSON (same settings) and "
                              "write its report again")
     parser.add_argument("--no-recheck", action="store_true",
                         help="do not re-run alone the runs whose controller tick (CPU) had a p99 over 5 ms or a "
                              "max over 10 ms")
+    ablation = parser.add_argument_group("ablation")
+    ablation.add_argument("--ablation", action="store_true",
+                          help="the perturbation matrix with the defaults and with each ABLATION change in turn: "
+                               "the ablation table of --out (its own section; the main report is kept)")
+    ablation.add_argument("--cells", action="append", choices=list(MATRIX_CELLS), metavar="CELL",
+                          help="with --ablation: only this matrix cell (repeatable; default every cell)")
+    ablation.add_argument("--phases", action="append", choices=list(PHASES), metavar="PHASE",
+                          help="with --ablation: only this signal phase (repeatable; default every phase)")
+    ablation.add_argument("--changes", action="append", choices=[change_key(c) for c in ABLATION], metavar="KEY",
+                          help="with --ablation: only this row, 'defaults' or the field it changes, e.g. "
+                               "controller.swing_tilt (repeatable; default every row)")
+    return parser
+
+
+def _controller_options(parser, items) -> dict:
+    """``--controller-option NAME=VALUE`` items as ControllerOptions fields (values read as YAML), checked."""
+    from drake_estop.physics.controller_options import ControllerOptions
+
+    changes = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if not value or name == "kind":
+            parser.error(f"--controller-option: NAME=VALUE with NAME a feature of ControllerOptions, got {item!r}")
+        changes[name] = yaml.safe_load(value)
+    try:
+        ControllerOptions(**changes)
+    except TypeError:
+        parser.error(f"--controller-option: unknown name in {sorted(changes)}; known: "
+                     f"{sorted(set(ControllerOptions.__dataclass_fields__) - {'kind'})}")
+    except ValueError as error:
+        parser.error(f"--controller-option: {error}")
+    return changes
+
+
+def main(argv=None):
+    parser = _parser()
     args = parser.parse_args(argv)
+    if args.ablation:
+        return ablation_main(parser, args)
+    if args.cells or args.phases or args.changes:
+        parser.error("--cells, --phases and --changes select a part of the ablation: only with --ablation")
     start, end = _stride()
     every = 0.08 if args.quick else 0.02
     sweep_times = [round(start + every * k, 3) for k in range(int(round((end - start) / every)))]
-    phase_times = {name: round(start + offset, 3) for name, offset in PHASES.items()}
+    phase_times = _phase_times()
     jobs = [(t, {}) for t in sweep_times]
     jobs += [(t, options) for options in MATRIX_CELLS.values() for t in phase_times.values()]
     impulses = [10.0, 20.0, 30.0] if args.quick else [10.0, 15.0, 20.0, 25.0, 30.0, 35.0]
     jobs += [(phase_times[p], _push(d, i)) for p in PUSH_PHASES for d in DIRECTIONS.values()
              for i in [*impulses, TARGET_IMPULSE]]
-    planner_options = {k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)}
-    stop_overrides = {k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)}
-    jobs = [(t, options, planner_options, args.time_step, not args.no_foot_compliance,
-             not args.no_swing_tilt, stop_overrides, not args.no_braked_landing) for t, options in jobs]
+    setup = settings(controller=_controller_options(parser, args.controller_option), time_step=args.time_step,
+                     planner_options={k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)},
+                     stop_overrides={k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)})
+    jobs = [(t, options, setup) for t, options in jobs]
     if args.recheck_only:
         data = json.loads(Path(args.recheck_only).read_text())
-        rows, wall = data["rows"], data["wall_s"]
+        rows, wall, args.workers = data["rows"], data["wall_s"], data.get("workers", args.workers)
         if not _same([[r["t"], r["options"]] for r in rows], [list(job[:2]) for job in jobs]):
             parser.error("--recheck-only: the JSON's runs are not this benchmark's (other settings or --quick)")
         for row, job in zip(rows, jobs):
@@ -150,22 +249,129 @@ def main(argv=None):
     if not args.no_recheck:
         recheck(rows, jobs)
     data = {"sweep": rows[:len(sweep_times)], "rows": rows, "wall_s": wall, "workers": args.workers}
-    Path(args.out).with_suffix(".json").write_text(json.dumps(data, indent=1, default=str))
     text = report(rows, sweep_times, phase_times, impulses, wall, args.workers)
-    if planner_options:
-        text = text.replace("\n\n", f"\n\nPlanner settings changed from the defaults: {planner_options}.\n\n", 1)
-    if stop_overrides:
-        text = text.replace("\n\n", f"\n\nStop-planner settings over the controller's: {stop_overrides}.\n\n", 1)
-    if args.no_braked_landing:
-        text = text.replace("\n\n", "\n\nWithout the braked landing (the paper's landing swing).\n\n", 1)
-    if args.no_foot_compliance:
-        text = text.replace("\n\n", "\n\nWithout the foot-edge compliance.\n\n", 1)
-    if args.no_swing_tilt:
-        text = text.replace("\n\n", "\n\nWithout the swing foot's tilt compensation.\n\n", 1)
-    if args.time_step is not None:
-        text = text.replace("\n\n", f"\n\nPlant time step: {args.time_step * 1e3:g} ms.\n\n", 1)
-    Path(args.out).write_text(text)
+    notes = settings_notes(setup)
+    if notes:
+        text = text.replace("\n\n", "\n\n" + " ".join(notes) + "\n\n", 1)
+    write_main(args.out, text, data)
     print(Path(args.out).read_text())
+
+
+def settings_notes(setup: dict) -> list:
+    """The report's sentences on what a run changed from the default controller and plant."""
+    notes = []
+    if setup["controller"]:
+        notes.append("Controller settings changed from the defaults (the scenario's controller section): "
+                     + ", ".join(f"{name}: {json.dumps(value)}" for name, value in setup["controller"].items()) + ".")
+    if setup["planner_options"]:
+        notes.append(f"Planner settings changed from the defaults: {setup['planner_options']}.")
+    if setup["stop_overrides"]:
+        notes.append(f"Stop-planner settings over the controller's: {setup['stop_overrides']}.")
+    if setup["time_step"] is not None:
+        notes.append(f"Plant time step: {setup['time_step'] * 1e3:g} ms.")
+    return notes
+
+
+# -- the ablation ----------------------------------------------------------------------------------------
+
+
+def ablation_main(parser, args):
+    """Run the ablation (the selected rows, cells and phases) and write its section and JSON rows."""
+    if args.quick or args.recheck_only or args.controller_option or args.planner_option or args.stop_parameter \
+            or args.time_step is not None:
+        parser.error("--ablation runs the matrix with the defaults and ABLATION's changes: no --quick, "
+                     "--recheck-only, --controller-option, --planner-option, --stop-parameter or --time-step")
+    changes = [c for c in ABLATION if args.changes is None or change_key(c) in args.changes]
+    cells = [c for c in MATRIX_CELLS if args.cells is None or c in args.cells]
+    phase_times = {p: t for p, t in _phase_times().items() if args.phases is None or p in args.phases}
+    jobs = [(t, MATRIX_CELLS[cell], change_settings(change)) for change in changes for cell in cells
+            for t in phase_times.values()]
+    wall = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = list(pool.map(_run, jobs))
+    wall = time.perf_counter() - wall
+    per_change = len(cells) * len(phase_times)
+    table = [ablation_row(change, rows[k * per_change:(k + 1) * per_change], cells, phase_times)
+             for k, change in enumerate(changes)]
+    data = {"rows": table, "cells": cells, "phases": phase_times, "runs": len(rows), "wall_s": wall,
+            "workers": args.workers}
+    write_ablation(args.out, ablation_section(data), data)
+    print(ablation_section(data))
+
+
+def ablation_row(change: dict, rows: list, cells: list, phase_times: dict) -> dict:
+    """One row of the table: ``rows`` are the runs of ``cells`` x ``phase_times`` (that order) with ``change``."""
+    places = [(cell, phase, t) for cell in cells for phase, t in phase_times.items()]
+    failed = [{"cell": cell, "phase": phase, "t": t, "result": _failures(row)}
+              for (cell, phase, t), row in zip(places, rows) if not row["success"]]
+    return {"change": change, "label": change_label(change), "passed": sum(r["success"] for r in rows),
+            "runs": len(rows), "falls": sum("no_fall" in r.get("failed", ()) for r in rows),
+            "errors": sum("error" in r for r in rows), "failed": failed}
+
+
+def ablation_section(data: dict) -> str:
+    """The ablation's part of the report, markers included: one row per change."""
+    cells, phases, rows = data["cells"], data["phases"], data["rows"]
+    whole = len(cells) == len(MATRIX_CELLS) and len(phases) == len(PHASES)
+    part = "" if whole else (f" Only part of the matrix: {', '.join(cells)} at {', '.join(phases)}.")
+    lines = [ABLATION_BEGIN, "## Ablation: the perturbation matrix with one setting changed", "",
+             f"Measured by `python benchmarks/robustness.py --ablation` on this 2-core machine, {data['runs']} runs on "
+             f"{data['workers']} workers in {data['wall_s'] / 60:.1f} min: the perturbation matrix "
+             f"({len(cells)} cells x {len(phases)} signal phases) with the defaults, then with one setting changed "
+             "per row, written as a scenario file sets it (the `controller` section: "
+             "`drake_estop.physics.controller_options.ControllerOptions`; `plant.time_step` [s])." + part
+             + " Falls: runs that fail `no_fall`; a failing cell shows its failed criteria (as in the matrix above).",
+             "", "| change | passes | falls | failing cells |", "| --- | --- | --- | --- |"]
+    for row in rows:
+        failing = "; ".join(f"{f['cell']}, {f['phase']}: {f['result']}" for f in row["failed"]) or "-"
+        label = row["label"] if row["label"] == "defaults" else f"`{row['label']}`"
+        lines.append(f"| {label} | {row['passed']}/{row['runs']} | {row['falls']} | {failing} |")
+    return "\n".join([*lines, ABLATION_END]) + "\n"
+
+
+def _section_span(text: str):
+    """(start, end) of the ablation's section in ``text`` (markers included), or None."""
+    begin = text.find(ABLATION_BEGIN)
+    end = text.find(ABLATION_END, begin) if begin >= 0 else -1
+    return (begin, end + len(ABLATION_END)) if end >= 0 else None
+
+
+def with_ablation(text: str, section: str) -> str:
+    """``text`` with its ablation section replaced by ``section``, or with ``section`` at its end."""
+    span = _section_span(text)
+    if span:
+        return text[:span[0]] + section.rstrip("\n") + text[span[1]:]
+    return (text.rstrip("\n") + "\n\n" if text.strip() else "") + section
+
+
+def ablation_of(text: str):
+    """The ablation's section of ``text`` (markers included), or None."""
+    span = _section_span(text)
+    return text[span[0]:span[1]] + "\n" if span else None
+
+
+def _read(path: Path, empty):
+    return path.read_text() if path.exists() else empty
+
+
+def write_main(out, text: str, data: dict):
+    """Write the main report ``text`` to ``out`` and ``data`` to its JSON, keeping the ablation's section and
+    rows there."""
+    out, json_path = Path(out), Path(out).with_suffix(".json")
+    section = ablation_of(_read(out, ""))
+    out.write_text(text if section is None else with_ablation(text, section))
+    previous = json.loads(_read(json_path, "{}"))
+    if "ablation" in previous:
+        data = {**data, "ablation": previous["ablation"]}
+    json_path.write_text(json.dumps(data, indent=1, default=str))
+
+
+def write_ablation(out, section: str, data: dict):
+    """Write the ablation's ``section`` into ``out`` (in place of its last one, else at the end) and ``data``
+    under ``"ablation"`` in its JSON, keeping the main report and its rows."""
+    out, json_path = Path(out), Path(out).with_suffix(".json")
+    out.write_text(with_ablation(_read(out, ""), section))
+    json_path.write_text(json.dumps({**json.loads(_read(json_path, "{}")), "ablation": data}, indent=1, default=str))
 
 
 #: a run's controller tick (CPU) over either bound is re-run alone: the p99 and max per tick asked of the controller [s]
@@ -329,9 +535,12 @@ def _legend():
 
 
 def _cell(row):
-    if row["success"]:
-        return "ok"
-    return "FAIL: " + (", ".join(_failure(row, name) for name in row.get("failed", [])) or row.get("error", "")[:60])
+    return "ok" if row["success"] else "FAIL: " + _failures(row)
+
+
+def _failures(row) -> str:
+    """A failed run's criteria with their numbers, or its error."""
+    return ", ".join(_failure(row, name) for name in row.get("failed", [])) or row.get("error", "")[:60]
 
 
 def _failure(row, name):

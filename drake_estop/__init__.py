@@ -17,8 +17,9 @@ the planner itself: `plan_stop` returning a `StopPlan` (or raising
 `InfeasibleStop`), and `one_step_feasible`, whether a signal now would stop
 within one step; the online controller on the simulated robot: `run_online`
 (``drake-estop simulate --physics`` from Python) with
-`controller_stop_parameters`. World frame x forward, y left, z up; SI units throughout
-(m, s, rad, N).
+`controller_stop_parameters` and `ControllerOptions` (the controller's
+features, on or off; a scenario's ``controller`` section). World frame x
+forward, y left, z up; SI units throughout (m, s, rad, N).
 
 Names are imported on first use (PEP 562), so ``import drake_estop`` stays
 cheap; ``from drake_estop import X`` works for every name in ``__all__``.
@@ -52,6 +53,7 @@ _EXPORTS = {
     "PhysicsParameters": "drake_estop.physics.plant",
     "run_online": "drake_estop.physics.online",
     "controller_stop_parameters": "drake_estop.physics.online",
+    "ControllerOptions": "drake_estop.physics.controller_options",
     "Perturbations": "drake_estop.physics.perturbations",
     "Push": "drake_estop.physics.perturbations",
     "Scenario": "drake_estop.scenario",

@@ -10,10 +10,11 @@ import typing
 from dataclasses import replace
 from pathlib import Path
 
+from drake_estop.physics.controller_options import CONTROLLER_KINDS
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
 from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPattern, load_footsteps
 from drake_estop.planning.plan import OBJECTIVES
-from drake_estop.planning.planner import MAX_REPLAN_SOLVES, InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
 
@@ -50,21 +51,15 @@ positive_float = number(low=0.0, low_open=True)
 non_negative_float = number(low=0.0)
 finite_float = number()
 port_number = number(low=1, high=65535, integer=True)
-_positive_integer = number(low=1, integer=True)
-
-
-def solve_bound(text):
-    """An argparse ``type=``: a positive whole number, or ``unbounded`` (None)."""
-    if text.strip().lower() == "unbounded":
-        return None
-    return _positive_integer(text)
 
 
 def _add_scenario_options(p):
     s = p.add_argument_group("scenario (YAML; the options below override it)")
     s.add_argument("--scenario-file", metavar="FILE.yaml",
                    help="start from this scenario (drake_estop.scenario.Scenario: gait, stop, estop_time, "
-                        "simulation, controller, plant, perturbations, after_halt; see --print-scenario)")
+                        "simulation, controller, plant, perturbations, after_halt; see --print-scenario); the "
+                        "online controller's features are set in its controller section, e.g. "
+                        "'controller: {foot_compliance: false}' (drake_estop.physics.controller_options)")
     s.add_argument("--scenario-text", metavar="YAML", help="the same, inline, e.g. '{gait: {step_length: 0.2}}'")
     s.add_argument("--print-scenario", action="store_true",
                    help="print the effective scenario as YAML (every field) and exit")
@@ -168,44 +163,14 @@ def _add_simulate(sub, scenario: Scenario):
                    help="simulate the humanoid with contact (discrete SAP plant, PD servos tracking the "
                         "IK joint angles) under the online controller and check the success criteria; "
                         "adds cop_x, cop_y, pelvis_z, com_meas_*, com_est_* to the log")
-    d.add_argument("--controller", choices=("online", "offline-filter"), default=scenario.controller,
+    d.add_argument("--controller", choices=CONTROLLER_KINDS, default=scenario.controller.kind,
                    help="with --physics: 'online' (default) plans and re-plans from the estimated state "
                         "tick by tick; 'offline-filter' computes the whole joint reference with the ZMP "
-                        "preview filter at the signal (for comparison; not a real-time controller)")
-    d.add_argument("--true-state", action="store_true", default=scenario.true_state,
-                   help="with --physics: feed the controller the true COG instead of the state estimate")
-    d.add_argument("--no-foot-compliance", dest="foot_compliance", action="store_false",
-                   default=scenario.foot_compliance,
-                   help="with --physics: leave out the stance ankles' foot-edge compliance (for comparison)")
-    d.add_argument("--no-swing-tilt", dest="swing_tilt", action="store_false", default=scenario.swing_tilt,
-                   help="with --physics: leave out the swing foot's tilt compensation (for comparison)")
-    d.add_argument("--no-measured-footholds", dest="measured_footholds", action="store_false",
-                   default=scenario.measured_footholds,
-                   help="with --physics: re-plan after the landing on the plan's feet instead of the "
-                        "estimated footholds (for comparison)")
-    d.add_argument("--no-braked-landing", dest="braked_landing", action="store_false",
-                   default=scenario.braked_landing,
-                   help="with --physics: the paper's landing swing instead of the controller's braked landing "
-                        "(drake_estop.physics.online.BRAKED_LANDING; for comparison)")
-    d.add_argument("--no-relanded-footholds", dest="relanded_footholds", action="store_false",
-                   default=scenario.relanded_footholds,
-                   help="with --physics: no re-plan for a sole that lost contact after the landing and landed "
-                        "again off the plan's foothold (for comparison)")
-    d.add_argument("--no-recovery-step", dest="recovery_step", action="store_false",
-                   default=scenario.recovery_step,
-                   help="with --physics: no recovery step out of a double-support stop that cannot hold "
-                        "(for comparison)")
-    d.add_argument("--no-reference-fallback", dest="reference_fallback", action="store_false",
-                   default=scenario.reference_fallback,
-                   help="with --physics: where no stop exists from the measured state at the signal, end the run "
-                        "(exit 2) instead of planning the paper's stop from the reference (for comparison)")
-    d.add_argument("--foothold-replan", dest="foothold_replan", action="store_true",
-                   default=scenario.foothold_replan,
-                   help="with --physics: re-plan for a foot that landed off the plan's foothold while the COG "
-                        "follows the plan (off by default: net neutral on the campaign, see the README)")
-    d.add_argument("--max-replan-solves", type=solve_bound, default=scenario.max_replan_solves, metavar="N",
-                   help="with --physics: stop solves a re-plan may do in one servo tick (default %(default)s; the "
-                        "tries left go on at the next tick); 'unbounded' puts every try on one tick (for comparison)")
+                        "preview filter at the signal (for comparison; not a real-time controller); the "
+                        "scenario's controller.kind")
+    d.add_argument("--true-state", action="store_true", default=scenario.controller.true_state,
+                   help="with --physics: feed the controller the true COG instead of the state estimate (the "
+                        "scenario's controller.true_state)")
     add_perturbation_arguments(p, scenario.perturbations)
     d.add_argument("--html", metavar="FILE.html", help="write a self-contained Meshcat replay (opens offline)")
     d.add_argument("--meshcat", action="store_true",
@@ -250,31 +215,24 @@ def _parameters(args):
     return gait, stop
 
 
+def _controller(args):
+    """The scenario's controller section with the command line's ``--controller`` and ``--true-state``."""
+    return replace(args.scenario.controller, kind=args.controller, true_state=args.true_state)
+
+
 def _effective_scenario(args, gait, stop) -> Scenario:
     """The scenario this command line runs (the file's, with the options applied)."""
     simulation = "physics" if args.physics else "kinematic" if args.kinematic else "diagram"
     return replace(args.scenario, gait=gait, stop=stop, estop_time=None if args.button_only else args.estop_time,
-                   simulation=simulation, controller=args.controller, true_state=args.true_state,
-                   foot_compliance=args.foot_compliance, swing_tilt=args.swing_tilt,
-                   measured_footholds=args.measured_footholds, recovery_step=args.recovery_step,
-                   relanded_footholds=args.relanded_footholds, braked_landing=args.braked_landing,
-                   reference_fallback=args.reference_fallback,
-                   foothold_replan=args.foothold_replan, max_replan_solves=args.max_replan_solves,
-                   perturbations=perturbations_from_args(args),
+                   simulation=simulation, controller=_controller(args), perturbations=perturbations_from_args(args),
                    after_halt=args.after_halt)
 
 
-def _online_only_options(args, perturbations) -> list:
-    """The options given that only the online controller's physics run takes."""
-    given = (("perturbations", perturbations != Perturbations()), ("--true-state", args.true_state),
-             ("--no-foot-compliance", not args.foot_compliance), ("--no-swing-tilt", not args.swing_tilt),
-             ("--no-measured-footholds", not args.measured_footholds),
-             ("--no-relanded-footholds", not args.relanded_footholds),
-             ("--no-braked-landing", not args.braked_landing),
-             ("--no-recovery-step", not args.recovery_step), ("--foothold-replan", args.foothold_replan),
-             ("--no-reference-fallback", not args.reference_fallback),
-             ("--max-replan-solves", args.max_replan_solves != MAX_REPLAN_SOLVES))
-    return [name for name, on in given if on]
+def _online_only_settings(controller, perturbations) -> list:
+    """The settings given that only the online controller's physics run takes: the perturbations and the
+    controller section's fields off their defaults, by scenario name."""
+    return ((["perturbations"] if perturbations != Perturbations() else [])
+            + [f"controller.{name}" for name in controller.changed()])
 
 
 def _simulate(args) -> int:
@@ -291,15 +249,17 @@ def _simulate(args) -> int:
     if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
     perturbations = perturbations_from_args(args)
-    online_only = _online_only_options(args, perturbations)
-    physics_only = online_only + (["--controller"] if args.controller != "online" else [])
+    controller = _controller(args)
+    online_only = _online_only_settings(controller, perturbations)
+    physics_only = online_only + (["controller.kind"] if controller.kind != "online" else [])
     if not args.physics and physics_only:
         raise ValueError(f"{' and '.join(physics_only)}: only with --physics")
-    if args.controller == "offline-filter" and online_only:
-        raise ValueError(f"{' and '.join(online_only)}: only with --controller online")
+    if controller.kind == "offline-filter" and online_only:
+        raise ValueError(f"{' and '.join(online_only)}: only with controller.kind online (--controller online)")
     if args.physics:
         args.after_halt = max(args.after_halt, 2.5)  # the rest criterion looks 2 s past the halt
-        plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations)
+        plan, extra, diagram_summary = _run_physics(args, gait, stop, pattern, estop_time, perturbations,
+                                                     controller)
     elif args.kinematic:
         if args.html or args.meshcat:
             raise ValueError("--html and --meshcat need the Drake diagram (drop --kinematic)")
@@ -368,30 +328,16 @@ def _fit(values, n):
     return np.concatenate([values, np.full(n - len(values), np.nan)]) if len(values) < n else values
 
 
-def _planner_options(args) -> dict | None:
-    """The online controller's StopPlannerSystem options the command line changed (None: the defaults)."""
-    options = {name: False for name in ("measured_footholds", "relanded_footholds", "recovery_step",
-                                        "reference_fallback")
-               if not getattr(args, name)}
-    if args.foothold_replan:
-        options["foothold_replan"] = True
-    if args.max_replan_solves != MAX_REPLAN_SOLVES:
-        options["max_replan_solves"] = args.max_replan_solves
-    return options or None
-
-
-def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
+def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controller):
     """Physics run; returns the plan, per-tick measured columns and the summary entry."""
     columns, online = {}, {}
-    if args.controller == "online":
+    if controller.kind == "online":
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
-        stop = controller_stop_parameters(stop, braked_landing=args.braked_landing)
-        result = run_online(gait, stop, estop_time, after_halt=args.after_halt,
-                            pattern=pattern, perturbations=perturbations, true_state=args.true_state,
-                            physics=_physics_parameters(args.scenario), foot_compliance=args.foot_compliance,
-                            swing_tilt=args.swing_tilt,
-                            planner_options=_planner_options(args))
+        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing)
+        result = run_online(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern,
+                            perturbations=perturbations, physics=_physics_parameters(args.scenario),
+                            controller=controller)
         online = {key: result.online[key] for key in
                   ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "tick_compute_slowest", "replans",
                    "replan_failures", "latch_fallback",
@@ -408,7 +354,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations):
     columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
                     "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
                     "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt})
-    summary = {"controller": args.controller, "success": result.success,
+    summary = {"controller": controller.kind, "success": result.success,
                "criteria": {k: bool(v) for k, v in result.criteria.items()}, **online,
                "physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
                            "success": result.success, "numbers": result.numbers()}}
@@ -461,8 +407,9 @@ def _add_sweep(sub, scenario: Scenario):
     o.add_argument("--csv", default="out/sweep.csv", help="table (default %(default)s)")
     o.add_argument("--png", default="out/stop_map.png", help="stop map figure (default %(default)s)")
     o.add_argument("--no-progress", action="store_true", help="no progress bar")
-    o.add_argument("--controller", choices=("online", "offline-filter"), default=scenario.controller,
-                   help="the physics controller of every run (default %(default)s; see simulate --help)")
+    o.add_argument("--controller", choices=CONTROLLER_KINDS, default=scenario.controller.kind,
+                   help="the physics controller of every run (default %(default)s; see simulate --help); the "
+                        "online controller's features come from the scenario's controller section")
     _add_executor_options(p)
     p.set_defaults(func=_sweep, after_halt=2.5, scenario=scenario)
 
@@ -484,20 +431,25 @@ def _sweep(args) -> int:
     from drake_estop.physics.sweep import sweep, write_sweep
 
     gait, stop = _parameters(args)
+    controller = replace(args.scenario.controller, kind=args.controller)
     if args.print_scenario:
         print(dump_scenario(replace(args.scenario, gait=gait, stop=stop, simulation="physics",
-                                    controller=args.controller)), end="")
+                                    controller=controller)), end="")
         return 0
+    online_only = _online_only_settings(controller, Perturbations())
+    if controller.kind == "offline-filter" and online_only:
+        raise ValueError(f"{' and '.join(online_only)}: only with controller.kind online (--controller online)")
     if not (math.isfinite(args.every) and args.every > 0):
         raise ValueError(f"every must be a positive number of seconds, got {args.every}")
     start, end = NominalPattern(gait).stride()
     if args.every > end - start:
         raise ValueError(f"every {args.every} s is longer than the stride ({end - start:.3f} s)")
     run = None
-    if args.controller == "online":
+    if controller.kind == "online":
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
-        stop, run = controller_stop_parameters(stop), run_online
+        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing)
+        run = functools.partial(run_online, controller=controller)
     executor = functools.partial(map_tasks, workers=args.workers, scheduler=args.scheduler,
                                  progress=not args.no_progress, desc="physics sweep")
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,

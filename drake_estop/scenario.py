@@ -3,13 +3,19 @@
 In the style of Drake's ``examples/hardware_sim`` (a scenario dataclass read
 with ``pydrake.common.yaml.yaml_load_typed``): a :class:`Scenario` holds the
 gait, the stop parameters, the signal time, the simulation mode and, for
-physics runs, the plant configuration (Drake's ``MultibodyPlantConfig``) and
-the perturbations of the simulated robot. Every field has a default, so a
-scenario file names only what differs, e.g.::
+physics runs, the controller and its features
+(:class:`drake_estop.physics.controller_options.ControllerOptions`), the plant
+configuration (Drake's ``MultibodyPlantConfig``) and the perturbations of the
+simulated robot. Every field has a default, so a scenario file names only
+what differs, e.g.::
 
     gait: {step_length: 0.3, step_time: 0.8}
     stop: {a_ss: 5.0, b_ss: 1000.0}
     estop_time: 3.4
+    simulation: physics
+    controller:
+      kind: online
+      foot_compliance: false
 
 ``drake-estop simulate --scenario-file FILE.yaml`` (or ``--scenario-text
 '{...}'``) starts from it; options given on the command line override it.
@@ -24,19 +30,21 @@ element type of the default) and :func:`load_scenario` converts back.
 
 import dataclasses
 import functools
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.plant import MultibodyPlantConfig
 
+from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import Footstep, GaitParameters
-from drake_estop.planning.planner import MAX_REPLAN_SOLVES, StopParameters, check_solve_bound
+from drake_estop.planning.planner import StopParameters
 
 SIMULATIONS = ("kinematic", "diagram", "physics")
-CONTROLLERS = ("online", "offline-filter")
 
 
 def default_plant_config() -> MultibodyPlantConfig:
@@ -61,37 +69,10 @@ class Scenario:
     simulation : str
         ``"kinematic"`` (plan and roll out, numpy), ``"diagram"`` (the Drake diagram with IK) or
         ``"physics"`` (the humanoid with contact under the online controller).
-    controller : str
-        Physics only: ``"online"`` or ``"offline-filter"``.
-    true_state : bool
-        Physics only: feed the controller the true COG instead of the estimate.
-    foot_compliance : bool
-        Physics, online controller only: the stance ankles' foot-edge compliance (default on; off for
-        comparison).
-    swing_tilt : bool
-        Physics, online controller only: the swing foot's tilt compensation (default on; off for comparison).
-    measured_footholds : bool
-        Physics, online controller only: re-plans after the landing stand on the estimated footholds
-        (default on; off re-plans on the plan's feet, for comparison).
-    recovery_step : bool
-        Physics, online controller only: a re-plan after the landing that finds no double-support stop
-        steps the rear foot forward (default on; off keeps the plan, for comparison).
-    relanded_footholds : bool
-        Physics, online controller only: a sole that lost contact after the landing and landed again off the
-        plan's foothold re-plans the stop where it stands (default on; off for comparison).
-    braked_landing : bool
-        Physics, online controller only: the controller's braked landing
-        (``drake_estop.physics.online.BRAKED_LANDING``; default on; off lands the paper's swing, for comparison).
-    reference_fallback : bool
-        Physics, online controller only: where no stop exists from the measured state at the signal, the
-        latch plans the paper's stop from the reference and re-plans from the measured state (default on;
-        off ends the run, exit status 2, for comparison).
-    foothold_replan : bool
-        Physics, online controller only: a sole measured off the plan's foot after the landing re-plans the
-        stop on the measured feet (default off: net neutral on the campaign; on for comparison).
-    max_replan_solves : int or None
-        Physics, online controller only: stop solves a re-plan may do in one servo tick (default 2; the tries
-        left go on at the next tick); null puts every try on one tick (for comparison).
+    controller : ControllerOptions
+        Physics only: the controller (``kind``: ``online`` or ``offline-filter``) and the online
+        controller's features, each on or off (:class:`drake_estop.physics.controller_options.ControllerOptions`
+        says what each does and why it defaults as it does).
     plant : MultibodyPlantConfig
         Physics only: the plant's ``time_step`` [s], ``contact_model`` (``"point"`` or
         ``"hydroelastic_with_fallback"``) and ``discrete_contact_approximation``.
@@ -105,17 +86,7 @@ class Scenario:
     stop: StopParameters = field(default_factory=StopParameters)
     estop_time: float | None = 3.4
     simulation: str = "diagram"
-    controller: str = "online"
-    true_state: bool = False
-    foot_compliance: bool = True
-    swing_tilt: bool = True
-    measured_footholds: bool = True
-    recovery_step: bool = True
-    relanded_footholds: bool = True
-    braked_landing: bool = True
-    reference_fallback: bool = True
-    foothold_replan: bool = False
-    max_replan_solves: int | None = MAX_REPLAN_SOLVES
+    controller: ControllerOptions = field(default_factory=ControllerOptions)
     plant: MultibodyPlantConfig = field(default_factory=default_plant_config)
     perturbations: Perturbations = field(default_factory=Perturbations)
     after_halt: float = 1.0
@@ -123,9 +94,9 @@ class Scenario:
     def __post_init__(self):
         if self.simulation not in SIMULATIONS:
             raise ValueError(f"simulation must be one of {SIMULATIONS}, got {self.simulation!r}")
-        if self.controller not in CONTROLLERS:
-            raise ValueError(f"controller must be one of {CONTROLLERS}, got {self.controller!r}")
-        check_solve_bound(self.max_replan_solves, "max_replan_solves")
+        if not isinstance(self.controller, ControllerOptions):
+            raise ValueError(f"controller must be a ControllerOptions (in YAML a mapping, e.g. "
+                             f"{{kind: online, foot_compliance: false}}), got {self.controller!r}")
         if not self.after_halt >= 1.0:
             raise ValueError(f"after_halt must be at least 1 s, got {self.after_halt!r}")
         if self.estop_time is not None and not self.estop_time >= 0.0:
@@ -247,19 +218,74 @@ def load_scenario(*, filename: str | Path | None = None, text: str | None = None
     defaults = defaults or Scenario()
     source = f"scenario file {filename}" if filename is not None else "scenario text"
     try:
+        document = yaml.safe_load(Path(filename).read_text() if text is None else text)
+        if document is not None:
+            _check_document(document, Scenario)
         schema = yaml_load_typed(schema=yaml_schema(Scenario), filename=None if filename is None else str(filename),
                                  data=text, defaults=_to_schema(defaults, Scenario))
         return _from_schema(schema, Scenario)
-    except (RuntimeError, TypeError, ValueError, KeyError) as error:
+    except (RuntimeError, TypeError, ValueError, KeyError, OSError, yaml.YAMLError) as error:
         raise ValueError(f"{source}: {error}") from error
+
+
+#: the scalar field types a scenario document is checked against, and how an error names them
+_SCALARS = {bool: "true or false", int: "a whole number", float: "a number", str: "a string"}
+
+
+def _check_document(document, cls, path=()):
+    """ValueError naming the first field of ``document`` that cannot be one of ``cls``'s: a section that is
+    not a mapping (``controller: online``) or a scalar of the wrong kind (``estop_time: abc``), which
+    yaml_load_typed reports without the field's name. Unknown keys and lists are left to it."""
+    if not isinstance(document, dict):
+        raise ValueError(f"{'.'.join(path) or 'the scenario'} must be a mapping of fields, got {document!r}")
+    hints = typing.get_type_hints(cls)
+    for key, value in document.items():
+        hint = hints.get(key)
+        if dataclasses.is_dataclass(hint):
+            _check_document(value, hint, (*path, key))
+        else:
+            _check_scalar(value, hint, (*path, key))
+
+
+def _check_scalar(value, hint, path):
+    union = typing.get_origin(hint) in (typing.Union, types.UnionType)
+    kinds = typing.get_args(hint) if union else (hint,)
+    kind = next((k for k in kinds if k in _SCALARS), None)
+    if kind is None or (value is None and type(None) in kinds):
+        return
+    if kind is bool:
+        fits = isinstance(value, bool)
+    else:
+        fits = isinstance(value, (int, float) if kind is float else kind) and not isinstance(value, bool)
+    if not fits:
+        allowed = _SCALARS[kind] + (" or null" if type(None) in kinds else "")
+        raise ValueError(f"{'.'.join(path)} must be {allowed}, got {value!r}")
 
 
 def dump_scenario(scenario: Scenario) -> str:
     """The scenario as YAML text (every field), readable by :func:`load_scenario`."""
-    text = yaml_dump_typed(_to_schema(scenario, Scenario))
+    lines = yaml_dump_typed(_to_schema(scenario, Scenario)).splitlines()
     # yaml_dump_typed leaves a None out, which would read back as the default: write it as null
-    nulls = [f.name for f in dataclasses.fields(Scenario) if getattr(scenario, f.name) is None]
-    return text + "".join(f"{name}: null\n" for name in nulls)
+    for path in _null_paths(scenario):
+        indent, start, end = "", 0, len(lines)
+        for key in path[:-1]:  # the block of the mapping that holds the field (two spaces a level)
+            start = lines.index(f"{indent}{key}:", start, end) + 1
+            indent += "  "
+            end = next((i for i in range(start, end) if not lines[i].startswith(indent)), end)
+        lines.insert(end, f"{indent}{path[-1]}: null")
+    return "\n".join(lines) + "\n"
 
 
-_register(Push, Perturbations, Footstep, GaitParameters, StopParameters, Scenario)
+def _null_paths(value, path=()) -> list:
+    """The key paths of the None fields of the dataclass ``value`` and of the dataclasses in it."""
+    paths = []
+    for f in dataclasses.fields(value):
+        item = getattr(value, f.name)
+        if item is None:
+            paths.append((*path, f.name))
+        elif dataclasses.is_dataclass(item):
+            paths += _null_paths(item, (*path, f.name))
+    return paths
+
+
+_register(Push, Perturbations, Footstep, GaitParameters, StopParameters, ControllerOptions, Scenario)

@@ -183,6 +183,32 @@ def test_sweep_exits_1_and_names_failed_signal_times(monkeypatch, tmp_path, caps
     assert "3.250 s: no_fall" in out and "3.450 s: InfeasibleStop: test" in out
 
 
+def test_sweep_runs_the_scenarios_controller_section(monkeypatch, tmp_path):
+    """Every sweep run gets the scenario's controller options, and the stop parameters its braked landing."""
+    from drake_estop.physics import sweep as sweep_module
+    from drake_estop.physics.controller_options import ControllerOptions
+
+    seen = {}
+
+    def fake_sweep(gait, stop, **kwargs):
+        seen.update(kwargs, stop=stop)
+        return [{"signal_time": 3.05, "case": "one-step", "success": True}]
+
+    monkeypatch.setattr(sweep_module, "sweep", fake_sweep)
+    monkeypatch.setattr(sweep_module, "write_sweep", lambda *args: None)
+    assert main(["sweep", "--no-progress", "--scenario-text",
+                 "{controller: {swing_tilt: false, braked_landing: false}}",
+                 "--csv", str(tmp_path / "s.csv"), "--png", str(tmp_path / "m.png")]) == 0
+    assert seen["run"].keywords["controller"] == ControllerOptions(swing_tilt=False, braked_landing=False)
+    assert seen["stop"].landing_approach_slope == 0.0  # the paper's landing swing
+
+
+def test_sweep_rejects_online_features_for_the_offline_filter(capsys):
+    assert main(["sweep", "--controller", "offline-filter",
+                 "--scenario-text", "{controller: {swing_tilt: false}}"]) == 2
+    assert "controller.swing_tilt: only with controller.kind online" in capsys.readouterr().err
+
+
 def test_sweep_rejects_bad_spacing(capsys):
     assert main(["sweep", "--every", "0"]) == 2
     assert "every" in capsys.readouterr().err

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from drake_estop.physics import offline
+from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.online import (
     build_online_diagram,
@@ -177,8 +178,9 @@ def test_pushes_go_through_the_plants_applied_spatial_force_input():
     ({"after_halt": float("inf")}, "after_halt"),
     ({"planner_options": {"replan_treshold": 0.05}}, "planner_options"),
     ({"planner_options": True}, "planner_options"),
-    ({"foot_compliance": {"damp": 80.0}}, "foot_compliance"),
-    ({"swing_tilt": 0.17}, "swing_tilt"),
+    ({"planner_options": {"recovery_step": False}}, r"controller=ControllerOptions\(recovery_step"),
+    ({"controller": "online"}, "controller must be a ControllerOptions"),
+    ({"controller": ControllerOptions(kind="offline-filter")}, "controller.kind"),
     ({"gait_params": GaitParameters(step_length=0.2), "pattern": NominalPattern()}, "gait_params and pattern"),
 ])
 def test_run_online_rejects_bad_arguments_naming_them(arguments, named, monkeypatch):
@@ -222,3 +224,46 @@ def test_online_simulator_starts_the_robot_in_its_pose_with_the_model_errors_in_
     other = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
     plain = online_simulator(other)  # without perturbations: the nominal masses
     assert other.plant.CalcTotalMass(other.plant.GetMyContextFromRoot(plain.get_context())) == pytest.approx(nominal)
+
+
+def test_the_controller_options_default_to_the_stop_planner_systems_own():
+    """The planner features left at their defaults change nothing: StopPlannerSystem has the same defaults."""
+    import inspect
+
+    from drake_estop.systems.stop_controller import StopPlannerSystem
+
+    own = inspect.signature(StopPlannerSystem).parameters
+    assert ControllerOptions().planner_options() == {name: own[name].default for name in PLANNER_FEATURES}
+
+
+def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
+    """ControllerOptions to the diagram: the planner features reach StopPlannerSystem, true_state the
+    estimator, and foot_compliance / swing_tilt False leave those systems out."""
+    import drake_estop.physics.online as online
+
+    seen = {}
+
+    def spy(name):
+        original = getattr(online, name)
+
+        def recorded(*args, **kwargs):
+            seen[name] = kwargs
+            return original(*args, **kwargs)
+        return recorded
+
+    for name in ("add_stop_controller", "add_state_estimation"):
+        monkeypatch.setattr(online, name, spy(name))
+    controller = ControllerOptions(true_state=True, foot_compliance=False, swing_tilt=False, recovery_step=False,
+                                   foothold_replan=True, max_replan_solves=None)
+    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller,
+                                   planner_options={"replan_threshold": 0.06})
+    assert {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES} == controller.planner_options()
+    assert seen["add_stop_controller"]["replan_threshold"] == 0.06
+    assert seen["add_state_estimation"]["true_state"] is True
+    assert handles.compliance is None and handles.swing_tilt is None
+    assert "ankle_offsets" not in handles.loggers and "swing_tilt" not in handles.loggers
+    default = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
+    assert default.compliance is not None and default.swing_tilt is not None
+    assert seen["add_state_estimation"]["true_state"] is False
+    default_features = {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES}
+    assert default_features == ControllerOptions().planner_options()

@@ -7,6 +7,7 @@ import math
 import pytest
 
 from drake_estop.cli import main
+from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.perturbations import Push
 
@@ -47,10 +48,8 @@ def _online_run_keywords(monkeypatch, args):
     return seen
 
 
-def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
-    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
-    over the controller's margin; ``--no-braked-landing`` gives the paper's landing swing; a tighter
-    limit from the command line is kept."""
+def _online_run_stop_parameters(monkeypatch, args):
+    """The stop parameters `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
     import drake_estop.physics.online as online
 
     seen = []
@@ -60,10 +59,17 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(online, "run_online", fake_run_online)
-    assert main(["simulate", "--physics"]) == 2
-    assert main(["simulate", "--physics", "--no-braked-landing"]) == 2
-    assert main(["simulate", "--physics", "--max-swing-acceleration=10", "--landing-approach-slope=0.8"]) == 2
-    braked, paper, tighter = seen
+    assert main(["simulate", "--physics", *args]) == 2
+    return seen[0]
+
+
+def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
+    """The controller's braked landing (BRAKED_LANDING) is in run_online's stop parameters by default,
+    over the controller's margin; the scenario's ``controller: {braked_landing: false}`` gives the paper's
+    landing swing; a tighter limit from the command line is kept."""
+    braked = _online_run_stop_parameters(monkeypatch, [])
+    paper = _online_run_stop_parameters(monkeypatch, ["--scenario-text", "{controller: {braked_landing: false}}"])
+    tighter = _online_run_stop_parameters(monkeypatch, ["--max-swing-acceleration=10", "--landing-approach-slope=0.8"])
     assert braked.max_swing_acceleration == 15.0 and braked.landing_approach_slope == 0.6
     assert braked.landing_approach_when_braking  # the slope only where the braking limit bounds the landing
     assert braked.zmp_margin == paper.zmp_margin == pytest.approx(0.03)
@@ -72,92 +78,65 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
     assert not tighter.landing_approach_when_braking  # a slope given shapes every swing
 
 
+#: One value off its default for every field of the controller section but ``kind``.
+CHANGED = {"true_state": True, "foot_compliance": False, "swing_tilt": False, "measured_footholds": False,
+           "relanded_footholds": False, "recovery_step": False, "braked_landing": False,
+           "reference_fallback": False, "foothold_replan": True, "max_replan_solves": None}
+
+
+def _controller_text(name, value) -> str:
+    """``--scenario-text`` setting one field of the controller section (JSON values are YAML)."""
+    return f"{{controller: {{{name}: {json.dumps(value)}}}}}"
+
+
+def test_every_controller_field_has_a_changed_value_here():
+    assert set(CHANGED) == {name for name in ControllerOptions.__dataclass_fields__} - {"kind"}
+
+
+def test_the_scenarios_controller_section_reaches_the_online_run(monkeypatch, tmp_path):
+    """A scenario file's controller section is what run_online receives, with --true-state on top."""
+    path = tmp_path / "scenario.yaml"
+    path.write_text("controller:\n  kind: online\n  foot_compliance: false\n  recovery_step: false\n"
+                    "  max_replan_solves: 5\n")
+    seen = _online_run_keywords(monkeypatch, ["--scenario-file", str(path), "--true-state"])
+    assert seen["controller"] == ControllerOptions(foot_compliance=False, recovery_step=False, max_replan_solves=5,
+                                                   true_state=True)
+    assert _online_run_keywords(monkeypatch, [])["controller"] == ControllerOptions()
+
+
+@pytest.mark.parametrize("name", CHANGED)
+def test_each_controller_field_reaches_the_online_run(monkeypatch, name):
+    seen = _online_run_keywords(monkeypatch, ["--scenario-text", _controller_text(name, CHANGED[name])])
+    assert seen["controller"].changed() == {name: CHANGED[name]}  # the others at their defaults
+
+
+@pytest.mark.parametrize("name", CHANGED)
 @pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_no_braked_landing_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--no-braked-landing"]) == 2
-    assert "--no-braked-landing" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-foot-compliance"], False)])
-def test_no_foot_compliance_reaches_the_online_run(monkeypatch, flag, given):
-    assert _online_run_keywords(monkeypatch, flag)["foot_compliance"] is given
-
-
-@pytest.mark.parametrize("flag, given", [([], True), (["--no-swing-tilt"], False)])
-def test_no_swing_tilt_reaches_the_online_run(monkeypatch, flag, given):
-    assert _online_run_keywords(monkeypatch, flag)["swing_tilt"] is given
-
-
-@pytest.mark.parametrize("args", [["--kinematic", "--no-foot-compliance"],
-                                  ["--physics", "--controller", "offline-filter", "--no-foot-compliance"]])
-def test_no_foot_compliance_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
-    assert "--no-foot-compliance" in capsys.readouterr().err
-
-
-#: The online controller's StopPlannerSystem options the command line turns off: flag -> option name.
-PLANNER_FLAGS = {"--no-measured-footholds": "measured_footholds", "--no-recovery-step": "recovery_step",
-                 "--no-relanded-footholds": "relanded_footholds", "--no-reference-fallback": "reference_fallback"}
-
-
-@pytest.mark.parametrize("flag", [None, *PLANNER_FLAGS])
-def test_planner_flags_reach_the_online_run(monkeypatch, flag):
-    options = _online_run_keywords(monkeypatch, [flag] if flag else [])["planner_options"] or {}
-    for other, name in PLANNER_FLAGS.items():
-        assert options.get(name, True) is (other != flag), name
-
-
-def test_foothold_replan_flag_turns_the_option_on(monkeypatch):
-    assert (_online_run_keywords(monkeypatch, [])["planner_options"] or {}).get("foothold_replan", False) is False
-    options = _online_run_keywords(monkeypatch, ["--foothold-replan"])["planner_options"]
-    assert options == {"foothold_replan": True}  # and leaves the other options at their defaults
-
-
-@pytest.mark.parametrize("args, given", [
-    ([], "default"),
-    (["--max-replan-solves", "1"], 1),
-    (["--max-replan-solves", "unbounded"], None),
-    (["--scenario-text", "{max_replan_solves: null}"], None),
-    (["--scenario-text", "{max_replan_solves: 4}"], 4),
-])
-def test_max_replan_solves_reaches_the_online_run(monkeypatch, args, given):
-    options = _online_run_keywords(monkeypatch, args)["planner_options"] or {}
-    assert options.get("max_replan_solves", "default") == given
-    assert set(options) <= {"max_replan_solves"}  # the other planner options stay at their defaults
-
-
-@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", "nan"])
-def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
-    assert main(["simulate", "--physics", "--max-replan-solves", value]) == 2
-    assert "argument --max-replan-solves" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_max_replan_solves_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--max-replan-solves", "1"]) == 2
-    assert "--max-replan-solves" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_foothold_replan_flag_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--foothold-replan"]) == 2
-    assert "--foothold-replan" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("flag", PLANNER_FLAGS)
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_planner_flags_need_the_online_physics_run(flag, mode, capsys):
-    assert main(["simulate", *mode, flag]) == 2
+def test_each_controller_field_needs_the_online_physics_run(name, mode, capsys):
+    assert main(["simulate", *mode, "--scenario-text", _controller_text(name, CHANGED[name])]) == 2
     err = capsys.readouterr().err
-    assert flag in err and "--no-swing-tilt" not in err
-    assert all(other not in err for other in PLANNER_FLAGS if other != flag)
+    assert f"controller.{name}: only with" in err
+    assert all(f"controller.{other}" not in err for other in CHANGED if other != name)
 
 
-@pytest.mark.parametrize("args", [["--kinematic", "--no-swing-tilt"],
-                                  ["--physics", "--controller", "offline-filter", "--no-swing-tilt"]])
-def test_no_swing_tilt_needs_the_online_physics_run(args, capsys):
-    assert main(["simulate", *args]) == 2
-    assert "--no-swing-tilt" in capsys.readouterr().err
+def test_the_offline_filter_needs_physics(capsys):
+    assert main(["simulate", "--kinematic", "--controller", "offline-filter"]) == 2
+    assert "controller.kind: only with --physics" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--no-foot-compliance", "--no-swing-tilt", "--no-measured-footholds",
+                                  "--no-braked-landing", "--no-relanded-footholds", "--no-recovery-step",
+                                  "--no-reference-fallback", "--foothold-replan", "--max-replan-solves=1"])
+def test_the_controller_features_are_not_command_line_options(flag, capsys):
+    """They are the scenario's controller section (--scenario-file / --scenario-text)."""
+    assert main(["simulate", "--physics", flag]) == 2
+    assert "unrecognized arguments" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan"])
+def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
+    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{max_replan_solves: {value}}}}}"]) == 2
+    assert "max_replan_solves" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, field, value", [
@@ -177,7 +156,7 @@ def test_each_perturbation_option_reaches_the_simulated_run(monkeypatch, tmp_pat
     each one acting on the plant, the sensors and the push input)."""
     seen = _online_run_keywords(monkeypatch, args)
     assert getattr(seen["perturbations"], field) == value
-    assert seen["true_state"] is False
+    assert seen["controller"] == ControllerOptions()
 
 
 @pytest.mark.slow
@@ -214,7 +193,7 @@ RUN_181 = ["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0
 
 
 def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners_reason(capsys):
-    assert main([*RUN_181, "--no-reference-fallback"]) == 2
+    assert main([*RUN_181, "--scenario-text", "{controller: {reference_fallback: false}}"]) == 2
     assert "stop planning failed at t = 3.280 s: no feasible stop in the first 4 tries" in capsys.readouterr().err
 
 
@@ -233,13 +212,3 @@ def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_refer
     assert data["physics"]["criteria"]["no_fall"]
     assert data["replans"] >= 1
 
-
-def test_reference_fallback_is_set_from_the_scenario_file_too(monkeypatch):
-    options = _online_run_keywords(monkeypatch, ["--scenario-text", "{reference_fallback: false}"])["planner_options"]
-    assert options == {"reference_fallback": False}
-
-
-@pytest.mark.parametrize("mode", [["--kinematic"], ["--physics", "--controller", "offline-filter"]])
-def test_no_reference_fallback_needs_the_online_physics_run(mode, capsys):
-    assert main(["simulate", *mode, "--no-reference-fallback"]) == 2
-    assert "--no-reference-fallback" in capsys.readouterr().err

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.online import build_online_diagram, controller_stop_parameters, run_online
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.physics.plant import actuated_indices
@@ -65,7 +66,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert bounded.numbers()["torso_tilt_max_rad"] < 0.03
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_early_landing=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    rocking = run_online(estop_time=2.85, pattern=pattern, foot_compliance=False)
+    rocking = run_online(estop_time=2.85, pattern=pattern, controller=ControllerOptions(foot_compliance=False))
     assert rocking.plan.plans[0].landing_time < bounded.plan.plans[0].landing_time - 0.1
     assert not rocking.criteria["comes_to_rest"]
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
@@ -87,7 +88,8 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     assert bent.online["replans"] >= 1
     assert np.all(np.isfinite(bent.cop_margin_plan[1:]))
     monkeypatch.setattr(online, "IK_MIN_KNEE_BEND", 0.0)
-    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
+    straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
+                          controller=ControllerOptions(foot_compliance=False))
     assert not straight.criteria["cop_in_support"]
     assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
 
@@ -102,7 +104,8 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     compliant = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes)
     assert compliant.success, [name for name, ok in compliant.criteria.items() if not ok]
     assert compliant.online["ankle_offset_max"] > 1e-3
-    stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes, foot_compliance=False)
+    stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
+                       controller=ControllerOptions(foot_compliance=False))
     assert not stiff.criteria["cop_in_support"]
     assert stiff.online["ankle_offset_max"] == 0.0
 
@@ -122,7 +125,7 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_landing_shift_per_height=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    dragged = run_online(estop_time=3.45, pattern=pattern, planner_options={"measured_footholds": False})
+    dragged = run_online(estop_time=3.45, pattern=pattern, controller=ControllerOptions(measured_footholds=False))
     assert not dragged.criteria["no_fall"]
     rescued = run_online(estop_time=3.45, pattern=pattern)
     assert rescued.success, [name for name, ok in rescued.criteria.items() if not ok]
@@ -161,7 +164,8 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     compensated = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes)
     assert compensated.success, [name for name, ok in compensated.criteria.items() if not ok]
     assert compensated.online["swing_tilt_max"] > 0.02
-    tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes, swing_tilt=False)
+    tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes,
+                        controller=ControllerOptions(swing_tilt=False))
     assert tilted.online["swing_tilt_max"] == 0.0
     assert not tilted.criteria["cop_in_support"]
 
@@ -181,7 +185,7 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     landed = measured.plan.final_feet["right"]
     assert abs(landed[1] - measured.plan.plans[1].final_feet["right"][1]) > 0.01  # re-planned where it landed
     planned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                         planner_options={"measured_footholds": False})
+                         controller=ControllerOptions(measured_footholds=False))
     assert not planned.criteria["cop_in_support"]
 
 
@@ -194,7 +198,7 @@ def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 0.0, 150.0, 0.1),))
     replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                           planner_options={"foothold_replan": True})
+                           controller=ControllerOptions(foothold_replan=True))
     assert replanned.success, [name for name, ok in replanned.criteria.items() if not ok]
     first, replan = replanned.plan.plans
     assert replanned.online["replans"] == 1 and replan.start_time > first.landing_time  # after the landing
@@ -217,23 +221,23 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
     assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the rear foot stepped
     held = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                      planner_options={"recovery_step": False})
+                      controller=ControllerOptions(recovery_step=False))
     assert not held.criteria["no_fall"]
 
 
 @pytest.mark.slow
 def test_the_braked_landing_stops_a_half_metre_per_second_forward_push_early_in_single_support():
     """29 N s forward at 2.95 s (0.5 m/s; early single support, the swing foot 0.57 m from its landing).
-    With the paper's landing swing (``braked_landing=False``) the re-plans hurry the landing and the foot
-    skims the floor: the CoP leaves the planned support and the robot falls. The controller's braked
-    landing (BRAKED_LANDING, the default: a re-plan's landing is bounded by the braking limit and its swing
-    approaches the floor at the slope) meets every criterion."""
+    With the paper's landing swing (``ControllerOptions(braked_landing=False)``) the re-plans hurry the
+    landing and the foot skims the floor: the CoP leaves the planned support and the robot falls. The
+    controller's braked landing (BRAKED_LANDING, the default: a re-plan's landing is bounded by the braking
+    limit and its swing approaches the floor at the slope) meets every criterion."""
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 290.0, 0.0, 0.1),))
     stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     hurried = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                         stop_params=controller_stop_parameters(braked_landing=False))
+                         controller=ControllerOptions(braked_landing=False))
     assert not hurried.criteria["cop_in_support"] and not hurried.criteria["no_fall"]
     assert any(plan.braked_swing for plan in stopped.plan.plans)
 
@@ -254,7 +258,7 @@ def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_sta
     stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     on_the_plan = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
-                             planner_options={"relanded_footholds": False})
+                             controller=ControllerOptions(relanded_footholds=False))
     assert not on_the_plan.criteria["cop_in_support"]
     assert np.nanmin(on_the_plan.cop_margin_plan[1:]) > -0.002  # a near miss, not a fall
     assert stopped.online["replans"] > on_the_plan.online["replans"]

@@ -10,6 +10,7 @@ from pydrake.multibody.plant import ContactModel, DiscreteContactApproximation
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_estop.cli import main
+from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.physics.plant import PhysicsParameters, add_physics_plant, plant_config
 from drake_estop.planning.gait import GaitParameters, NominalPattern, Sole
@@ -23,7 +24,8 @@ def _unusual():
     return Scenario(
         gait=GaitParameters(step_length=0.22, num_steps=6, sole=Sole(toe=0.14)),
         stop=StopParameters(zmp_margin=0.02, halt_durations=(0.9, 1.4), crouch=False),
-        estop_time=3.3, simulation="physics", controller="online", true_state=True,
+        estop_time=3.3, simulation="physics",
+        controller=ControllerOptions(true_state=True, swing_tilt=False, foothold_replan=True, max_replan_solves=3),
         perturbations=Perturbations(pushes=(Push(3.3, 100.0, -20.0, 0.1), Push(3.5, 0.0, 50.0, 0.05)),
                                     mass_scale=1.1, friction=0.6, latency_ticks=2, sensor_noise=True, seed=7),
         after_halt=2.0)
@@ -34,17 +36,19 @@ def test_dump_and_load_round_trip():
     loaded = load_scenario(text=dump_scenario(scenario))
     assert loaded.gait == scenario.gait and loaded.stop == scenario.stop
     assert loaded.perturbations == scenario.perturbations
-    assert (loaded.estop_time, loaded.simulation, loaded.true_state, loaded.after_halt) == (3.3, "physics", True, 2.0)
+    assert (loaded.estop_time, loaded.simulation, loaded.after_halt) == (3.3, "physics", 2.0)
+    assert loaded.controller == scenario.controller
     assert isinstance(loaded.stop.halt_durations, tuple) and isinstance(loaded.perturbations.pushes[0], Push)
 
 
-@pytest.mark.parametrize("fields", [{"estop_time": None}, {"max_replan_solves": None}, {"max_replan_solves": 3},
-                                    {"estop_time": None, "max_replan_solves": None}])
-def test_optional_fields_round_trip_null_included(fields):
-    """A None (the Meshcat button's stop, an unbounded re-plan) is written as null: left out it read back
-    as the default (3.4 s, 2 solves)."""
-    loaded = load_scenario(text=dump_scenario(Scenario(**fields)))
-    assert {name: getattr(loaded, name) for name in fields} == fields
+@pytest.mark.parametrize("estop_time, max_replan_solves", [(None, 2), (3.4, None), (3.4, 3), (None, None)])
+def test_optional_fields_round_trip_null_included(estop_time, max_replan_solves):
+    """A None (the Meshcat button's stop, an unbounded re-plan in the controller section) is written as null:
+    left out it would read back as the default (3.4 s, 2 solves)."""
+    scenario = Scenario(estop_time=estop_time, controller=ControllerOptions(max_replan_solves=max_replan_solves))
+    loaded = load_scenario(text=dump_scenario(scenario))
+    assert (loaded.estop_time, loaded.controller.max_replan_solves) == (estop_time, max_replan_solves)
+    assert loaded.controller == scenario.controller
 
 
 def test_a_partial_document_keeps_the_defaults():
@@ -61,13 +65,47 @@ def test_a_partial_document_keeps_the_defaults():
     ("{perturbations: {pushes: [{time: 3.4, force_x: 1, force_y: 0, duration: 0}]}}", "duration"),
     ("{simulation: walking}", "simulation"),
     ("{after_halt: 0.5}", "after_halt"),
-    ("{max_replan_solves: 0}", "max_replan_solves"),
+    ("{controller: {max_replan_solves: 0}}", "controller.max_replan_solves"),
+    ("{controller: {kind: walking}}", "controller.kind"),
+    ("{controller: {swing_tlt: false}}", "swing_tlt"),
+    ("{controller: {foot_compliance: 3}}", "foot_compliance"),
+    ("{controller: online}", "controller must be a mapping"),
+    ("{max_replan_solves: 2}", "max_replan_solves"),  # a controller field, not a scenario one
+    ("{controller: {max_replan_solves: two}}", "controller.max_replan_solves must be a whole number or null"),
+    ("{estop_time: abc}", "estop_time must be a number or null"),
+    ("{gait: {num_steps: 2.5}}", "gait.num_steps must be a whole number"),
+    ("{gait: 3}", "gait must be a mapping"),
     ("{plant: {contact_model: hydroelastic}}", "plant.contact_model"),
     ("{stop: {min_landing_time: 2.0}}", "landing_time"),
 ])
 def test_bad_documents_name_what_is_wrong(text, named):
     with pytest.raises(ValueError, match=named):
         load_scenario(text=text)
+
+
+def test_a_controller_section_reads_into_controller_options():
+    scenario = load_scenario(text="controller:\n  kind: offline-filter\n  foot_compliance: false\n"
+                                  "  max_replan_solves: null\n")
+    assert scenario.controller == ControllerOptions(kind="offline-filter", foot_compliance=False,
+                                                    max_replan_solves=None)
+    assert load_scenario(text="{controller: {swing_tilt: false}}").controller == ControllerOptions(swing_tilt=False)
+
+
+@pytest.mark.parametrize("fields, named", [
+    ({"kind": "online-ish"}, "controller.kind"),
+    ({"foot_compliance": "no"}, "controller.foot_compliance"),
+    ({"true_state": 1}, "controller.true_state"),
+    ({"max_replan_solves": 0}, "controller.max_replan_solves"),
+    ({"max_replan_solves": 1.5}, "controller.max_replan_solves"),
+])
+def test_controller_options_reject_bad_values_naming_the_field(fields, named):
+    with pytest.raises(ValueError, match=named):
+        ControllerOptions(**fields)
+
+
+def test_a_scenario_takes_only_controller_options_as_its_controller():
+    with pytest.raises(ValueError, match="controller must be a ControllerOptions"):
+        Scenario(controller="online")
 
 
 def test_load_needs_exactly_one_source(tmp_path):
@@ -96,11 +134,18 @@ def test_cli_takes_the_scenario_and_options_override_it(tmp_path):
 
 
 def test_print_scenario_shows_the_effective_scenario(capsys):
-    assert main(["simulate", "--scenario-text", "{gait: {step_length: 0.25}}", "--physics", "--mass-scale", "1.2",
-                 "--push", "3.4", "100", "0", "0.1", "--print-scenario"]) == 0
-    scenario = load_scenario(text=capsys.readouterr().out)
+    assert main(["simulate", "--scenario-text", "{gait: {step_length: 0.25}, controller: {swing_tilt: false, "
+                 "max_replan_solves: null}}", "--physics", "--mass-scale", "1.2", "--push", "3.4", "100", "0", "0.1",
+                 "--true-state", "--print-scenario"]) == 0
+    text = capsys.readouterr().out
+    scenario = load_scenario(text=text)
     assert scenario.gait.step_length == 0.25 and scenario.simulation == "physics"
     assert scenario.perturbations.mass_scale == 1.2 and scenario.perturbations.pushes == (Push(3.4, 100.0, 0.0, 0.1),)
+    assert scenario.controller == ControllerOptions(swing_tilt=False, max_replan_solves=None, true_state=True)
+    section = text[text.index("\ncontroller:\n"):].split("\n")[2:13]  # every field of the section, by name
+    assert [line.split(":")[0].strip() for line in section] == [
+        "kind", "true_state", "foot_compliance", "swing_tilt", "measured_footholds", "relanded_footholds",
+        "recovery_step", "braked_landing", "reference_fallback", "foothold_replan", "max_replan_solves"]
 
 
 @pytest.mark.parametrize("args,named", [

@@ -159,6 +159,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from drake_estop.physics.compliance import add_foot_edge_compliance
+from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
 from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
 from drake_estop.physics.estimation import add_state_estimation
 from drake_estop.physics.perturbations import (
@@ -194,7 +195,8 @@ CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0
 
 
 #: The controller's braked landing (on by default; ``braked_landing=False`` in
-#: :func:`controller_stop_parameters`, ``simulate --physics --no-braked-landing``, for comparison). A
+#: :func:`controller_stop_parameters` or :class:`ControllerOptions`, the scenario's
+#: ``controller: {braked_landing: false}``, for comparison). A
 #: single-support re-plan lands no sooner than the swing can brake to the landing point at 15 m/s^2
 #: (``max_swing_acceleration``, planner.swing_braking_time); where that limit bounds the landing, the
 #: re-planned swing also comes down onto its point no flatter than a slope of 0.6, up to 1 cm above the
@@ -285,25 +287,29 @@ class OnlineHandles:
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
-                         true_state: bool = False, planner_options: dict | None = None,
-                         foot_compliance: dict | bool = True, swing_tilt: dict | bool = True) -> OnlineHandles:
+                         controller: ControllerOptions | None = None,
+                         planner_options: dict | None = None) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes
     through the plant's applied-spatial-force input, sensor noise and
     latency in the sensors; the masses in :func:`run_online`'s context).
-    ``true_state`` feeds the estimator's outputs from the true plant state
-    (debugging). ``foot_compliance``: True (default) adds the ankles'
+    ``controller`` (default ``ControllerOptions()``) says which features are
+    on: ``true_state`` feeds the estimator's outputs from the true plant
+    state (debugging); ``foot_compliance`` adds the ankles'
     :class:`drake_estop.physics.compliance.FootEdgeCompliance` with
-    :data:`FOOT_EDGE_COMPLIANCE`, a dict overrides some of those settings,
-    False leaves it out (for comparison). ``swing_tilt`` likewise for the
-    swing foot's :class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation`
-    (:data:`SWING_TILT_COMPENSATION`). ``planner_options`` go to
-    :class:`drake_estop.systems.stop_controller.StopPlannerSystem` (``replan_threshold``,
-    ``replan_interval``, ...).
+    :data:`FOOT_EDGE_COMPLIANCE`; ``swing_tilt`` the swing foot's
+    :class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation` with
+    :data:`SWING_TILT_COMPENSATION`; the planner features go to
+    :class:`drake_estop.systems.stop_controller.StopPlannerSystem`, with
+    ``planner_options``, its other settings (``replan_threshold``,
+    ``replan_interval``, ...). ``controller.braked_landing`` acts through
+    ``stop_params`` (:func:`controller_stop_parameters`).
     """
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
 
+    controller = ControllerOptions() if controller is None else controller
+    planner_settings = _planner_settings(controller, planner_options)
     perturbations = perturbations or Perturbations()
     physics = ground_friction(perturbations, physics or PhysicsParameters())
     dt = stop_params.servo_period
@@ -318,9 +324,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     kin_plant, _, _ = shared_ik()
     q0 = pattern_initial_configuration(kin_plant, pattern)
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
-                                     true_state=true_state, initial_q=q0, timer=timer)
+                                     true_state=controller.true_state, initial_q=q0, timer=timer)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-                                           timer=timer, **(planner_options or {}))
+                                           timer=timer, **planner_settings)
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
@@ -328,15 +334,15 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     swing_tilt_system = None
-    if swing_tilt is not False:
-        settings = dict(SWING_TILT_COMPENSATION, **(swing_tilt if isinstance(swing_tilt, dict) else {}))
+    if controller.swing_tilt:
         swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
-                                                        estimator=estimator, servo_period=dt, timer=timer, **settings)
+                                                        estimator=estimator, servo_period=dt, timer=timer,
+                                                        **SWING_TILT_COMPENSATION)
     connect_reference(builder, planner, ik, feet=swing_tilt_system)
     compliance = None
-    if foot_compliance is not False:
-        settings = dict(FOOT_EDGE_COMPLIANCE, **(foot_compliance if isinstance(foot_compliance, dict) else {}))
-        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer, **settings)
+    if controller.foot_compliance:
+        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
+                                              **FOOT_EDGE_COMPLIANCE)
     add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
@@ -387,31 +393,42 @@ def _checked_pattern(gait_params, pattern) -> NominalPattern:
     return pattern
 
 
-def _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_compliance, swing_tilt):
+def _planner_settings(controller, planner_options) -> dict:
+    """The StopPlannerSystem keyword arguments: ``controller``'s planner features and ``planner_options``,
+    its other settings; ValueError naming the argument that cannot be one."""
+    if not isinstance(controller, ControllerOptions):
+        raise ValueError(f"controller must be a ControllerOptions, got {controller!r}")
+    if controller.kind != "online":
+        raise ValueError(f"controller.kind must be 'online' here, got {controller.kind!r} (the offline filter: "
+                         "drake_estop.physics.offline.run_physics)")
+    if planner_options is None:
+        return controller.planner_options()
+    if not isinstance(planner_options, dict):
+        raise ValueError(f"planner_options must be a dict, got {planner_options!r}")
+    features = sorted(set(planner_options) & set(PLANNER_FEATURES))
+    if features:
+        raise ValueError(f"planner_options: {features} are controller options: give them as "
+                         f"controller=ControllerOptions({features[0]}=...)")
+    known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
+    unknown = sorted(set(planner_options) - known)
+    if unknown:
+        raise ValueError(f"planner_options: unknown setting(s) {unknown}; known: {sorted(known)}")
+    return {**controller.planner_options(), **planner_options}
+
+
+def _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options):
     """ValueError naming the first argument of :func:`run_online` that cannot run."""
     if isinstance(estop_time, bool) or not (finite_number(estop_time) and 0.0 <= float(estop_time) <= pattern.end_time):
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
     if isinstance(after_halt, bool) or not (finite_number(after_halt) and float(after_halt) >= 1.0):
         raise ValueError(f"after_halt must be at least 1 s, as simulate's --after-halt, got {after_halt!r}")
-    known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
-    for name, given, settings in (("planner_options", planner_options, known),
-                                  ("foot_compliance", foot_compliance, FOOT_EDGE_COMPLIANCE),
-                                  ("swing_tilt", swing_tilt, SWING_TILT_COMPENSATION)):
-        if given is None or (isinstance(given, bool) and name != "planner_options"):
-            continue
-        if not isinstance(given, dict):
-            kinds = "a dict" if name == "planner_options" else "True, False or a dict"
-            raise ValueError(f"{name} must be {kinds}, got {given!r}")
-        unknown = sorted(set(given) - set(settings))
-        if unknown:
-            raise ValueError(f"{name}: unknown setting(s) {unknown}; known: {sorted(settings)}")
+    _planner_settings(controller, planner_options)
 
 
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               true_state: bool = False, planner_options: dict | None = None, foot_compliance: dict | bool = True,
-               swing_tilt: dict | bool = True):
+               controller: ControllerOptions | None = None, planner_options: dict | None = None):
     """Walk, stop at ``estop_time`` with the online controller on the simulated robot, and check the
     success criteria: ``drake-estop simulate --physics`` from Python.
 
@@ -424,7 +441,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     gait_params : GaitParameters, optional
         The walk (step length [m], step time [s], ...); default the paper's. Give this or ``pattern``.
     stop_params : StopParameters, optional
-        Used as given; default :func:`controller_stop_parameters` (the controller's margins, as the CLI).
+        Used as given (the CLI gives ``controller_stop_parameters(params, braked_landing=...)``); default
+        :func:`controller_stop_parameters` with ``controller.braked_landing`` (the controller's margins).
     estop_time : float, optional
         Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
     after_halt : float, optional
@@ -437,15 +455,14 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern : NominalPattern, optional
         A walk built already (the same as ``NominalPattern(gait_params)``; it must agree with
         ``gait_params`` when both are given).
-    true_state : bool, optional
-        Feed the controller the true COG instead of the estimate (debugging); default False.
+    controller : ControllerOptions, optional
+        The online controller's features, each on or off (``kind`` must be ``"online"``); default
+        ``ControllerOptions()``, every feature as benchmarked. E.g.
+        ``ControllerOptions(foot_compliance=False)`` leaves out the stance ankles' foot-edge compliance,
+        ``ControllerOptions(true_state=True)`` feeds the controller the true COG (debugging).
     planner_options : dict, optional
-        Keyword arguments of :class:`drake_estop.systems.stop_controller.StopPlannerSystem`
-        (``replan_threshold`` [m], ``max_replan_solves``, ``recovery_step``, ...).
-    foot_compliance, swing_tilt : bool or dict, optional
-        The stance ankles' foot-edge compliance and the swing foot's tilt compensation: True (default)
-        with :data:`FOOT_EDGE_COMPLIANCE` / :data:`SWING_TILT_COMPENSATION`, a dict overriding some of
-        those settings, False to leave it out (for comparison).
+        Other keyword arguments of :class:`drake_estop.systems.stop_controller.StopPlannerSystem`
+        (``replan_threshold`` [m], ``replan_interval`` [s], ...); its features are ``controller``'s.
 
     Returns
     -------
@@ -470,23 +487,24 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     ------
     ValueError
         Naming the argument: ``estop_time`` outside the walk or not finite, ``after_halt`` under 1 s,
-        ``gait_params`` and ``pattern`` that disagree, an unknown ``planner_options``,
-        ``foot_compliance`` or ``swing_tilt`` setting (values the systems reject raise their own).
+        ``gait_params`` and ``pattern`` that disagree, a ``controller`` that is not an online
+        ``ControllerOptions``, an unknown ``planner_options`` setting or one of ``controller``'s (values the
+        systems reject raise their own).
     drake_estop.planning.plan.InfeasibleStop
         When no stop can be planned at the signal from the reference either, or, with
-        ``planner_options={"reference_fallback": False}``, from the measured state (by default the latch
+        ``ControllerOptions(reference_fallback=False)``, from the measured state (by default the latch
         then plans from the reference: ``online["latch_fallback"]``).
     """
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
     pattern = _checked_pattern(gait_params, pattern)
-    _check_run_arguments(pattern, estop_time, after_halt, planner_options, foot_compliance, swing_tilt)
+    controller = ControllerOptions() if controller is None else controller
+    _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options)
     perturbations = perturbations or Perturbations()
-    stop_params = stop_params or controller_stop_parameters()
+    stop_params = stop_params or controller_stop_parameters(braked_landing=controller.braked_landing)
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
-                                   perturbations=perturbations, true_state=true_state,
-                                   planner_options=planner_options, foot_compliance=foot_compliance,
-                                   swing_tilt=swing_tilt)
+                                   perturbations=perturbations, controller=controller,
+                                   planner_options=planner_options)
     simulator = online_simulator(handles, perturbations)
     context = simulator.get_mutable_context()
     cpu = time.process_time()

@@ -1,0 +1,106 @@
+"""The physics stop's controller as configuration: which controller runs, and which features of the online
+controller are on.
+
+:class:`ControllerOptions` is the ``controller`` section of a scenario
+(:class:`drake_estop.scenario.Scenario`, YAML ``controller: {kind: online, foot_compliance: false}``) and the
+``controller`` argument of :func:`drake_estop.physics.online.run_online`. The features default to the
+controller as benchmarked; the switches exist for comparison runs (``benchmarks/robustness.py --ablation``
+turns each off in turn).
+"""
+
+import dataclasses
+from dataclasses import dataclass
+
+from drake_estop.planning.planner import MAX_REPLAN_SOLVES, check_solve_bound
+
+#: The physics controllers: the online controller, and the offline preview filter it is compared with.
+CONTROLLER_KINDS = ("online", "offline-filter")
+
+#: The fields that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` options.
+PLANNER_FEATURES = ("measured_footholds", "relanded_footholds", "recovery_step", "reference_fallback",
+                    "foothold_replan", "max_replan_solves")
+
+
+@dataclass
+class ControllerOptions:
+    """The controller of a physics stop and the online controller's features.
+
+    Every feature but ``kind`` acts on the online controller only; the defaults are the controller the
+    benchmarks and the campaign measure.
+
+    Attributes
+    ----------
+    kind : str
+        ``"online"`` (default): plans at the signal and re-plans from the estimated state tick by tick
+        (:func:`drake_estop.physics.online.run_online`); ``"offline-filter"``: the whole joint reference
+        computed at the signal with the ZMP preview filter (:func:`drake_estop.physics.offline.run_physics`;
+        for comparison, not a real-time controller).
+    true_state : bool
+        Feed the controller the true COG instead of the state estimate (default off: the robot has only its
+        sensors; on for debugging the estimator's share of a failure).
+    foot_compliance : bool
+        The stance ankles' foot-edge compliance (:data:`drake_estop.physics.online.FOOT_EDGE_COMPLIANCE`): an
+        ankle yields when the measured CoP nears a sole edge, so a pushed robot does not rock on its heels
+        or toes and leave the floor (default on; off for comparison).
+    swing_tilt : bool
+        The swing foot's tilt compensation (:data:`drake_estop.physics.online.SWING_TILT_COMPENSATION`): the
+        swing sole turned against the body's measured roll and pitch, so a foot lands flat under a tilted
+        body (default on; off for comparison).
+    measured_footholds : bool
+        Re-plans after the landing stand on the estimated footholds, where the soles are, rather than on
+        the plan's feet (default on; off for comparison).
+    relanded_footholds : bool
+        A sole that lost contact after the landing and landed again off the plan's foothold re-plans the
+        stop where it stands (default on; off for comparison).
+    recovery_step : bool
+        A re-plan after the landing that finds no double-support stop steps the rear foot forward (default
+        on; off keeps the plan, for comparison).
+    braked_landing : bool
+        The controller's braked landing (:data:`drake_estop.physics.online.BRAKED_LANDING`): a
+        single-support re-plan lands no sooner than the swing can brake to its point at 15 m/s^2, and then
+        comes down at a slope (default on; off lands the paper's quintic swing, for comparison). It acts
+        through the stop parameters: :func:`drake_estop.physics.online.controller_stop_parameters`.
+    reference_fallback : bool
+        Where no stop exists from the measured state at the signal, the latch plans the paper's stop from
+        the reference and re-plans from the measured state (default on; off ends the run with
+        :class:`drake_estop.planning.plan.InfeasibleStop`, exit status 2 on the command line, for comparison).
+    foothold_replan : bool
+        A sole measured more than 5 mm off the plan's foot after the landing re-plans the stop on the
+        measured feet (default off: net neutral on the campaign, 10 runs gained and 11 lost of 500; on
+        for comparison).
+    max_replan_solves : int or None
+        Stop solves a re-plan may do in one servo tick, dimensionless (default 2: the tries left go on at
+        the next tick, which bounds a tick's work); None puts every try on one tick (for comparison).
+    """
+
+    kind: str = "online"
+    true_state: bool = False
+    foot_compliance: bool = True
+    swing_tilt: bool = True
+    measured_footholds: bool = True
+    relanded_footholds: bool = True
+    recovery_step: bool = True
+    braked_landing: bool = True
+    reference_fallback: bool = True
+    foothold_replan: bool = False
+    max_replan_solves: int | None = MAX_REPLAN_SOLVES
+
+    def __post_init__(self):
+        if self.kind not in CONTROLLER_KINDS:
+            raise ValueError(f"controller.kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
+        for f in dataclasses.fields(self):
+            if f.type is bool and not isinstance(getattr(self, f.name), bool):
+                raise ValueError(f"controller.{f.name} must be true or false, got {getattr(self, f.name)!r}")
+        check_solve_bound(self.max_replan_solves, "controller.max_replan_solves")
+
+    def planner_options(self) -> dict:
+        """The features that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` keyword
+        arguments (:data:`PLANNER_FEATURES`), by name."""
+        return {name: getattr(self, name) for name in PLANNER_FEATURES}
+
+    def changed(self) -> dict:
+        """The fields other than ``kind`` that differ from their defaults, by name: what only the online
+        controller takes."""
+        default = ControllerOptions()
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name != "kind" and getattr(self, f.name) != getattr(default, f.name)}
