@@ -52,6 +52,7 @@ _EXPORTS = {
     "one_step_feasible": "drake_estop.planning.planner",
     "PhysicsParameters": "drake_estop.physics.plant",
     "run_online": "drake_estop.physics.online",
+    "build_online_diagram": "drake_estop.physics.online",
     "controller_stop_parameters": "drake_estop.physics.online",
     "ControllerOptions": "drake_estop.physics.controller_options",
     "Perturbations": "drake_estop.physics.perturbations",

@@ -305,6 +305,22 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     ``planner_options``, its other settings (``replan_threshold``,
     ``replan_interval``, ...). ``controller.braked_landing`` acts through
     ``stop_params`` (:func:`controller_stop_parameters`).
+
+    Parameters
+    ----------
+    pattern : NominalPattern
+        The walk (lengths in m, times in s).
+    stop_params : StopParameters
+        The stop planner's parameters; its ``servo_period`` [s] is the controller's tick.
+    estop_time : float or None
+        Time of the stop signal [s], latched at the next servo tick; None: no scheduled stop.
+    physics, perturbations, controller, planner_options
+        As described above.
+
+    Returns
+    -------
+    OnlineHandles
+        The built diagram and its systems (plant, estimator, planner, IK, loggers, ...).
     """
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
 
