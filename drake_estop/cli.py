@@ -13,7 +13,8 @@ from pathlib import Path
 from drake_estop.physics.perturbations import Perturbations, add_perturbation_arguments, perturbations_from_args
 from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPattern, load_footsteps
 from drake_estop.planning.plan import OBJECTIVES
-from drake_estop.planning.planner import MAX_REPLAN_SOLVES, InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
 

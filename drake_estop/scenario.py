@@ -33,7 +33,8 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import Footstep, GaitParameters
-from drake_estop.planning.planner import MAX_REPLAN_SOLVES, StopParameters, check_solve_bound
+from drake_estop.planning.planner import StopParameters
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, check_solve_bound
 
 SIMULATIONS = ("kinematic", "diagram", "physics")
 CONTROLLERS = ("online", "offline-filter")

@@ -35,19 +35,15 @@ from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.planner import (
     MAX_LATCH_SOLVES,
-    MAX_REPLAN_SOLVES,
     PHASES,
     InfeasibleStop,
-    ReplanPending,
     StopParameters,
-    check_solve_bound,
     one_step_feasible,
     plan_stop,
-    replan_stop,
-    replan_support,
     snap_to_tick,
     warm_up,
 )
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, ReplanPending, check_solve_bound, replan_stop, replan_support
 from drake_estop.timing import timed
 
 #: With ``foothold_replan``, a measured foothold this far [m] from the plan's foot re-plans the stop on the
