@@ -30,9 +30,11 @@ import scipy.sparse
 from reference import reference_solve
 from scipy.optimize import linprog
 
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import NominalPattern
-from drake_estop.planning.planner import StopParameters, plan_stop, solve_continuous, stop_problem, warm_up
+from drake_estop.planning.planner import StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import stride_ticks
+from drake_estop.planning.solver import solve_continuous
 
 
 def sweep(pattern, params, repeats, every=1):

@@ -37,9 +37,11 @@ import bench_planner
 import numpy as np
 from reference import reference_solve
 
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, solve_continuous, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop
 from drake_estop.planning.rollout import rollout, stride_ticks
+from drake_estop.planning.solver import solve_continuous
 
 
 def _progress(iterable, **kwargs):

@@ -5,8 +5,9 @@
 #
 # Modules of drake_estop/planning/. Default: lipm stop_condition newton solver (the LIPM, the
 # closed-form stop condition and its derivatives, the interior-point Newton method, grid start and
-# quantisation); add planner and halt for the planner and the halt (slower). Runs in a scratch copy
-# of the tracked files (the work tree stays clean), with DRAKE_ESTOP_PURE_PYTHON=1: the solver's one
+# quantisation); add planner assembly landing zmp_check replan halt for the planner and the halt
+# (slower). Runs in a scratch copy of the tracked files (the work tree stays clean), with
+# DRAKE_ESTOP_PURE_PYTHON=1: the solver's one
 # source runs as plain Python, so the mutants need no numba compile. Needs mutmut >= 3.8 (pip install mutmut); MUTMUT_PYTHONPATH may point at a --target
 # install. Not in CI: tens of minutes on two cores. Prints mutmut's per-mutant results and the
 # score; the README lists the result and the surviving (equivalent) mutants.

@@ -57,11 +57,11 @@ def left_push_state():
 
 
 def count_solves(monkeypatch):
-    """A list that grows by one for every stop the planner solves (``_plan_from``)."""
-    from drake_estop.planning import planner
+    """A list that grows by one for every stop a re-plan solves (``plan_from``)."""
+    from drake_estop.planning import replan
 
-    solves, real = [], planner._plan_from
-    monkeypatch.setattr(planner, "_plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
+    solves, real = [], replan.plan_from
+    monkeypatch.setattr(replan, "plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
     return solves
 
 

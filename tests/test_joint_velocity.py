@@ -11,7 +11,9 @@ import pytest
 from scripts import load_script
 
 from drake_estop.planning.gait import NominalPattern
-from drake_estop.planning.planner import StopParameters, descent_time, landing_swing
+from drake_estop.planning.plan import landing_swing
+from drake_estop.planning.planner import StopParameters
+from drake_estop.planning.problems import descent_time
 
 
 @pytest.fixture(scope="module")

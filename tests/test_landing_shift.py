@@ -15,7 +15,8 @@ from checks import plan_lipm_error
 
 from drake_estop.physics.online import controller_stop_parameters
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import MIN_LANDING_SHIFT, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.landing import MIN_LANDING_SHIFT
+from drake_estop.planning.planner import StopParameters, plan_stop, replan_stop
 
 SHORT_STEP = GaitParameters(step_length=0.2385)
 

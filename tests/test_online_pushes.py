@@ -138,15 +138,15 @@ def test_ankle_strategy_replans_the_sideways_pushed_single_support_stop(monkeypa
     The push moves the DCM over the support foot's outer edge: no landing stops that with the ZMP held at
     the ankle (eq. 19), so every single-support re-plan failed, the robot landed late and stood on one toe
     with the CoP 27.9 mm outside the planned support. With the re-plan's ankle strategy
-    (``planner.ankle_zmp``) it re-plans, and every criterion is met."""
-    from drake_estop.planning import planner
+    (``replan.ankle_zmp``) it re-plans, and every criterion is met."""
+    from drake_estop.planning import replan
 
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 0.0, 170.0, 0.1),))
     ankle = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert ankle.success, [name for name, ok in ankle.criteria.items() if not ok]
     assert ankle.online["replans"] >= 1 and ankle.online["replan_failures"] == 0
-    monkeypatch.setattr(planner, "ankle_zmp", lambda *args: None)
+    monkeypatch.setattr(replan, "ankle_zmp", lambda *args: None)
     held = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes)
     assert held.online["replan_failures"] > 0
     assert not held.criteria["cop_in_support"]

@@ -7,9 +7,10 @@ import pytest
 from checks import plan_lipm_error
 from reference import reference_solve
 
-from drake_estop.planning import planner as planner_module
+from drake_estop.planning import assembly
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop
 
 
 def _ticks(plan, start, end):
@@ -121,7 +122,7 @@ def test_newton_matches_generic_solver(pattern, params):
     optimum meets every limit as the reference writes them (its own stop condition and limits)."""
     import reference
 
-    from drake_estop.planning.planner import solve_continuous
+    from drake_estop.planning.solver import solve_continuous
 
     start, end = pattern.stride()
     compared = agreed = 0
@@ -189,8 +190,8 @@ def test_a_late_signal_lands_at_the_nominal_touchdown(pattern):
     assert plan.case == "one-step" and plan.steps_after_signal == 1
     assert touchdown - 1e-9 <= plan.landing_time < plan.start_time + plan.params.min_landing_time
     with pytest.raises(InfeasibleStop):  # the limits as given have no stop there: the window is what finds it
-        planner_module._plan_local(pattern, pattern.state(touchdown - 0.005), StopParameters(), touchdown - 0.005,
-                                   "one-step")
+        assembly._plan_local(pattern, pattern.state(touchdown - 0.005), StopParameters(), touchdown - 0.005,
+                             "one-step")
 
 
 def test_marginal_case_stops_at_next_support_phase():
@@ -286,7 +287,7 @@ def test_problem_evaluate_derivatives_match_finite_differences(pattern, fraction
     """Cost and every constraint of the Newton problem (bounds, slowdown limits, swing speed, fore
     and rear reach): analytic gradients against central differences of the values, analytic
     Hessians against central differences of the gradients."""
-    from drake_estop.planning.planner import solve_continuous
+    from drake_estop.planning.solver import solve_continuous
 
     params = StopParameters(landing_zmp_offset=offset)
     start, end = pattern.stride()
@@ -379,7 +380,7 @@ def test_a_retried_landing_does_not_name_the_limits_of_its_first_attempt(pattern
 
     signal = round(pattern.steps[2]["touchdown"] - 0.01, 3)  # on the servo grid
     with pytest.raises(InfeasibleStop):  # the first attempt does fail there
-        planner_module._plan_local(pattern, pattern.state(signal), StopParameters(), signal, "one-step")
+        assembly._plan_local(pattern, pattern.state(signal), StopParameters(), signal, "one-step")
     calls = []
     real = solver.infeasible_reason
     monkeypatch.setattr(solver, "infeasible_reason", lambda *a, **k: calls.append(a) or real(*a, **k))

@@ -10,13 +10,8 @@ from pydrake.systems.analysis import Simulator
 
 from drake_estop.planning.gait import SIDES
 from drake_estop.planning.plan import landing_swing
-from drake_estop.planning.planner import (
-    RECOVERY_DCM_AHEAD,
-    RECOVERY_ZMP_MARGIN,
-    InfeasibleStop,
-    plan_stop,
-    replan_stop,
-)
+from drake_estop.planning.planner import InfeasibleStop, plan_stop, replan_stop
+from drake_estop.planning.replan import RECOVERY_DCM_AHEAD, RECOVERY_ZMP_MARGIN
 from drake_estop.systems.plan_sequence import PlanSequence
 
 DT = 0.005

@@ -77,8 +77,8 @@ def test_plan_stop_bounds_its_search_by_max_solves(pattern, monkeypatch):
     com, com_vel = sideways_at(pattern, t, 3.0)
     measured = (com[:2], com_vel[:2])
     solves = []
-    solve = planner_module._plan_from
-    monkeypatch.setattr(planner_module, "_plan_from",
+    solve = planner_module.plan_from
+    monkeypatch.setattr(planner_module, "plan_from",
                         lambda *args, **kwargs: solves.append(1) or solve(*args, **kwargs))
     with pytest.raises(InfeasibleStop, match="within two steps"):
         plan_stop(pattern, t, params, measured=measured)
@@ -177,7 +177,7 @@ def test_replan_keeps_the_crouch_of_the_plan_it_replaces(pattern, params):
 
 
 def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
-    from drake_estop.planning import planner
+    from drake_estop.planning import replan
 
     plan, t, com, vel = left_push_state()
     new = replan_stop(plan, t, com, vel)
@@ -197,7 +197,7 @@ def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
     assert new.min_zmp_margin >= margin - 1e-9
     assert abs(_slowdown_end_velocity(new)[0]) < 1e-6  # eq. 17 (laterally the target sits on the fore sole's edge)
     assert np.linalg.norm(new.com([new.halt_end])[1]) < 1e-6  # at rest after the halt
-    monkeypatch.setattr(planner, "ankle_zmp", lambda *args: None)
+    monkeypatch.setattr(replan, "ankle_zmp", lambda *args: None)
     with pytest.raises(InfeasibleStop):
         replan_stop(plan, t, com, vel)
 
@@ -205,13 +205,13 @@ def test_ankle_strategy_replans_what_a_held_support_zmp_cannot(monkeypatch):
 def test_ankle_strategy_builds_the_replans_start_once_for_all_its_tries(monkeypatch):
     """The ankle strategy's tries differ only in the stance ZMP: the measured start (the feet's motion and
     the swing's braking time) is built once, and every try solves from it with its own ZMP."""
-    from drake_estop.planning import planner
+    from drake_estop.planning import replan
 
     plan, t, com, vel = left_push_state()
     braking, solved = [], []
-    real_braking, real_plan_from = planner.swing_braking_time, planner._plan_from
-    monkeypatch.setattr(planner, "swing_braking_time", lambda *a: braking.append(a) or real_braking(*a))
-    monkeypatch.setattr(planner, "_plan_from",
+    real_braking, real_plan_from = replan.swing_braking_time, replan.plan_from
+    monkeypatch.setattr(replan, "swing_braking_time", lambda *a: braking.append(a) or real_braking(*a))
+    monkeypatch.setattr(replan, "plan_from",
                         lambda pattern, state, *a, **k: solved.append(state.zmp.copy()) or real_plan_from(
                             pattern, state, *a, **k))
     new = replan_stop(plan, t, com, vel)
@@ -222,7 +222,7 @@ def test_ankle_strategy_builds_the_replans_start_once_for_all_its_tries(monkeypa
 
 
 def test_ankle_zmp_brings_the_dcm_back_onto_the_plan_at_the_landing():
-    from drake_estop.planning.planner import ankle_zmp
+    from drake_estop.planning.replan import ankle_zmp
 
     plan, t, _, _ = left_push_state()
     pos, vel, _ = state_at(plan, t)
@@ -317,7 +317,7 @@ def _hopeless_left_push():
 
 
 def test_replan_support_names_what_a_replan_would_solve(pattern, params):
-    from drake_estop.planning.planner import replan_support
+    from drake_estop.planning.replan import replan_support
 
     plan = plan_stop(pattern, 3.15, params)
     assert replan_support(plan, 3.15) == "single"
@@ -331,7 +331,7 @@ def test_replan_support_names_what_a_replan_would_solve(pattern, params):
 def test_a_bounded_replan_goes_on_with_its_tries_where_it_stopped(monkeypatch):
     """max_solves=2: the held ZMP and the ankle ZMP fail and the call says where to go on (the ankle ZMP's
     lateral part); resumed there from the same measurement it gives the unbounded call's plan, to the bit."""
-    from drake_estop.planning.planner import ReplanPending
+    from drake_estop.planning.replan import ReplanPending
 
     plan, t, com, vel = left_push_state()
     solves = count_solves(monkeypatch)
@@ -350,7 +350,7 @@ def test_a_bounded_replan_goes_on_with_its_tries_where_it_stopped(monkeypatch):
 
 
 def test_a_replan_with_no_stop_spreads_its_four_solves_and_then_fails(monkeypatch):
-    from drake_estop.planning.planner import ReplanPending
+    from drake_estop.planning.replan import ReplanPending
 
     plan, t, com, vel = _hopeless_left_push()
     solves = count_solves(monkeypatch)
@@ -371,7 +371,7 @@ def test_a_bounded_double_support_replan_takes_its_recovery_step_on_the_next_cal
     """A forward push in double support (3.55 s signal, measured at 3.665 s): the held ZMP has no stop;
     with one solve a call the recovery step is the next call's."""
     from drake_estop.physics.online import controller_stop_parameters
-    from drake_estop.planning.planner import ReplanPending
+    from drake_estop.planning.replan import ReplanPending
 
     plan = plan_stop(NominalPattern(), 3.55, controller_stop_parameters())
     t, com, vel = 3.665, np.array([0.80341699, -0.01403402]), np.array([0.61912665, -0.21738769])

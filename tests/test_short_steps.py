@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from drake_estop.cli import main
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop
 from drake_estop.planning.rollout import stride_ticks
 
 PARAMS = StopParameters()
@@ -60,7 +61,7 @@ def test_infeasible_stop_names_the_limit():
     pattern = NominalPattern()
     state = pattern.state(3.25)
     problem, kind, _ = stop_problem(pattern, state, StopParameters(max_swing_speed=0.3))
-    from drake_estop.planning.planner import solve_phases
+    from drake_estop.planning.solver import solve_phases
 
     with pytest.raises(InfeasibleStop, match="max_swing_speed"):
         solve_phases(problem, kind)

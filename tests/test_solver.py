@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from drake_estop.planning import backend, solver
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, solve_phases, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop
 from drake_estop.planning.rollout import stride_ticks
+from drake_estop.planning.solver import solve_phases
 
 ROOT = Path(__file__).resolve().parents[1]
 GAITS = {

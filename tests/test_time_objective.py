@@ -10,7 +10,8 @@ from checks import plan_lipm_error
 
 from drake_estop.cli import main
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, ankle_zmp, plan_stop, replan_stop
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.replan import ankle_zmp
 from drake_estop.planning.rollout import stride_ticks
 from drake_estop.scenario import load_scenario
 
@@ -220,11 +221,11 @@ def test_paper_objective_is_the_default(stride_plans):
 
 @pytest.mark.parametrize("margin", [-0.02, math.nan])
 def test_a_plan_failing_the_zmp_verification_is_never_handed_out(pattern, monkeypatch, margin):
-    """The planner's own tick-by-tick ZMP check (_verify_zmp) stands behind the brake's: a plan it
+    """The planner's own tick-by-tick ZMP check (verify_zmp) stands behind the brake's: a plan it
     rejects (outside the margin, or NaN) raises InfeasibleStop instead of being returned."""
-    from drake_estop.planning import planner
+    from drake_estop.planning import assembly
 
-    monkeypatch.setattr(planner, "_verify_zmp", lambda plan, final_polygon=None: margin)
+    monkeypatch.setattr(assembly, "verify_zmp", lambda plan, final_polygon=None: margin)
     for signal in (3.1, 3.55):
         with pytest.raises(InfeasibleStop):
             plan_stop(pattern, signal, TIME)

@@ -16,7 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reference import reference_solve
 
-from drake_estop.planning import planner as planner_module
+from drake_estop.planning import assembly
+from drake_estop.planning.assembly import stop_problem
 from drake_estop.planning.gait import (
     MAX_TURN_DEG,
     Footstep,
@@ -28,7 +29,7 @@ from drake_estop.planning.gait import (
 )
 from drake_estop.planning.heading import FramedPattern, HeadingFrame, stop_heading
 from drake_estop.planning.lipm import LipmTrajectory
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop, stop_problem
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop
 from drake_estop.planning.rollout import rollout, stride_ticks
 
 GAITS = {
@@ -123,7 +124,7 @@ def test_one_step_wherever_a_generic_solver_finds_one(gait_plans):
         problem, kind, _ = stop_problem(FramedPattern(pattern, frame), frame.state(state), PARAMS)
         if reference_solve(problem, kind, margin=0.005) is not None:
             with pytest.raises(InfeasibleStop, match="zmp_margin"):
-                planner_module._plan_from(pattern, state, PARAMS, plan.signal_time, "one-step")
+                assembly.plan_from(pattern, state, PARAMS, plan.signal_time, "one-step")
             halts += 1
     assert halts <= 2, name
 
@@ -373,7 +374,7 @@ def test_the_whole_body_ik_follows_the_turned_feet():
 def test_the_outer_foot_lands_with_a_bent_knee():
     """A single-support stop of a +15 deg/step walk lands the outer (right) foot: with the straight
     walk's fore reach its knee reached 14 rad/s in the IK (limit 6, 28 ticks over); the planner
-    shortens the reach by the extra lateral offset (planner._lateral_reach)."""
+    shortens the reach by the extra lateral offset (landing.lateral_reach)."""
     from drake_estop.systems.diagram import simulate_diagram
 
     result = simulate_diagram(gait_params=GaitParameters(turn=15.0), stop_params=PARAMS, estop_time=3.175)

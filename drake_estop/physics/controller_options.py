@@ -11,7 +11,7 @@ turns each off in turn).
 import dataclasses
 from dataclasses import dataclass
 
-from drake_estop.planning.planner import MAX_REPLAN_SOLVES, check_solve_bound
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, check_solve_bound
 
 #: The physics controllers: the online controller, and the offline preview filter it is compared with.
 CONTROLLER_KINDS = ("online", "offline-filter")

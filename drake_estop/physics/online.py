@@ -38,7 +38,7 @@ How the controller balances (and what it does not do):
   Where no landing stops the measured state with the support foot's ZMP
   held at its ankle (the paper's landing phase, eq. 19), the single-support
   re-plan moves that ZMP within the sole first (the ankle strategy,
-  :func:`drake_estop.planning.planner.ankle_zmp`). Measured: every
+  :func:`drake_estop.planning.replan.ankle_zmp`). Measured: every
   single-support re-plan after a 17 N s push to the left at 2.95 or 3.15 s
   had failed (the DCM over the support foot's outer edge) and the robot stood
   on one toe, CoP 27.9 / 5.9 mm outside the planned support; with it both

@@ -18,7 +18,7 @@ foot is the nominal one:
 
 less ``(p - p_nominal) * (exp(w * landing_duration) - 1)`` where a re-plan's ankle
 strategy holds the support ZMP at ``p`` instead of the walk's ``p_nominal``
-(:func:`drake_estop.planning.planner.ankle_zmp`; the same LIPM solution),
+(:func:`drake_estop.planning.replan.ankle_zmp`; the same LIPM solution),
 clamped to the step widths the legs can take (:data:`MIN_STEP_WIDTH`, no foot
 collision; :data:`MAX_STEP_WIDTH`, the hip's reach). A deviation whose shift is
 under :data:`SHIFT_THRESHOLD` (sensor noise) keeps the nominal footstep, so an
@@ -39,7 +39,7 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     from the walk's at ``state.time``, touching down ``landing_duration`` [s] later; None when the
     nominal landing stands (the shift is below :data:`SHIFT_THRESHOLD`)."""
     if state.support != "single" or state.next_landing is None or state.recovery_touchdown is not None:
-        return None  # (a recovery step is aimed at the measured DCM already: planner._recovery_step)
+        return None  # (a recovery step is aimed at the measured DCM already: replan._recovery_step)
     w = pattern.w
     nominal_pos, nominal_vel, _, nominal_zmp = pattern.com([state.time])
     deviation = (state.com[1] - nominal_pos[0][1]) + (state.com_vel[1] - nominal_vel[0][1]) / w

@@ -227,7 +227,7 @@ class PatternState:
     feet_yaw: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # side -> heading [rad]
     feet_yaw_rate: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # [rad/s]
     next_landing_yaw: float = 0.0  # heading of the nominal landing [rad]
-    # a recovery step out of a double-support stop (planning/planner.py, replan_stop): its nominal
+    # a recovery step out of a double-support stop (planning/replan.py, replan_stop): its nominal
     # touchdown [s]; the walk's footstep (steps[step_index]) does not apply to it. None: the walk's step
     recovery_touchdown: float | None = None
 
@@ -349,7 +349,7 @@ class NominalPattern:
 
     def touchdown_com_offset(self, step_index: int) -> np.ndarray:
         """Step ``step_index``'s landing ankle less the COG at its touchdown (x, y) [m]; computed once
-        per step (the planner asks on every solve: :func:`drake_estop.planning.planner._lateral_reach`)."""
+        per step (the planner asks on every solve: :func:`drake_estop.planning.landing.lateral_reach`)."""
         cache = self.__dict__.setdefault("_touchdown_com_offsets", {})
         if step_index not in cache:
             step = self.steps[step_index]

@@ -285,7 +285,7 @@ class StopPlan:
         the step length and ZMP_max are measured along it.
     recovery_step : bool
         A re-plan's step of the rear foot out of a double-support stop
-        (:func:`drake_estop.planning.planner.replan_stop`).
+        (:func:`drake_estop.planning.replan.replan_stop`).
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -542,7 +542,7 @@ def landing_swing(pos, vel, acc, target_xy, elapsed, duration, lift_height, clea
     re-lift, squeezed into the last 0.1 s before touchdown, drove the landing
     knee at up to 15 rad/s (its limit is 6). ``clearance`` [m], if given, is
     the bump's apex above the Hermite part instead (a recovery step lifted
-    from the floor, :func:`drake_estop.planning.planner.replan_stop`).
+    from the floor, :func:`drake_estop.planning.replan.replan_stop`).
     ``approach_slope`` [m/m] (:attr:`StopParameters.landing_approach_slope`):
     over the second half of the swing the bump also keeps the foot at least
     this times its horizontal distance to the landing point above the floor,

@@ -29,18 +29,14 @@ from pydrake.systems.framework import EventStatus
 from drake_estop.planning.gait import SIDES, NominalPattern
 from drake_estop.planning.planner import (
     MAX_LATCH_SOLVES,
-    MAX_REPLAN_SOLVES,
     InfeasibleStop,
-    ReplanPending,
     StopParameters,
-    check_solve_bound,
     one_step_feasible,
     plan_stop,
-    replan_stop,
-    replan_support,
     snap_to_tick,
     warm_up,
 )
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, ReplanPending, check_solve_bound, replan_stop, replan_support
 from drake_estop.systems.plan_sequence import PlanHandle, PlanSequence, last_landing
 from drake_estop.systems.reference import (
     REFERENCE_SLICES,

@@ -1,0 +1,406 @@
+"""Re-planning a stop from a measured state (after a push), and the recovery step.
+
+:func:`replan_stop` solves the stop again at a servo tick from the measured COG (eq. 10-11) and
+the current plan's ZMP (eq. 12-13): before the landing a new landing (III.A), with the ankle
+strategy (:func:`ankle_zmp`) where the held ZMP finds none; after it a double-support stop
+(III.B) on the landed or measured feet, and where none exists the recovery step.
+:func:`replan_support` says which applies, :data:`REPLAN_TRIES` lists the tries in order and
+:class:`ReplanPending` resumes a call bounded by ``max_solves`` on a later tick.
+:func:`swing_braking_time` bounds how soon a moving swing foot can land.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from drake_estop.planning import lipm
+from drake_estop.planning.assembly import plan_from, with_compute_time
+from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH
+from drake_estop.planning.gait import SIDES, rotation
+from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan
+
+#: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
+#: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone; double support
+#: (III.B) holds the plan's ZMP, then takes the recovery step. ``replan_stop(first_try=k)`` starts at the k-th.
+REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal"), "double": ("held", "recovery step")}
+
+
+class ReplanPending(InfeasibleStop):
+    """:func:`replan_stop` used its ``max_solves`` and tries are left: none so far gave a stop.
+
+    ``support`` ("single" or "double") and ``next_try`` (an index into
+    ``REPLAN_TRIES[support]``) resume it on a later tick, from that tick's
+    measurement: ``replan_stop(..., first_try=next_try)`` while
+    :func:`replan_support` still says ``support``.
+    """
+
+    def __init__(self, message: str, support: str, next_try: int):
+        super().__init__(message)
+        self.support = support
+        self.next_try = next_try
+
+
+#: Stop solves a re-plan of the online controller may do in one servo tick (``StopPlannerSystem``'s
+#: ``max_replan_solves``): a double-support re-plan (held ZMP, recovery step) and a single-support one's
+#: held and ankle ZMP each fit one tick; the rest go on at the next tick (measured on 27 captured re-plans).
+MAX_REPLAN_SOLVES = 2
+
+def check_solve_bound(value, name: str = "max_solves"):
+    """``value`` if it bounds a re-plan's solves (a positive integer, or None: no bound); else ``ValueError``
+    naming ``name``."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        raise ValueError(f"{name} must be a positive integer or None, got {value!r}")
+    return value
+
+
+def replan_support(plan: StopPlan, t: float) -> str | None:
+    """What :func:`replan_stop` re-plans at ``t``: "single" (the landing can still move), "double" (after
+    the landing, before the halt), or None (nothing left to re-plan)."""
+    if plan.x is None or t < plan.start_time:
+        return None
+    if (plan.landing_foot is not None and t < plan.landing_time - plan.params.min_landing_time
+            and not plan.recovery_step):  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
+        return "single"
+    return "double" if plan.landing_time <= t < plan.slowdown_end else None
+
+
+def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
+                first_try: int = 0, max_solves: int | None = None) -> StopPlan | None:
+    """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
+
+    The new plan starts at ``t`` from the current plan's ZMP (value, rate and
+    acceleration: eq. 12-13) and feet, and from the measured COG position and
+    velocity (eq. 10-11):
+
+    * landing phase, while the landing can still move (before
+      ``landing_time - min_landing_time``): landing time, step length and the
+      later phases are solved again (III.A, eq. 21-26);
+    * after the landing, in the ZMP transition or the slowdown: the stop is
+      solved again as a double-support stop on the landed feet (III.B,
+      eq. 29-31).
+
+    **Ankle strategy.** The paper holds the ZMP still on the support foot until
+    the landing (eq. 19). When no landing stops the measured state that way
+    (a push towards the support foot's side puts the DCM over its outer edge;
+    a forward push needs a step longer than ``max_step_length``), the
+    single-support re-plan moves that ZMP, at rest, to :func:`ankle_zmp` (the
+    point of the support sole, less ``zmp_margin``, that brings the DCM back to
+    the plan's at its landing), then to its lateral part alone, then to its
+    sagittal part alone, and keeps the first that gives a stop. The ZMP
+    steps there at ``t`` (the COG stays continuous: position and velocity;
+    eq. 10-11 hold, eq. 12-13 do not); a physical robot's centre of pressure
+    does the same under a push. Measured on the pushed physics benchmark: see
+    ``benchmarks/ROBUSTNESS.md``.
+
+    ``feet`` (after the landing only: ``{side: (x, y)}`` [m], either or both
+    sides) are measured footholds: the double-support stop is solved on them
+    instead of the plan's feet (a pushed swing foot lands centimetres from its
+    target; its support polygon is where it stands). Ignored before the landing.
+
+    **Recovery step** (``recovery_step=True``; after the landing only). Where
+    no double-support stop exists (a forward push puts the DCM past the fore
+    foot's ankle: stopping the COG between the feet then needs a ZMP beyond
+    the toe, or stretches the rear leg past ``max_rear_reach``), the re-plan
+    steps: the rear foot lifts at ``t`` and lands ahead
+    (:func:`_recovery_step`), the stop solved as a single-support stop (III.A,
+    eq. 21-26) on the fore foot from the measured COG. A step out of double
+    support where a stop would end: the paper's plan has no such step (its
+    stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
+    steps towards the capture point. Only forward (the rear foot steps past
+    the fore foot), from a DCM at least ``RECOVERY_DCM_AHEAD`` past the fore
+    ankle, not heading laterally past the fore sole's inner edge, with the
+    rear leg within ``max_rear_reach``; a DCM outside the feet sideways or
+    behind is not caught.
+
+    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to four solves in
+    single support, two in double support) run in order until one gives a
+    stop. ``max_solves`` (None: no bound) caps the solves of this call: when
+    it runs out with tries left, :class:`ReplanPending` says where to go on
+    (``first_try``) on a later tick, from that tick's measurement. A try the
+    ankle strategy would repeat (its stance ZMP within 1 mm of the plan's)
+    is skipped and costs no solve.
+
+    Returns None where nothing is left to re-plan (the halt, a plan that has
+    not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
+    stop exists from that state (:class:`ReplanPending` when tries are left),
+    ``ValueError`` for non-finite ``feet``, a ``first_try`` outside the
+    support's tries or a ``max_solves`` below 1.
+    """
+    footholds = _footholds(feet)
+    check_solve_bound(max_solves)
+    support = replan_support(plan, t)
+    if support is None:
+        return None
+    tries = REPLAN_TRIES[support]
+    if isinstance(first_try, bool) or not isinstance(first_try, int) or not 0 <= first_try < len(tries):
+        raise ValueError(f"first_try must be an index into REPLAN_TRIES[{support!r}] (0-{len(tries) - 1}), "
+                         f"got {first_try!r}")
+    # a push may need the early step, and a landing moved further than a low foot could on its own
+    params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
+    double = support == "double"
+    start = _ReplanStart(plan, t, com_xy, com_vel_xy, double, params, footholds if double else None)
+    # resumed (first_try > 0): what a try that does not apply re-raises (the held ZMP always runs at 0)
+    failure = InfeasibleStop(f"re-plan at t={t:.3f} s: the {support}-support tries before "
+                             f"{tries[first_try]!r} found no stop on earlier ticks") if first_try else None
+    ankle, solves = None, 0
+    for index in range(first_try, len(tries)):
+        name, stance_zmp = tries[index], None
+        if name == "recovery step" and not recovery_step:
+            break
+        if name.startswith("ankle"):  # the support foot's ZMP moved to take back the DCM deviation
+            if ankle is None:
+                ankle = _ankle_tries(plan, t, com_xy, com_vel_xy, start.zmp)
+            if not ankle:
+                break
+            stance_zmp = ankle[name]
+            if np.max(np.abs(stance_zmp - start.zmp)) < 1e-3:  # the plan's ZMP at t: nothing new to try
+                continue
+        if max_solves is not None and solves >= max_solves:
+            raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
+                                f"from {name!r}", support, index)
+        solves += 1
+        try:
+            if name == "recovery step":
+                return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
+            return start.solve(stance_zmp=stance_zmp)
+        except InfeasibleStop as error:
+            failure = error
+    raise failure
+
+
+def _ankle_tries(plan: StopPlan, t: float, com_xy, com_vel_xy, current) -> dict:
+    """The ankle strategy's stance ZMPs by try name (:data:`REPLAN_TRIES`): :func:`ankle_zmp`, its lateral
+    part and its sagittal part with the rest from ``current`` (the plan's ZMP at ``t``); empty without one."""
+    ankle = ankle_zmp(plan, t, com_xy, com_vel_xy)
+    if ankle is None:
+        return {}
+    return {"ankle": ankle, "ankle lateral": np.array([current[0], ankle[1]]),
+            "ankle sagittal": np.array([ankle[0], current[1]])}
+
+
+def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
+    """The support foot's ZMP that brings the measured DCM back onto the plan's at the plan's landing.
+
+    With the ZMP held at ``p`` the DCM ``xi = x + x' / omega`` moves as
+    ``xi(T) = p + (xi(t) - p) exp(omega (T - t))`` (eq. 6-9); this solves for ``p``
+    with ``xi(T)`` the plan's, and clamps it to the support sole less ``zmp_margin``
+    (the sole's frame: toe, heel, inner and outer edges). None when the plan has
+    no landing ahead or ``p`` is the plan's ZMP (within 1 mm).
+    """
+    if plan.landing_foot is None or not t < plan.landing_time:
+        return None
+    w = plan.pattern.w
+    grow = math.exp(w * (plan.landing_time - t))
+    pos, vel, _, _ = plan.com([plan.landing_time])
+    xi_landing = pos[0] + vel[0] / w
+    xi_now = np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w
+    wanted = _zmp_to_reach(xi_now, xi_landing, grow)
+    support = next(side for side in SIDES if side != plan.landing_foot)
+    ankle = np.asarray(plan.feet(t)[support][:2], float)
+    turn = rotation(float(plan.feet_yaw(t)[0][support]))
+    zmp = _on_sole(plan.pattern.params.sole, support, ankle, turn, turn.T @ (wanted - ankle), plan.params.zmp_margin)
+    current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
+    return None if np.max(np.abs(zmp - current)) < 1e-3 else zmp
+
+
+def _zmp_to_reach(xi_now, xi_target, grow):
+    """The ZMP ``p`` that, held while the DCM grows by ``grow = exp(w T)``, takes it from ``xi_now`` to
+    ``xi_target``: ``xi(T) = p + (xi_now - p) grow`` (eq. 6-9) solved for ``p``."""
+    return (xi_target - xi_now * grow) / (1.0 - grow)
+
+
+def _on_sole(sole, side: str, ankle, turn, local, margin: float):
+    """``local`` (a point in the frame of the ``side`` sole: ankle ``ankle``, rotation ``turn``) clamped to
+    the sole less ``margin`` (toe, heel, inner and outer edges), in world axes."""
+    left_edge, right_edge = sole.lateral_edges(side)
+    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
+                      np.clip(local[1], -right_edge + margin, left_edge - margin)])
+    return ankle + turn @ local
+
+
+def _footholds(feet):
+    """``replan_stop``'s ``feet`` checked: ``{side: xy array}`` (None for none)."""
+    if feet is None:
+        return None
+    out = {}
+    for side, xy in feet.items():
+        if side not in SIDES:
+            raise ValueError(f"feet: sides are 'left' and 'right', got {side!r}")
+        xy = np.asarray(xy, float)[:2]
+        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"feet[{side!r}] must be a finite (x, y), got {feet[side]!r}")
+        out[side] = xy
+    return out
+
+
+def swing_braking_time(pos, vel, acc, target_xy, params: StopParameters) -> float:
+    """Shortest time to touchdown [s], on the servo grid from ``params.min_landing_time``, in which the
+    landing swing (:func:`~drake_estop.planning.plan.landing_swing`: quintic Hermite from the ankle's
+    ``pos``, ``vel``, ``acc`` to ``target_xy`` at rest) keeps its horizontal acceleration within
+    ``params.max_swing_acceleration``. ``params.min_landing_time`` without a limit, or where no duration up
+    to ``params.max_landing_time`` keeps it (the ankle already accelerates harder than the limit: the swing
+    starts there)."""
+    if not math.isfinite(params.max_swing_acceleration):
+        return params.min_landing_time
+    dt = params.servo_period
+    durations = np.arange(params.min_landing_time, params.max_landing_time - dt + 1e-9, dt)
+    if len(durations) == 0:
+        return params.min_landing_time
+    distance = np.asarray(target_xy, float)[:2] - np.asarray(pos, float)[:2]
+    vel, acc = np.asarray(vel, float)[:2], np.asarray(acc, float)[:2]
+    limit = params.max_swing_acceleration
+    # ankle acceleration of the Hermite at s on the grid, for every duration T (eq. of landing_swing):
+    # (S''(s) D + H1''(s) v T + H2''(s) a T^2) / T^2
+    terms = _BRAKING_TERMS
+    for first in range(0, len(durations), _BRAKING_CHUNK):  # the soonest first: most re-plans stop in the first
+        chunk = durations[first:first + _BRAKING_CHUNK]
+        T = chunk[:, None, None]
+        swing = (terms[0][None, :, None] * distance + terms[1][None, :, None] * vel * T
+                 + terms[2][None, :, None] * acc * T**2) / T**2
+        peak = np.max(np.linalg.norm(swing, axis=2), axis=1)
+        within = np.flatnonzero(peak <= limit + 1e-9)
+        if len(within):
+            return float(chunk[within[0]])
+    return params.min_landing_time
+
+
+#: durations checked at a time by swing_braking_time (each duration's check is its own: the same bits)
+_BRAKING_CHUNK = 16
+#: second derivatives of the landing swing's Hermite terms on its check grid (position, velocity, acceleration)
+_BRAKING_TERMS = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
+
+
+class _ReplanStart:
+    """:func:`replan_stop`'s start: the plan's state at ``t`` with the measured COG, built once and solved
+    (:meth:`solve`) as a single- or double-support stop, for each stance ZMP the ankle strategy tries;
+    ``footholds`` (``{side: xy}``, double support) replace the plan's feet, at rest. ``zmp``: the plan's
+    ZMP at ``t`` (xy)."""
+
+    def __init__(self, plan: StopPlan, t: float, com_xy, com_vel_xy, double: bool, params: StopParameters,
+                 footholds=None):
+        h = 1e-3
+        axes = [traj.evaluate_at(float(t)) for traj in (plan.x, plan.y)]
+        zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (3, 4, 5))
+        before, now, after = plan.feet(t - h), plan.feet(t), plan.feet(t + h)
+        if t - h < plan.start_time:  # the plan's own swing start (continuous with what it started from)
+            before = {side: now[side] - h * plan.start_state.feet_vel[side] for side in now}
+        feet_vel = {side: (after[side] - before[side]) / (2 * h) for side in now}
+        feet_acc = {side: (after[side] - 2 * now[side] + before[side]) / h**2 for side in now}
+        for side, xy in (footholds or {}).items():
+            now[side] = np.array([xy[0], xy[1], 0.0])
+            feet_vel[side], feet_acc[side] = np.zeros(3), np.zeros(3)
+        upper, upper_rate = plan.upper_body(t)
+        yaw, yaw_rate = plan.feet_yaw(t)
+        self.changes = dict(time=float(t), feet_yaw=yaw, feet_yaw_rate=yaw_rate,
+                            com=np.asarray(com_xy, float)[:2].copy(), com_vel=np.asarray(com_vel_xy, float)[:2].copy(),
+                            zmp=zmp, zmp_rate=rate, zmp_accel=accel, feet=now, feet_vel=feet_vel,
+                            feet_acc=feet_acc, upper_body=upper, upper_body_rate=upper_rate)
+        if double:
+            rear = (next(s for s in now if s != plan.landing_foot) if plan.landing_foot is not None
+                    else plan.start_state.rear_foot)
+            self.changes.update(support="double", support_foot=None, next_landing=None, rear_foot=rear)
+        self.braked = False
+        if not double and plan.landing_foot is not None and math.isfinite(params.max_swing_acceleration):
+            side = plan.landing_foot  # the landing no sooner than the swing can brake to the plan's landing point
+            soonest = swing_braking_time(now[side], feet_vel[side], feet_acc[side], plan.landing_position, params)
+            self.braked = soonest > params.min_landing_time + 1e-9  # the limit bounds the landing (braked_swing)
+            params = replace(params, min_landing_time=max(params.min_landing_time, soonest))
+        self.plan, self.double, self.params, self.zmp = plan, double, params, zmp
+
+    def solve(self, stance_zmp=None) -> StopPlan:
+        """The stop from this start; ``stance_zmp`` (xy) replaces the plan's ZMP at ``t``, at rest."""
+        plan, changes = self.plan, self.changes
+        if stance_zmp is not None:
+            changes = dict(changes, zmp=np.asarray(stance_zmp, float)[:2].copy(), zmp_rate=np.zeros(2),
+                           zmp_accel=np.zeros(2))
+        wall = time.perf_counter()
+        new = plan_from(plan.pattern, replace(plan.start_state, **changes), self.params, plan.signal_time,
+                         plan.case, zmp_region="polygon" if self.double else "fore")
+        new.braked_swing = self.braked
+        new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+        return with_compute_time(new, wall)
+
+
+#: ZMP margin [m] of a recovery step's plan (or the plan's own, if smaller). A recovery step is planned
+#: where the controller's 3 cm stop has no solution; with 3 cm its halt had none either (30 N s forward
+#: push in double support: at most 3.6 mm at the first try; measured before the step's lateral aim, with
+#: which 1.5 cm finds it at that first try).
+RECOVERY_ZMP_MARGIN = 0.015
+
+
+#: A recovery step needs the measured DCM at least this far [m] past the fore ankle (sagittally). Measured
+#: on the robustness benchmark: steps taken from DCMs 2.5-3.5 cm past the ankle (a left push late in single
+#: support, a backward push in double support whose rebound failed a double-support re-plan) failed two
+#: runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past. Laterally the
+#: DCM may lie no further towards the rear foot than the fore sole's inner edge less the margin (the step
+#: lifts that foot): in the campaign, steps from DCMs 4.6-9.9 cm towards it (pushes forward-left and left)
+#: made a run that passed fall, another fail by 0.4 mm and a third, failing already, fall.
+RECOVERY_DCM_AHEAD = 0.05
+
+
+def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopParameters, footholds,
+                   failure: InfeasibleStop) -> StopPlan:
+    """:func:`replan_stop`'s recovery step out of a double-support stop at ``t`` (re-raises ``failure``
+    where it does not apply or has no stop either).
+
+    The state: single support on the fore foot (along the feet's mean heading), the rear foot at rest
+    on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
+    where given. The ZMP steps, at rest, onto the fore sole less ``zmp_margin``: sagittally under the
+    measured DCM (holding it, eq. 6-9; a CoP already on the toe stays there), laterally where it sends the
+    DCM to the feet's midline by the soonest touchdown the swing speed allows. The landing keeps the rear
+    foot's lateral offset from the fore foot (within the step widths of :mod:`drake_estop.planning.capture`),
+    along the fore foot's heading; its length, the landing time and the phases after it are the
+    single-support solve's (III.A, eq. 21-26), the nominal touchdown one single-support time after ``t``.
+    """
+    feet = plan.feet(t)
+    now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
+           for side in SIDES}
+    yaw, _ = plan.feet_yaw(t)
+    heading = rotation(0.5 * (yaw["left"] + yaw["right"]))
+    along = {side: float((heading.T @ now[side][:2])[0]) for side in SIDES}
+    fore = max(SIDES, key=along.get)
+    rear = next(side for side in SIDES if side != fore)
+    w = plan.pattern.w
+    com, vel = np.asarray(com_xy, float)[:2].copy(), np.asarray(com_vel_xy, float)[:2].copy()
+    dcm = com + vel / w
+    turn = rotation(float(yaw[fore]))
+    local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
+    if local[0] < RECOVERY_DCM_AHEAD:
+        raise failure  # the DCM is not far past the fore ankle: the stop's own limits failed, not the feet
+    if float((turn.T @ (com - now[rear][:2]))[0]) > params.max_rear_reach:
+        raise failure  # the rear leg is stretched straight: it drags over the floor instead of lifting
+    params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
+    sole, margin = plan.pattern.params.sole, params.zmp_margin
+    lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
+    lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
+    if math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
+        raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
+    # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
+    # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
+    soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
+    lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, math.exp(w * soonest))
+    zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)
+    gait = plan.pattern.params
+    zero = np.zeros(3)
+    upper, upper_rate = plan.upper_body(t)
+    state = replace(
+        plan.start_state, time=float(t), support="single", support_foot=fore, com=com, com_vel=vel, zmp=zmp,
+        zmp_rate=np.zeros(2), zmp_accel=np.zeros(2), feet=now, feet_vel={side: zero.copy() for side in SIDES},
+        feet_acc={side: zero.copy() for side in SIDES},
+        next_landing=now[fore][:2] + turn @ np.array([gait.step_length, lateral]), rear_foot=None,
+        upper_body=upper, upper_body_rate=upper_rate, feet_yaw=dict(yaw),
+        feet_yaw_rate={side: 0.0 for side in SIDES}, next_landing_yaw=float(yaw[fore]),
+        recovery_touchdown=float(t) + gait.single_support_time)
+    wall = time.perf_counter()
+    try:
+        new = plan_from(plan.pattern, state, params, plan.signal_time, plan.case)
+    except InfeasibleStop as error:
+        raise InfeasibleStop(f"{failure}; recovery step: {error}") from error
+    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    new.recovery_step = True
+    new.swing_start = dict(new.swing_start, clearance=plan.pattern.params.lift_height)  # lifted from the floor
+    return with_compute_time(new, wall)
