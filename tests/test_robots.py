@@ -280,7 +280,8 @@ def _load(document, tmp_path):
 @pytest.mark.parametrize("change, message", [
     (lambda d: d["left_foot"].update(body="no_such_link"), "left_foot.body: body 'no_such_link' is not in the model"),
     (lambda d: d["right_leg"].update(knee="r_knee_spare"), "right_leg.knee: joint 'r_knee_spare' is not in the model"),
-    (lambda d: d["left_arm"].__setitem__(2, "l_elbow_spare"), r"left_arm\[2\]: joint 'l_elbow_spare' is not in the model"),
+    (lambda d: d["left_arm"].__setitem__(2, "l_elbow_spare"),
+     r"left_arm\[2\]: joint 'l_elbow_spare' is not in the model"),
     (lambda d: d["left_foot"].update(toe=0.0), "left_foot: toe must be a positive"),
     (lambda d: d["right_foot"].update(inner=-0.01), "right_foot: inner must be a positive"),
     (lambda d: d.update(model="/no/such/robot.urdf"), "model: cannot read the model file /no/such/robot.urdf"),

@@ -73,7 +73,7 @@ def _twin_type(hint):
         return list[_twin_type(args[0])]
     if args and type(None) in args:  # X | None
         inner = [a for a in args if a is not type(None)]
-        return typing.Optional[_twin_type(inner[0])]  # noqa: UP007 (a typing form yaml_load_typed reads)
+        return _twin_type(inner[0]) | None
     return hint
 
 
@@ -81,7 +81,7 @@ def _twin_type(hint):
 def yaml_schema(cls):
     """A mutable dataclass that ``yaml_load_typed`` fills in place of the frozen ``cls``."""
     hints = typing.get_type_hints(cls)
-    fields = [(f.name, typing.Optional[_twin_type(hints[f.name])], dataclasses.field(default=None))  # noqa: UP007
+    fields = [(f.name, _twin_type(hints[f.name]) | None, dataclasses.field(default=None))
               for f in dataclasses.fields(cls)]
     return dataclasses.make_dataclass(f"{cls.__name__}Schema", fields)
 
