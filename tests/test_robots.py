@@ -208,7 +208,7 @@ def test_external_robot_stands_with_flat_soles_and_the_cog_on_target(external):
     plant.SetPositions(context, q)
     half = robot_facts(description).hip_half_width
     for side, y in (("left", half), ("right", -half)):
-        frame = sole_frame(plant, description, side, instance)
+        frame = sole_frame(plant, description, side, instance=instance)
         X_WS = frame.CalcPoseInWorld(context)
         for x_s, y_s in description.sole().corners((0.0, 0.0), side):  # in the sole frame
             assert abs(X_WS.multiply([x_s, y_s, 0.0])[2]) < 1e-3, side
@@ -410,3 +410,74 @@ def test_a_mesh_that_cannot_be_converted_falls_back_to_the_collision_shape(tmp_p
     (visual,) = inspector.GetAllGeometryIds(Role.kIllustration)
     assert type(inspector.GetShape(visual)).__name__ == "Box"
     assert inspector.GetAllGeometryIds(Role.kProximity) == []
+
+
+# -- options -------------------------------------------------------------------------------------------------
+
+
+def _sole_geometry(scene_graph):
+    """Name (unscoped, l_/r_ as left_/right_) -> (shape type, size, pose in the body) of the proximity geometry."""
+    inspector = scene_graph.model_inspector()
+    out = {}
+    for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        name = inspector.GetName(gid).split("::")[-1].replace("l_sole", "left_sole").replace("r_sole", "right_sole")
+        shape = inspector.GetShape(gid)
+        size = (shape.width(), shape.depth(), shape.height()) if hasattr(shape, "width") else (shape.radius(),)
+        out[name] = (type(shape).__name__, size, inspector.GetPoseInFrame(gid).GetAsMatrix4())
+    return out
+
+
+def test_added_sole_contact_is_the_default_model_s_own(default):
+    """Without the model's sole geometry, add_robot adds the same boxes and corner spheres at the same poses."""
+    import dataclasses
+
+    _, own, _ = _with_scene_graph(default)
+    added = dataclasses.replace(default, sole_contact_in_model=False, keep_model_collisions=False)
+    _, scene_graph, _ = _with_scene_graph(added)
+    expected, got = _sole_geometry(own), _sole_geometry(scene_graph)
+    assert sorted(got) == sorted(expected) and len(got) == 10
+    for name, (kind, size, pose) in expected.items():
+        assert got[name][0] == kind and np.allclose(got[name][1], size, atol=1e-12), name
+        assert np.allclose(got[name][2], pose, atol=1e-12), name
+
+
+def test_a_nominal_posture_holds_the_upper_body_while_standing(default, tmp_path):
+    document = _default_document()
+    document["nominal_posture"] = [{"joint": "l_elbow", "angle": -0.5}, {"joint": "r_elbow", "angle": -0.5}]
+    description = _load(document, tmp_path)
+    plant, instance = _kinematic(description)
+    q = nominal_standing_configuration(plant, description)
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, q)
+    assert q[plant.GetJointByName("l_elbow").position_start()] == -0.5
+    assert np.linalg.norm(plant.CalcCenterOfMassPositionInWorld(context) - [0, 0, 0.814]) < 1e-6
+    assert np.max(np.abs(q - model.nominal_standing_configuration(plant))) > 1e-3  # the arms moved the legs
+
+
+def test_another_model_in_the_plant_is_held_while_the_robot_stands(default):
+    """Two robots in one plant: the first stands with its own COG on target, the second keeps its pose."""
+    plant = MultibodyPlant(0.0)
+    first = add_robot(plant, default)
+    parser = model.offline_parser(plant)
+    parser.SetAutoRenaming(True)
+    (second,) = parser.AddModels(str(model.MODEL_PATH))
+    plant.Finalize()
+    q = nominal_standing_configuration(plant, default, instance=first)
+    context = plant.CreateDefaultContext()
+    before = plant.GetPositions(context, second)
+    plant.SetPositions(context, q)
+    assert np.array_equal(plant.GetPositions(context, second), before)
+    com = plant.CalcCenterOfMassPositionInWorld(context, [first])
+    assert np.linalg.norm(com - [0, 0, default.walking_com_height]) < 1e-6
+
+
+@needs_robot_data
+def test_the_model_s_own_collisions_can_be_kept_as_converted_meshes():
+    import dataclasses
+
+    description = dataclasses.replace(load_robot("g1"), keep_model_collisions=True)
+    _, scene_graph, _ = _with_scene_graph(description)
+    inspector = scene_graph.model_inspector()
+    shapes = [inspector.GetShape(g) for g in inspector.GetAllGeometryIds(Role.kProximity)]
+    assert len(shapes) > 10
+    assert {s.extension() for s in shapes if hasattr(s, "extension")} == {".obj"}

@@ -141,7 +141,7 @@ def _zero_stance(plant, instance, description):
     q = plant.GetPositions(context)
     _set_upper_body(plant, instance, description, q)
     plant.SetPositions(context, q)
-    mid = np.mean([sole_frame(plant, description, s, instance).CalcPoseInWorld(context).translation()
+    mid = np.mean([sole_frame(plant, description, s, instance=instance).CalcPoseInWorld(context).translation()
                    for s in SIDES], axis=0)
     base = plant.GetBodyByName(description.floating_base, instance)
     plant.SetFreeBodyPose(context, base, RigidTransform(base.EvalPoseInWorld(context).translation() - mid))
@@ -159,7 +159,7 @@ def robot_facts(description: RobotDescription) -> RobotFacts:
     limits (see :class:`RobotFacts`)."""
     plant, instance = _plant(description)
     context = _zero_stance(plant, instance, description)
-    soles = [sole_frame(plant, description, s, instance).CalcPoseInWorld(context).translation() for s in SIDES]
+    soles = [sole_frame(plant, description, s, instance=instance).CalcPoseInWorld(context).translation() for s in SIDES]
 
     def height(joint_name):
         return plant.GetJointByName(joint_name, instance).frame_on_child().CalcPoseInWorld(context).translation()[2]
@@ -195,11 +195,17 @@ class _Stance:
     def __init__(self, plant, instance, description):
         self.plant, self.instance, self.description = plant, instance, description
         self.world = plant.world_frame()
-        self.soles = {s: sole_frame(plant, description, s, instance) for s in SIDES}
+        self.soles = {s: sole_frame(plant, description, s, instance=instance) for s in SIDES}
         base = plant.GetBodyByName(description.floating_base, instance)
         self.quaternion = base.floating_positions_start()
         self.knees = {s: plant.GetJointByName(description.leg(s).knee, instance).position_start() for s in SIDES}
         self.fixed = [plant.GetJointByName(j, instance).position_start() for j in description.upper_body_joints]
+        # other models in the plant keep their positions; their mass shifts the plant's COG target
+        count = plant.num_positions()
+        own = plant.GetPositionsFromArray(instance, np.arange(count, dtype=float)).astype(int)
+        self.others = np.setdiff1d(np.arange(count), own)
+        context = plant.CreateDefaultContext()
+        self.mass, self.robot_mass = plant.CalcTotalMass(context), plant.CalcTotalMass(context, [instance])
 
     def guess(self, com_height: float) -> np.ndarray:
         """Knees bent by :data:`GUESS_KNEE` (hip and ankle pitch by half of it the other way), base upright at
@@ -238,24 +244,35 @@ class _Stance:
         com_var = prog.NewContinuousVariables(3, "com")
         prog.AddConstraint(ComPositionConstraint(plant, None, self.world, ik.context()),
                            np.concatenate([q, com_var]))
-        prog.AddBoundingBoxConstraint(com, com, com_var)
-        for index in self.fixed:
+        target = self._plant_com(com, guess)
+        prog.AddBoundingBoxConstraint(target, target, com_var)
+        for index in np.concatenate([self.fixed, self.others]).astype(int):
             prog.AddBoundingBoxConstraint(guess[index], guess[index], q[index])
         for side, bend in knee_bend.items():
             upper = plant.GetPositionUpperLimits()[self.knees[side]]
             prog.AddBoundingBoxConstraint(bend, upper, q[self.knees[side]])
         prog.AddQuadraticErrorCost(1e-3 * np.eye(len(guess)), guess, q)
         prog.SetInitialGuess(q, guess)
-        prog.SetInitialGuess(com_var, com)
+        prog.SetInitialGuess(com_var, target)
         result = Solve(prog)
         solution = result.GetSolution(q)
         return solution if result.is_success() and self._met(solution, feet, com) else None
 
-    def _met(self, q, feet, com) -> bool:
-        """Whether ``q`` puts the soles flat at ``feet`` and the COG at ``com`` within the tolerance."""
+    def _plant_com(self, com, q) -> np.ndarray:
+        """The COG of every model in the plant when the robot's is at ``com`` and the others are as in ``q``."""
+        if self.mass == self.robot_mass:
+            return np.asarray(com, float)
         context = self.plant.CreateDefaultContext()
         self.plant.SetPositions(context, q)
-        error = np.linalg.norm(self.plant.CalcCenterOfMassPositionInWorld(context) - com)
+        everything = self.mass * self.plant.CalcCenterOfMassPositionInWorld(context)
+        robot = self.robot_mass * self.plant.CalcCenterOfMassPositionInWorld(context, [self.instance])
+        return (everything - robot + self.robot_mass * np.asarray(com, float)) / self.mass
+
+    def _met(self, q, feet, com) -> bool:
+        """Whether ``q`` puts the soles flat at ``feet`` and the robot's COG at ``com`` within the tolerance."""
+        context = self.plant.CreateDefaultContext()
+        self.plant.SetPositions(context, q)
+        error = np.linalg.norm(self.plant.CalcCenterOfMassPositionInWorld(context, [self.instance]) - com)
         for side, (x, y) in feet.items():
             pose = self.soles[side].CalcPoseInWorld(context)
             error = max(error, np.linalg.norm(pose.translation() - [x, y, 0]),
@@ -284,8 +301,8 @@ def nominal_standing_configuration(plant, description: RobotDescription, *, com_
     Parameters
     ----------
     plant : pydrake.multibody.plant.MultibodyPlant
-        A finalized plant holding the robot (and possibly other models, left at their default
-        positions).
+        A finalized plant holding the robot (and possibly other models, held at their default
+        positions; the robot's own COG is placed).
     description : RobotDescription
         The robot.
     com_height : float, optional

@@ -116,16 +116,15 @@ def _parse(plant, description):
     path = model_file(description)
     parser = offline_parser(plant)
     visuals = plant.geometry_source_is_registered()
-    efforts = {}
+    efforts, packages = {}, package_map(description)
     try:
         if path.suffix.lower() == ".urdf" and _needs_preparation(description, path):
-            prepared = prepare_urdf(path, packages=package_map(description), visuals=visuals,
+            prepared = prepare_urdf(path, packages=packages, visuals=visuals,
                                     collisions=description.keep_model_collisions)
             instances = parser.AddModelsFromString(prepared.text, "urdf")
             efforts = prepared.efforts
         else:
-            for name in package_map(description).GetPackageNames():
-                parser.package_map().Add(name, package_map(description).GetPath(name))
+            parser.package_map().AddMap(packages)
             instances = parser.AddModels(str(path))
     except RuntimeError as error:
         raise ValueError(f"model: Drake cannot parse {path}: {error}") from error
@@ -190,7 +189,7 @@ def _add_sole_frames(plant, instance, description):
                                             sole_pose_in_body(description, side)))
 
 
-def sole_frame(plant: MultibodyPlant, description: RobotDescription, side: str, instance=None):
+def sole_frame(plant: MultibodyPlant, description: RobotDescription, side: str, *, instance=None):
     """The ``side`` ('left' or 'right') sole frame: the foot body's frame, or the one :func:`add_robot`
     added at its offset."""
     foot = description.foot(side)
