@@ -26,9 +26,12 @@ over (0, 0), the ankles at y = +-step_width / 2, both soles flat on the floor.
   the knees bent by at least 0.0 rad (up to straight); r as large as solves.
 
 r is grown from 0 in 5 cm steps, each solve warm-started from the last, and
-the step halved on a failure down to 1 mm. The default humanoid's planner
-numbers (fore 0.195 m, rear 0.26 m) are kept in its description; this
-measurement gives it fore 0.188 m and rear 0.270 m.
+the step halved on a failure down to 1 mm: the reach is as far as the IK
+still converges, which near a straight knee may be a few millimetres short of
+the geometric limit. The default humanoid's planner numbers (fore 0.195 m,
+rear 0.26 m, measured by hand with the project's whole-body IK) stay in its
+description; this measurement gives it fore 0.198 m and rear 0.250 m, the G1
+0.184 / 0.225 m, TALOS 0.241 / 0.300 m.
 
 **Standing posture** (:func:`nominal_standing_configuration`): the same IK
 with the soles at (0, +-hip_half_width) and the COG at the walking height over
