@@ -1,16 +1,34 @@
 """Tests of drake_estop.robots: descriptions as data, the built-in robots, parsing, meshes, IK measurements."""
 
+import dataclasses
 import importlib.metadata
+import importlib.util
 import logging
 import math
 
 import numpy as np
 import pytest
 import yaml
-from pydrake.geometry import Role
-from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
+from pydrake.geometry import (
+    AddContactMaterial,
+    CollisionFilterDeclaration,
+    GeometrySet,
+    HalfSpace,
+    ProximityProperties,
+    Role,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    AddMultibodyPlantSceneGraph,
+    CoulombFriction,
+    MultibodyPlant,
+    MultibodyPlantConfig,
+)
 from pydrake.multibody.tree import RevoluteJoint
+from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_estop import model
 from drake_estop.physics.plant import PhysicsParameters
@@ -40,9 +58,12 @@ try:
     HAVE_ROBOT_DATA = True
 except importlib.metadata.PackageNotFoundError:
     HAVE_ROBOT_DATA = False
+HAVE_TRIMESH = importlib.util.find_spec("trimesh") is not None
 
+needs_trimesh = pytest.mark.skipif(not HAVE_TRIMESH, reason="trimesh is not installed (pip install -e '.[robots]')")
 needs_robot_data = pytest.mark.skipif(
-    not HAVE_ROBOT_DATA, reason="example-robot-data is not installed (pip install -e '.[robots]')")
+    not (HAVE_ROBOT_DATA and HAVE_TRIMESH),
+    reason="the robots extra (example-robot-data, trimesh) is not installed (pip install -e '.[robots]')")
 EXTERNAL = [pytest.param(name, marks=needs_robot_data) for name in ("g1", "talos")]
 
 
@@ -376,6 +397,7 @@ def _tiny_urdf(tmp_path, visual):
     return path
 
 
+@needs_trimesh
 def test_an_stl_visual_becomes_a_cached_obj_drake_parses(tmp_path):
     import trimesh
 
@@ -429,8 +451,6 @@ def _sole_geometry(scene_graph):
 
 def test_added_sole_contact_is_the_default_model_s_own(default):
     """Without the model's sole geometry, add_robot adds the same boxes and corner spheres at the same poses."""
-    import dataclasses
-
     _, own, _ = _with_scene_graph(default)
     added = dataclasses.replace(default, sole_contact_in_model=False, keep_model_collisions=False)
     _, scene_graph, _ = _with_scene_graph(added)
@@ -473,11 +493,50 @@ def test_another_model_in_the_plant_is_held_while_the_robot_stands(default):
 
 @needs_robot_data
 def test_the_model_s_own_collisions_can_be_kept_as_converted_meshes():
-    import dataclasses
-
     description = dataclasses.replace(load_robot("g1"), keep_model_collisions=True)
     _, scene_graph, _ = _with_scene_graph(description)
     inspector = scene_graph.model_inspector()
     shapes = [inspector.GetShape(g) for g in inspector.GetAllGeometryIds(Role.kProximity)]
     assert len(shapes) > 10
     assert {s.extension() for s in shapes if hasattr(s, "extension")} == {".obj"}
+
+
+# -- physics -------------------------------------------------------------------------------------------------
+
+
+def _standing_simulation(description, seconds):
+    """The robot on a rigid floor, its servos holding the standing posture; (plant, context) after ``seconds``."""
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlant(MultibodyPlantConfig(
+        time_step=1e-3, contact_model="point", discrete_contact_approximation="lagged"), builder)
+    instance = add_robot(plant, description)
+    floor = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(1.0, 0.8), properties=floor)
+    ground = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground", floor)
+    set_servo_gains(plant, instance, description)
+    plant.Finalize()
+    inspector = scene_graph.model_inspector()
+    boxes = [g for g in inspector.GetAllGeometryIds(Role.kProximity) if inspector.GetName(g).endswith("sole_box")]
+    scene_graph.collision_filter_manager().Apply(  # point contact on the corner spheres only
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(boxes), GeometrySet([ground])))
+    q = nominal_standing_configuration(plant, description)
+    actuated = [plant.get_joint_actuator(i).joint().position_start() for i in plant.GetJointActuatorIndices()]
+    hold = builder.AddSystem(ConstantVectorSource(np.concatenate([q[actuated], np.zeros(len(actuated))])))
+    builder.Connect(hold.get_output_port(), plant.get_desired_state_input_port(instance))
+    simulator = Simulator(builder.Build())
+    context = plant.GetMyMutableContextFromRoot(simulator.get_mutable_context())
+    plant.SetPositions(context, q)
+    simulator.AdvanceTo(seconds)
+    return plant, context, q
+
+
+@pytest.mark.parametrize("name", ["default", *EXTERNAL])
+def test_the_robot_stands_on_its_sole_contact_under_its_servos(name):
+    """One second on the floor: the added sole contact carries the robot and the servo gains hold it."""
+    description = load_robot(name)
+    plant, context, q = _standing_simulation(description, 1.0)
+    base = plant.GetBodyByName(description.floating_base)
+    assert abs(base.EvalPoseInWorld(context).translation()[2] - q[6]) < 2e-3
+    com = plant.CalcCenterOfMassPositionInWorld(context)
+    assert np.linalg.norm(com[:2]) < 5e-3 and abs(com[2] - description.walking_com_height) < 2e-3
+    assert np.linalg.norm(plant.GetVelocities(context)) < 0.05
