@@ -154,9 +154,10 @@ def _check_model(plant, instance, description):
             raise ValueError(f"{group}: joint {joint!r} is not a revolute joint")
     base = plant.GetBodyByName(description.floating_base, instance)
     for index in plant.GetJointIndices(instance):
-        if plant.get_joint(index).child_body().index() == base.index():
+        joint = plant.get_joint(index)
+        if joint.child_body().index() == base.index() and joint.num_velocities() != 6:
             raise ValueError(f"floating_base: body {description.floating_base!r} has an inboard joint "
-                             f"({plant.get_joint(index).name()!r}); it must be the root of the model's tree")
+                             f"({joint.name()!r}); it must be the root of the model's tree or float")
     for i, override in enumerate(description.limit_overrides):
         if not plant.HasJointNamed(override.joint, instance):
             raise ValueError(f"limit_overrides[{i}]: joint {override.joint!r} is not in the model {model!r}")
