@@ -1,0 +1,391 @@
+"""A humanoid as data: :class:`RobotDescription` and its parts.
+
+A description names what the emergency-stop stack needs to know about a
+humanoid and cannot read from its model file: which bodies carry the soles and
+how large the soles are, which joints are the legs (by function), the arms,
+torso and head, the nominal walking COG height, gait defaults and servo gains.
+Everything the model file does say (masses, joint ranges, velocity and effort
+limits) is read from the model (:mod:`drake_estop.robots.plant`); the
+description only fills in a velocity or effort limit the model leaves out.
+
+The classes are frozen dataclasses whose sequences are tuples, so a
+description is hashable (the measurements of :mod:`drake_estop.robots.measure`
+are cached by it). :func:`drake_estop.robots.loading.load_robot` reads them
+from YAML with Drake's ``yaml_load_typed``. Every class validates its values on
+construction and raises a ``ValueError`` naming the field.
+
+Conventions: x forward, y left, z up; lengths in m, angles in rad unless the
+field name says ``_deg``, times in s, gains in N m/rad and N m s/rad.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from drake_estop.planning.gait import Sole
+
+#: The leg joints' functions, in the order :attr:`LegJoints.names` lists them.
+LEG_FUNCTIONS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
+SIDES = ("left", "right")
+
+
+def _check_positive(name: str, value) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is a positive finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+
+def _check_name(name: str, value) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is a non-empty string."""
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError(f"{name} must be a non-empty name, got {value!r}")
+
+
+def _check_vector(name: str, value, size: int = 3) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is ``size`` finite numbers."""
+    if len(value) != size or not all(isinstance(x, (int, float)) and math.isfinite(x) for x in value):
+        raise ValueError(f"{name} must be {size} finite numbers, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Foot:
+    """One sole: the frame at its ground-contact point and its rectangle around that point.
+
+    The sole frame is ``body``'s frame moved by ``translation`` and turned by
+    ``rpy_deg``; its origin is on the sole plane (the ground-contact surface),
+    straight below the ankle, z up and x forward when the foot stands flat.
+    The rectangle is measured from the sole frame's origin along its axes.
+
+    Attributes
+    ----------
+    body : str
+        The model's body (link) the sole belongs to.
+    translation : tuple of float
+        Sole frame origin in ``body``'s frame [m].
+    rpy_deg : tuple of float
+        Roll, pitch, yaw of the sole frame in ``body``'s frame [deg].
+    toe, heel : float
+        Distance from the sole frame's origin to the toe and to the heel edge [m].
+    inner, outer : float
+        Distance from the origin to the edge towards the robot's centre line and to the edge away from
+        it [m].
+    """
+
+    body: str = ""
+    translation: tuple[float, ...] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, ...] = (0.0, 0.0, 0.0)
+    toe: float = 0.0
+    heel: float = 0.0
+    inner: float = 0.0
+    outer: float = 0.0
+
+    def __post_init__(self):
+        _check_name("body", self.body)
+        _check_vector("translation", self.translation)
+        _check_vector("rpy_deg", self.rpy_deg)
+        for name in ("toe", "heel", "inner", "outer"):
+            _check_positive(name, getattr(self, name))
+
+    @property
+    def has_offset(self) -> bool:
+        """Whether the sole frame differs from ``body``'s frame."""
+        return any(self.translation) or any(self.rpy_deg)
+
+
+@dataclass(frozen=True)
+class LegJoints:
+    """One leg's joints by function (model joint names).
+
+    Attributes
+    ----------
+    hip_yaw, hip_roll, hip_pitch, knee, ankle_pitch, ankle_roll : str
+        The single-DOF revolute joints. The knee flexes with a positive angle; the hip and ankle
+        pitch joints turn about the robot's y axis.
+    """
+
+    hip_yaw: str = ""
+    hip_roll: str = ""
+    hip_pitch: str = ""
+    knee: str = ""
+    ankle_pitch: str = ""
+    ankle_roll: str = ""
+
+    def __post_init__(self):
+        for name in LEG_FUNCTIONS:
+            _check_name(name, getattr(self, name))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The joint names in the order hip yaw, roll, pitch, knee, ankle pitch, ankle roll."""
+        return tuple(getattr(self, name) for name in LEG_FUNCTIONS)
+
+
+@dataclass(frozen=True)
+class ServoGain:
+    """PD servo gains of a joint group: every joint whose name contains ``key``.
+
+    Attributes
+    ----------
+    key : str
+        Part of the joint names of the group (the first gain whose key is in a joint's name wins).
+    kp : float
+        Position gain [N m/rad].
+    kd : float
+        Velocity gain [N m s/rad].
+    """
+
+    key: str = ""
+    kp: float = 0.0
+    kd: float = 0.0
+
+    def __post_init__(self):
+        _check_name("key", self.key)
+        _check_positive("kp", self.kp)
+        _check_positive("kd", self.kd)
+
+
+@dataclass(frozen=True)
+class LimitOverride:
+    """A velocity or effort limit for a joint whose model file gives none.
+
+    Attributes
+    ----------
+    joint : str
+        The joint name.
+    velocity : float or None
+        Velocity limit [rad/s]; None keeps the model's.
+    effort : float or None
+        Effort limit [N m]; None keeps the model's.
+    """
+
+    joint: str = ""
+    velocity: float | None = None
+    effort: float | None = None
+
+    def __post_init__(self):
+        _check_name("joint", self.joint)
+        for name in ("velocity", "effort"):
+            if getattr(self, name) is not None:
+                _check_positive(name, getattr(self, name))
+        if self.velocity is None and self.effort is None:
+            raise ValueError(f"limit override of {self.joint!r} gives neither velocity nor effort")
+
+
+@dataclass(frozen=True)
+class JointAngle:
+    """A joint held at an angle.
+
+    Attributes
+    ----------
+    joint : str
+        The joint name.
+    angle : float
+        Its position [rad].
+    """
+
+    joint: str = ""
+    angle: float = 0.0
+
+    def __post_init__(self):
+        _check_name("joint", self.joint)
+        if isinstance(self.angle, bool) or not isinstance(self.angle, (int, float)) or not math.isfinite(self.angle):
+            raise ValueError(f"angle must be a finite number, got {self.angle!r}")
+
+
+@dataclass(frozen=True)
+class PackagePath:
+    """Where a ``package://NAME/`` URI of the model points.
+
+    Exactly one source: ``path`` (a folder), or ``distribution`` (an installed Python distribution,
+    e.g. ``example-robot-data``) with ``subdirectory`` inside its install prefix.
+
+    Attributes
+    ----------
+    name : str
+        The package name in ``package://NAME/...``.
+    path : str or None
+        The package's folder (a relative path is relative to the description file's folder).
+    distribution : str or None
+        An installed Python distribution that holds the package.
+    subdirectory : str
+        The package's folder relative to the distribution's install location.
+    extra : str or None
+        The project's optional extra that installs ``distribution`` (named in the error when it is
+        missing).
+    """
+
+    name: str = ""
+    path: str | None = None
+    distribution: str | None = None
+    subdirectory: str = ""
+    extra: str | None = None
+
+    def __post_init__(self):
+        _check_name("name", self.name)
+        if (self.path is None) == (self.distribution is None):
+            raise ValueError(f"package {self.name!r}: give exactly one of path and distribution")
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """A humanoid for the emergency-stop stack (see the module docstring).
+
+    Attributes
+    ----------
+    name : str
+        Short name (``default``, ``g1``, ``talos``, ...).
+    model : str
+        The URDF or SDF file: a path (relative to the description file's folder) or a
+        ``package://NAME/...`` URI resolved through ``packages``.
+    packages : tuple of PackagePath
+        The packages the model's ``package://`` URIs name.
+    floating_base : str
+        The body that floats (the root of the model's tree, e.g. the pelvis).
+    torso_body : str
+        The body whose orientation the whole-body IK keeps upright besides the floating base.
+    left_foot, right_foot : Foot
+        The soles.
+    sole_contact_in_model : bool
+        The model file already carries the sole contact geometry (a box named ``*sole_box`` and
+        corner spheres on each sole body); otherwise :func:`drake_estop.robots.plant.add_robot`
+        adds it at the sole rectangles.
+    sole_thickness : float
+        Thickness of the added sole contact box [m] (its bottom face is the sole plane).
+    left_leg, right_leg : LegJoints
+        The legs.
+    left_arm, right_arm, torso, head : tuple of str
+        The upper-body joints (possibly empty), each arm from the shoulder outwards.
+    walking_com_height : float
+        Nominal walking COG height above the floor [m].
+    hip_half_width : float or None
+        Lateral distance of each sole frame from the centre line in the standing posture [m]; None:
+        measured from the model (the sole frames at the zero configuration).
+    step_length, step_width, step_time : float or None
+        Gait defaults (sagittal step [m], lateral distance between the ankles [m], one step [s]);
+        None: scaled from the leg length (:func:`drake_estop.robots.measure.gait_defaults`).
+    max_fore_reach, max_rear_reach : float or None
+        Leg reach from the COG to the landing ankle at touchdown and to the rear ankle at rest [m];
+        None: measured with inverse kinematics (:func:`drake_estop.robots.measure.reach_limits`).
+    servo_gains : tuple of ServoGain
+        PD gains per joint group; every actuated joint must match one.
+    limit_overrides : tuple of LimitOverride
+        Velocity and effort limits for joints whose model gives none.
+    nominal_posture : tuple of JointAngle
+        Upper-body joints held away from zero in the standing posture.
+    keep_model_collisions : bool
+        Keep the model's own collision geometry (primitives and OBJ/VTK/glTF meshes only);
+        otherwise only the sole contact geometry collides.
+    """
+
+    name: str = ""
+    model: str = ""
+    packages: tuple[PackagePath, ...] = ()
+    floating_base: str = ""
+    torso_body: str = ""
+    left_foot: Foot | None = None
+    right_foot: Foot | None = None
+    sole_contact_in_model: bool = False
+    sole_thickness: float = 0.01
+    left_leg: LegJoints | None = None
+    right_leg: LegJoints | None = None
+    left_arm: tuple[str, ...] = ()
+    right_arm: tuple[str, ...] = ()
+    torso: tuple[str, ...] = ()
+    head: tuple[str, ...] = ()
+    walking_com_height: float = 0.0
+    hip_half_width: float | None = None
+    step_length: float | None = None
+    step_width: float | None = None
+    step_time: float | None = None
+    max_fore_reach: float | None = None
+    max_rear_reach: float | None = None
+    servo_gains: tuple[ServoGain, ...] = ()
+    limit_overrides: tuple[LimitOverride, ...] = ()
+    nominal_posture: tuple[JointAngle, ...] = ()
+    keep_model_collisions: bool = False
+
+    def __post_init__(self):
+        for name in ("name", "model", "floating_base", "torso_body"):
+            _check_name(name, getattr(self, name))
+        for name in ("left_foot", "right_foot", "left_leg", "right_leg"):
+            if getattr(self, name) is None:
+                raise ValueError(f"{name} is missing")
+        _check_positive("walking_com_height", self.walking_com_height)
+        _check_positive("sole_thickness", self.sole_thickness)
+        for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
+                     "max_rear_reach"):
+            if getattr(self, name) is not None:
+                _check_positive(name, getattr(self, name))
+        self._check_joint_lists()
+        self._check_gains()
+
+    def _check_joint_lists(self):
+        for name in ("left_arm", "right_arm", "torso", "head"):
+            for i, joint in enumerate(getattr(self, name)):
+                _check_name(f"{name}[{i}]", joint)
+        seen = {}
+        for group, joint in self.joint_groups():
+            if joint in seen:
+                raise ValueError(f"{group}: joint {joint!r} is also in {seen[joint]}")
+            seen[joint] = group
+        for i, entry in enumerate(self.nominal_posture):
+            if entry.joint not in self.upper_body_joints:
+                raise ValueError(f"nominal_posture[{i}]: {entry.joint!r} is not one of the upper-body joints")
+
+    def _check_gains(self):
+        if not self.servo_gains:
+            raise ValueError("servo_gains is empty: every actuated joint needs a gain")
+        for group, joint in self.joint_groups():
+            if self.servo_gain(joint) is None:
+                raise ValueError(f"servo_gains: no gain whose key is in joint {joint!r} ({group})")
+
+    def joint_groups(self):
+        """``(field name, joint name)`` of every joint the description names, legs first."""
+        for side in SIDES:
+            leg = getattr(self, f"{side}_leg")
+            for function in LEG_FUNCTIONS:
+                yield f"{side}_leg.{function}", getattr(leg, function)
+        for name in ("torso", "head", "left_arm", "right_arm"):
+            for i, joint in enumerate(getattr(self, name)):
+                yield f"{name}[{i}]", joint
+
+    def foot(self, side: str) -> Foot:
+        """The ``side`` ('left' or 'right') sole."""
+        return getattr(self, f"{_side(side)}_foot")
+
+    def leg(self, side: str) -> LegJoints:
+        """The ``side`` ('left' or 'right') leg's joints."""
+        return getattr(self, f"{_side(side)}_leg")
+
+    @property
+    def leg_joints(self) -> tuple[str, ...]:
+        """Left leg then right leg, each hip yaw to ankle roll."""
+        return self.left_leg.names + self.right_leg.names
+
+    @property
+    def upper_body_joints(self) -> tuple[str, ...]:
+        """Torso, head, left arm, right arm."""
+        return self.torso + self.head + self.left_arm + self.right_arm
+
+    @property
+    def all_joints(self) -> tuple[str, ...]:
+        """Legs then upper body."""
+        return self.leg_joints + self.upper_body_joints
+
+    def servo_gain(self, joint: str) -> ServoGain | None:
+        """The first of ``servo_gains`` whose key is in ``joint``'s name, or None."""
+        return next((gain for gain in self.servo_gains if gain.key in joint), None)
+
+    def sole(self) -> Sole:
+        """The planner's sole rectangle: the smaller of the two feet's distances on each side [m]."""
+        left, right = self.left_foot, self.right_foot
+        return Sole(toe=min(left.toe, right.toe), heel=min(left.heel, right.heel),
+                    inner=min(left.inner, right.inner), outer=min(left.outer, right.outer))
+
+
+def _side(side: str) -> str:
+    if side not in SIDES:
+        raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+    return side
+
