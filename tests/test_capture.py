@@ -94,3 +94,74 @@ def test_a_support_zmp_moved_off_the_walks_counts_in_the_capture_step():
     assert capture.capture_landing_y(PATTERN, state, landing) is None
     expected = nominal_y - outward * dp * (math.exp(PATTERN.w * landing) - 1.0)
     assert capture.capture_landing_y(PATTERN, moved, landing) == pytest.approx(expected, abs=1e-12)
+
+
+# -- the lateral reach of one landing, and why a second lateral step adds none --------------------------
+
+
+def _dcm_after(dcm, zmp, duration):
+    """The DCM [m] after ``duration`` [s] with the ZMP held at ``zmp`` (eq. 6-9, one axis)."""
+    return zmp + (dcm - zmp) * math.exp(PATTERN.w * duration)
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_capture_time_is_when_the_dcm_reaches_the_edge(side):
+    """A DCM 4.7 cm out over the swing foot's side, the stance ZMP on the inner edge less 3 cm (0.07 m from
+    the stance ankle's 0.095) and the outer edge of a landing 0.30 m out less 3 cm: the DCM gets there
+    0.295 s later (the measured DCM just after a 29 N s push to the right at 2.95 s; the controller's
+    landing came 0.44 s later, 7 cm too late)."""
+    zmp, dcm = side * 0.07, side * -0.047
+    edge = side * (0.095 - (capture.MAX_STEP_WIDTH + PATTERN.params.sole.outer - PARAMS.zmp_margin))
+    latest = capture.capture_time(dcm=dcm, zmp=zmp, edge=edge, omega=PATTERN.w)
+    assert latest == pytest.approx(0.295, abs=1e-3)
+    assert _dcm_after(dcm, zmp, latest) == pytest.approx(edge, abs=1e-12)
+    assert side * (_dcm_after(dcm, zmp, 0.44) - edge) < -0.07
+    # heading away from the edge or resting on the ZMP: it never gets there; past it already: no time left
+    assert capture.capture_time(dcm=side * 0.08, zmp=zmp, edge=edge, omega=PATTERN.w) == math.inf
+    assert capture.capture_time(dcm=zmp, zmp=zmp, edge=edge, omega=PATTERN.w) == math.inf
+    assert capture.capture_time(dcm=edge - side * 0.01, zmp=zmp, edge=edge, omega=PATTERN.w) == 0.0
+
+
+@pytest.mark.parametrize("kwargs, name", [({"dcm": math.nan}, "dcm"), ({"zmp": math.inf}, "zmp"),
+                                          ({"edge": "0.1"}, "edge"), ({"omega": 0.0}, "omega")])
+def test_capture_time_rejects_bad_input_naming_it(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        capture.capture_time(**{"dcm": 0.1, "zmp": 0.0, "edge": 0.2, "omega": PATTERN.w, **kwargs})
+
+
+@pytest.mark.parametrize("separation", [capture.MIN_STEP_WIDTH, 0.19, capture.MAX_STEP_WIDTH])
+def test_a_second_lateral_step_catches_less_than_the_loaded_foot_standing(separation):
+    """The foot on the push side carries the robot, the DCM beyond its outer edge. Stepping it further out
+    (no crossover) needs the ZMP on the other foot first; with the controller's shortest ZMP transition
+    and landing (0.1 s each) the DCM then runs further than the foot can reach (0.30 m from the other
+    ankle): from the walk's 0.19 m stance it catches 5.3 cm less than the foot standing, from 0.15 m
+    1.3 cm less. Only a step under 0.12 s (0.18 s from 0.15 m), ZMP transfer included, would gain."""
+    sole, w = PATTERN.params.sole, PATTERN.w
+    shortest = PARAMS.min_transition_time + PARAMS.min_landing_time
+    gain = capture.step_out_gain(separation=separation, step_time=shortest, omega=w, sole=sole)
+    assert gain < 0.0
+    # the gain is the LIPM's: the DCM the step just catches, minus the one the standing foot just catches
+    other, margin = 0.0, PARAMS.zmp_margin  # the other ankle at 0, the loaded one at +separation
+    zmp = other + sole.inner - margin
+    landed_edge = other + capture.MAX_STEP_WIDTH + sole.outer - margin
+    caught = zmp + (landed_edge - zmp) * math.exp(-w * shortest)
+    assert _dcm_after(caught, zmp, shortest) == pytest.approx(landed_edge, abs=1e-12)
+    assert gain == pytest.approx(caught - (other + separation + sole.outer - margin), abs=1e-12)
+    # break-even step time, and the gain falls with the step time
+    even = math.log((capture.MAX_STEP_WIDTH + sole.outer - sole.inner) / (separation + sole.outer - sole.inner)) / w
+    assert capture.step_out_gain(separation=separation, step_time=even, omega=w, sole=sole) == pytest.approx(0.0,
+                                                                                                              abs=1e-12)
+    assert even < 0.18
+    times = np.linspace(0.0, 0.4, 9)
+    assert np.all(np.diff([capture.step_out_gain(separation=separation, step_time=s, omega=w) for s in times]) < 0)
+
+
+def test_step_out_gain_numbers_and_bad_input():
+    w = PATTERN.w
+    assert capture.step_out_gain(separation=0.19, step_time=0.2, omega=w) == pytest.approx(-0.0532, abs=5e-4)
+    assert capture.step_out_gain(separation=0.15, step_time=0.2, omega=w) == pytest.approx(-0.0132, abs=5e-4)
+    for kwargs, name in (({"separation": 0.1}, "separation"), ({"separation": 0.31}, "separation"),
+                         ({"step_time": -0.1}, "step_time"), ({"step_time": math.nan}, "step_time"),
+                         ({"omega": -1.0}, "omega"), ({"max_width": 0.1}, "max_width")):
+        with pytest.raises(ValueError, match=name):
+            capture.step_out_gain(**{"separation": 0.19, "step_time": 0.2, "omega": w, **kwargs})

@@ -23,11 +23,34 @@ clamped to the step widths the legs can take (:data:`MIN_STEP_WIDTH`, no foot
 collision; :data:`MAX_STEP_WIDTH`, the hip's reach). A deviation whose shift is
 under :data:`SHIFT_THRESHOLD` (sensor noise) keeps the nominal footstep, so an
 unperturbed plan is the paper's.
+
+**Landing in time** (:func:`capture_time`). A landing clamped at
+:data:`MAX_STEP_WIDTH` catches the DCM only if the foot is down before the DCM
+passes the landed sole's outer edge. Measured, 29 N s to the right at 2.95 s
+(the left foot supporting): just after the push the DCM was 4.7 cm right of the
+midline and 0.295 s from the edge of a landing 0.30 m out (less the 3 cm margin);
+the re-plan, made from an estimate 6 cm behind (the estimated velocity -0.08 m/s
+against -0.26), landed 0.44 s later and the DCM was then 7 cm beyond the landed sole's outer edge. A
+landing within 0.295 s is also what the braked swing (15 m/s^2) can just reach
+(0.23-0.25 s to a point 5 cm ahead of the support foot, from 3.05-3.08 s), so the
+robot's own limits leave no room for the estimate's lag.
+
+**No second lateral step** (:func:`step_out_gain`). After the landing the foot on
+the push side carries the robot: a DCM beyond its outer edge could only be caught
+by that foot stepping further out, with the ZMP on the other foot meanwhile (no
+crossover step). In the N-step capture analysis of Koolen et al. 2012 that step
+catches more than the foot standing only when it takes under 0.12 s from the ZMP
+leaving the foot to its touchdown (0.18 s from a 0.15 m stance): the controller's
+shortest ZMP transition and landing are 0.1 s each, so a second lateral step
+catches nothing one landing does not. A push towards the support foot is the
+same: the swing foot lands on the inner side, then the support foot would have
+to step out. What catches those is a crossover step or the upper body's
+angular momentum, neither of which the stop plans.
 """
 
 import math
 
-from drake_estop.planning.gait import NominalPattern, PatternState
+from drake_estop.planning.gait import NominalPattern, PatternState, Sole
 
 MIN_STEP_WIDTH = 0.15  # [m] ankle to ankle: 4 cm between the soles' inner edges (0.055 m each)
 MAX_STEP_WIDTH = 0.30  # [m] ankle to ankle: the IK keeps the hip roll within its limit
@@ -54,3 +77,62 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     side = math.copysign(1.0, nominal_y - support_y)  # the swing foot's side
     width = side * (nominal_y + shift - support_y)
     return support_y + side * min(max(width, MIN_STEP_WIDTH), MAX_STEP_WIDTH)
+
+
+def capture_time(*, dcm: float, zmp: float, edge: float, omega: float) -> float:
+    """The latest time [s] at which the DCM, diverging from a ZMP held still, has not passed ``edge``.
+
+    One axis, eq. 6-9: ``xi(T) = p + (xi - p) exp(omega T)`` with ``xi`` = ``dcm`` [m] and ``p`` = ``zmp``
+    [m], solved for ``xi(T) = edge`` [m]. ``inf`` where the DCM never passes ``edge`` (it heads away
+    from it or rests on the ZMP), 0 where it lies past ``edge`` already (on the side away from ``zmp``).
+
+    Raises
+    ------
+    ValueError
+        If ``dcm``, ``zmp`` or ``edge`` is not finite, or ``omega`` [1/s] not positive, naming it.
+    """
+    for name, value in (("dcm", dcm), ("zmp", zmp), ("edge", edge), ("omega", omega)):
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if omega <= 0:
+        raise ValueError(f"omega must be positive [1/s], got {omega!r}")
+    side = math.copysign(1.0, edge - zmp)
+    ahead, room = side * (dcm - zmp), side * (edge - zmp)
+    if ahead <= 0.0:
+        return math.inf
+    if ahead >= room:
+        return 0.0
+    return math.log(room / ahead) / omega
+
+
+def step_out_gain(*, separation: float, step_time: float, omega: float, sole: Sole | None = None,
+                  max_width: float = MAX_STEP_WIDTH) -> float:
+    """How much further out [m] a sideways step of the loaded foot catches the DCM than that foot standing.
+
+    Two feet ``separation`` [m] apart (ankle to ankle, at least :data:`MIN_STEP_WIDTH`), the DCM beyond the
+    outer foot. Standing, that foot catches a DCM up to its outer edge (less the ZMP margin). Stepping, the
+    foot must first be unloaded: the ZMP goes to the other foot's inner edge (less the margin) and stays
+    there for ``step_time`` [s], until the foot lands ``max_width`` [m] from the other one. The DCM
+    diverges from that ZMP (eq. 6-9), so the step catches a DCM up to
+    ``inner + (max_width + outer - inner) exp(-omega step_time)`` from the other ankle against
+    ``separation + outer`` standing (the margin cancels): the gain is their difference, negative where the
+    step catches less. A step of the other foot towards the DCM needs a crossover step. Koolen et al. 2012
+    (N-step capturability of the LIPM) with the ZMP moved at once: an upper bound.
+
+    Raises
+    ------
+    ValueError
+        If ``separation`` lies outside the step widths, ``step_time`` [s] is negative, ``omega`` [1/s] not
+        positive, or ``max_width`` [m] below the separation, naming it.
+    """
+    sole = sole or Sole()
+    if not (isinstance(max_width, (int, float)) and math.isfinite(max_width) and max_width >= MIN_STEP_WIDTH):
+        raise ValueError(f"max_width must be at least MIN_STEP_WIDTH ({MIN_STEP_WIDTH} m), got {max_width!r}")
+    if not (isinstance(separation, (int, float)) and MIN_STEP_WIDTH <= separation <= max_width):
+        raise ValueError(f"separation must lie within {MIN_STEP_WIDTH}-{max_width} m, got {separation!r}")
+    if not (isinstance(step_time, (int, float)) and math.isfinite(step_time) and step_time >= 0):
+        raise ValueError(f"step_time must be a finite time >= 0 [s], got {step_time!r}")
+    if not (isinstance(omega, (int, float)) and math.isfinite(omega) and omega > 0):
+        raise ValueError(f"omega must be positive [1/s], got {omega!r}")
+    stepped = (max_width + sole.outer - sole.inner) * math.exp(-omega * step_time)
+    return stepped - (separation + sole.outer - sole.inner)

@@ -114,7 +114,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     the fore foot), from a DCM at least ``RECOVERY_DCM_AHEAD`` past the fore
     ankle, not heading laterally past the fore sole's inner edge, with the
     rear leg within ``max_rear_reach``; a DCM outside the feet sideways or
-    behind is not caught.
+    behind is not caught (sideways no step without a crossover would:
+    :func:`drake_estop.planning.capture.step_out_gain`).
 
     **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to four solves in
     single support, two in double support) run in order until one gives a
