@@ -11,7 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 README_LIMIT = 25_000  # [characters] a user's guide, not a record
 MODULE_LIMIT = 700  # [lines] a module or test file beyond this mixes concerns
 HISTORY = re.compile(r"\b(session|issue)s? ?#?\d+", re.I)
-TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".json", ".csv", ".txt", ".ipynb", ".sh", ".dot", ".svg", ".html", ""}
+TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".json", ".csv", ".txt", ".ipynb", ".sh", ".dot", ".svg",
+                 ".html", ""}
 
 
 def tracked_files():
