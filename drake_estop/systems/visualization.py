@@ -60,7 +60,9 @@ _TRACE_Z = 0.002  # lines slightly above the floor
 #: one-step indicator: value of the ``one_step_feasible`` input -> (name, plate text, colour)
 ONE_STEP_INDICATOR = {True: ("one_step", "stop now: one step", "#2e7d32"),
                       False: ("next_step", "stop now: next step", "#cc7a00")}
-_INDICATOR_HEIGHT = 1.62  # [m] the sphere's height, over the head (HRP-2 class: 1.54 m tall)
+#: [m] the indicator sphere above the robot's head (drake_estop.robots.parameters.standing_height)
+INDICATOR_CLEARANCE = 0.08
+_INDICATOR_HEIGHT = 1.62  # [m] the sphere's default height, over the default humanoid's head (1.54 m tall)
 
 
 # --------------------------------------------------------------------------
@@ -277,6 +279,9 @@ class StopVisualizer(LeafSystem):
         that a fixed camera (:func:`set_follow_camera`) keeps the robot framed
         (recorded into replays); see :func:`follow_camera_paths`. Empty: no
         follow camera.
+    indicator_height : float, optional
+        Height of the one-step indicator's sphere above the floor [m]
+        (default 1.62: over the default humanoid's head).
 
     Notes
     -----
@@ -286,8 +291,12 @@ class StopVisualizer(LeafSystem):
     ``one_step`` (green) or ``next_step`` (amber) visible, the other hidden.
     """
 
-    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
+    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=(),
+                 indicator_height=_INDICATOR_HEIGHT):
         super().__init__()
+        if not (np.isfinite(indicator_height) and indicator_height > 0):
+            raise ValueError(f"indicator_height must be a positive height [m], got {indicator_height!r}")
+        self._indicator_height = float(indicator_height)
         self._meshcat = meshcat
         self._follow = tuple(follow)
         self._pattern = pattern
@@ -378,7 +387,8 @@ class StopVisualizer(LeafSystem):
         m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
         if self.one_step_feasible_port.HasValue(context):  # plate under the phase plate, sphere over the head
             m.SetTransform(f"{self._prefix}/one_step", RigidTransform([plate[0], plate[1], plate[2] - 0.17]), t)
-            sphere = RigidTransform([com[0] - plate[0], com[1] - plate[1], _INDICATOR_HEIGHT - plate[2] + 0.17])
+            sphere = RigidTransform([com[0] - plate[0], com[1] - plate[1],
+                                     self._indicator_height - plate[2] + 0.17])
             for name, _, _ in ONE_STEP_INDICATOR.values():
                 m.SetTransform(f"{self._prefix}/one_step/{name}/sphere", sphere, t)
         if self._follow:
