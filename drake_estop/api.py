@@ -20,8 +20,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import PHASES
 from drake_estop.planning.rollout import rollout, stop_metrics
-from drake_estop.robots.parameters import gait_parameters, stop_parameters
-from drake_estop.robots.parameters import robot as as_robot
+from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parameters
 from drake_estop.robots.plant import add_robot
 from drake_estop.systems.diagram import add_meshcat_views, add_port_loggers, initial_configuration, robot_layout
 from drake_estop.systems.ik import WholeBodyIK

@@ -192,6 +192,7 @@ def load_robot(name_or_path: str | Path, *, check_model: bool = True) -> RobotDe
     Returns
     -------
     RobotDescription
+        Lengths in [m], angles in [rad] unless a field's name says ``_deg``.
 
     Raises
     ------

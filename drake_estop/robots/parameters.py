@@ -10,7 +10,7 @@ swing-foot lift and the crouch depth, each the description's or the default
 humanoid's scaled by the leg length (s = L / 0.705 m). For the ``default``
 robot they equal ``GaitParameters()`` and ``StopParameters()``.
 
-:func:`robot` turns a robot argument (None, a built-in name, a description
+:func:`as_robot` turns a robot argument (None, a built-in name, a description
 file, a :class:`~drake_estop.robots.description.RobotDescription`) into a
 description; :func:`standing_seed` is the posture the whole-body IK starts from.
 """
@@ -52,7 +52,7 @@ def default_robot() -> RobotDescription:
     return load_robot("default")
 
 
-def robot(value=None) -> RobotDescription:
+def as_robot(value=None) -> RobotDescription:
     """The description a robot argument names.
 
     Parameters

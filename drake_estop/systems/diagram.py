@@ -34,8 +34,7 @@ from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import PHASES
 from drake_estop.robots.description import SIDES
-from drake_estop.robots.parameters import gait_parameters, standing_height, stop_parameters
-from drake_estop.robots.parameters import robot as as_robot
+from drake_estop.robots.parameters import as_robot, gait_parameters, standing_height, stop_parameters
 from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.reference import ReferenceLayout, pattern_layout, reference_vector

@@ -28,8 +28,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.model import joint_position_indices, joint_velocity_indices
 from drake_estop.robots.description import SIDES
-from drake_estop.robots.parameters import robot as as_robot
-from drake_estop.robots.parameters import standing_seed
+from drake_estop.robots.parameters import as_robot, standing_seed
 from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.timing import timed
 

@@ -35,6 +35,10 @@ class StrideStop:
         The plan's support at the signal and its case ("one-step", "next-step", ...).
     time_to_rest : float
         Signal to the end of the halt [s].
+    final_phase : str
+        The phase at the run's last tick ("stopped" once the halt has ended).
+    final_speed : float
+        The commanded COG speed at the last tick [m/s].
     ik_com_error, ik_foot_error, ik_foot_rotation_error : float
         The IK's worst COG and sole position error [m] and sole rotation error [rad] over the run.
     ik_ticks_over_bounds : int
@@ -49,6 +53,8 @@ class StrideStop:
     support: str
     case: str
     time_to_rest: float
+    final_phase: str
+    final_speed: float
     ik_com_error: float
     ik_foot_error: float
     ik_foot_rotation_error: float
@@ -62,7 +68,8 @@ class StrideStop:
         """The row of one run's :class:`~drake_estop.systems.diagram.DiagramResult`."""
         plan, errors = result.plan, result.error_summary()
         return cls(signal_time=float(plan.signal_time), support=plan.support, case=plan.case,
-                   time_to_rest=float(plan.halt_end - plan.signal_time),
+                   time_to_rest=float(plan.halt_end - plan.signal_time), final_phase=result.phases[-1],
+                   final_speed=float(np.linalg.norm(result.com_vel[-1])),
                    ik_com_error=errors["ik_com_err_max_m"], ik_foot_error=errors["ik_foot_err_max_m"],
                    ik_foot_rotation_error=errors["ik_foot_rot_err_max_rad"],
                    ik_ticks_over_bounds=int(max(errors["ik_ticks_over_bounds"].values())),
@@ -145,6 +152,8 @@ def stride_summary(rows: list[StrideStop]) -> dict:
     rest = np.array([row.time_to_rest for row in rows])
     return {
         "signals": len(rows), "one_step": one_step, "one_step_share": one_step / len(rows),
+        "stopped": sum(row.final_phase == "stopped" for row in rows),
+        "final_speed_max_m_s": max(row.final_speed for row in rows),
         "ik_com_error_max_m": max(row.ik_com_error for row in rows),
         "ik_foot_error_max_m": max(row.ik_foot_error for row in rows),
         "ik_foot_rotation_error_max_rad": max(row.ik_foot_rotation_error for row in rows),
