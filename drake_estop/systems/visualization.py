@@ -281,7 +281,8 @@ class StopVisualizer(LeafSystem):
         follow camera.
     indicator_height : float, optional
         Height of the one-step indicator's sphere above the floor [m]
-        (default 1.62: over the default humanoid's head).
+        (default 1.62: over the default humanoid's head); the follow camera
+        scales with it.
 
     Notes
     -----
@@ -331,7 +332,7 @@ class StopVisualizer(LeafSystem):
             m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"], step["end_yaw"]),
                       1.5, _NOMINAL_FOOT_RGBA)
         if self._follow:
-            set_follow_camera(m, pattern)
+            set_follow_camera(m, pattern, scale=self._indicator_height / _INDICATOR_HEIGHT)
         m.SetObject(f"{p}/markers/cog", Sphere(0.03), _COG_RGBA)
         m.SetObject(f"{p}/markers/cog_floor", Cylinder(0.02, 0.004), _COG_RGBA)
         m.SetObject(f"{p}/markers/zmp", Sphere(0.02), _ZMP_RGBA)
@@ -445,10 +446,11 @@ def follow_camera_paths(robot_prefix="robot", prefix=PREFIX):
     return (f"/drake/{robot_prefix}", prefix, "/Grid")
 
 
-def set_follow_camera(meshcat, pattern):
-    """Frame the robot at its start, from the front right and slightly above."""
+def set_follow_camera(meshcat, pattern, *, scale=1.0):
+    """Frame the robot at its start, from the front right and slightly above; ``scale`` (dimensionless):
+    the robot's height over the default humanoid's (the camera's distance and heights scale with it)."""
     x0 = float(pattern.com([0.0])[0][0, 0])
-    meshcat.SetCameraPose(np.array([x0 + 0.6, -1.3, 1.05]), np.array([x0, 0.0, 0.74]))
+    meshcat.SetCameraPose(np.array([x0 + 0.6 * scale, -1.3 * scale, 1.05 * scale]), np.array([x0, 0.0, 0.74 * scale]))
 
 
 def add_floor(meshcat, length=4.0, prefix=PREFIX, *, width=1.5, center_y=0.0):
