@@ -383,8 +383,9 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     loggers = _add_loggers(builder, planner, ik, stop.servo_period) if log else {}
     visualizer = stop_visualizer = None
     if meshcat is not None:
-        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat, scene_graph, planner, pattern,
-                                                        publish_period, robot=robot)
+        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat=meshcat, scene_graph=scene_graph,
+                                                        planner=planner, pattern=pattern,
+                                                        publish_period=publish_period, robot=robot)
     return EmergencyStop(pattern=pattern, trigger=trigger, planner=planner, ik=ik, plant=plant, robot=robot,
                          scene_graph=scene_graph, stop_request=trigger.stop_request_port, q=ik.q_port,
                          com=planner.GetOutputPort("com"), zmp=planner.GetOutputPort("zmp"),

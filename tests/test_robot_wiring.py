@@ -107,6 +107,18 @@ def test_a_description_s_arm_swing_must_name_upper_body_joints(tmp_path):
         load_robot(path)
 
 
+def test_the_ik_keeps_the_knees_as_bent_as_the_robot_says():
+    default = as_robot()
+    plant, _, _ = shared_ik()
+    knees = [plant.GetJointByName(default.leg(side).knee).position_start() for side in ("left", "right")]
+    assert [WholeBodyIkSolver(plant)._lower[k] for k in knees] == [0.0, 0.0]
+    bent = dataclasses.replace(default, min_knee_bend=0.2)
+    assert [WholeBodyIkSolver(plant, robot=bent)._lower[k] for k in knees] == [0.2, 0.2]
+    assert [WholeBodyIkSolver(plant, robot=bent, min_knee_bend=0.1)._lower[k] for k in knees] == [0.1, 0.1]
+    with pytest.raises(ValueError, match="min_knee_bend must be in"):
+        dataclasses.replace(default, min_knee_bend=1.2)
+
+
 # -- the external robots through the diagram, the IK and Meshcat ---------------------------------------------
 
 

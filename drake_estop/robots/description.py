@@ -312,6 +312,10 @@ class RobotDescription:
     height : float or None
         Standing height, the top of the head [m] (Meshcat's indicator is drawn above it); None:
         the default's 1.54 m scaled by the straight-leg COG height.
+    min_knee_bend : float
+        The least knee angle the kinematic whole-body IK allows, in [0, 1) [rad]: a leg-extension limit
+        above the model's own (default 0: no straighter than the knee's zero; near a straight knee its
+        speed, the leg's extension rate over sin(knee), is unbounded).
     keep_model_collisions : bool
         Keep the model's own collision geometry (primitives and OBJ/VTK/glTF meshes only);
         otherwise only the sole contact geometry collides.
@@ -348,6 +352,7 @@ class RobotDescription:
     crouch_depth: float | None = None
     lowest_com_height: float | None = None
     height: float | None = None
+    min_knee_bend: float = 0.0
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -361,6 +366,9 @@ class RobotDescription:
                      "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
+        bend = self.min_knee_bend
+        if isinstance(bend, bool) or not isinstance(bend, (int, float)) or not 0.0 <= bend < 1.0:
+            raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {bend!r}")
         self._check_joint_lists()
         self._check_gains()
 

@@ -135,7 +135,7 @@ def standing_height(description: RobotDescription) -> float:
     return round(REFERENCE_HEIGHT * straight / REFERENCE_STRAIGHT_COM_HEIGHT, 2)
 
 
-def standing_seed(plant, description: RobotDescription, com_height: float) -> np.ndarray:
+def standing_seed(plant, description: RobotDescription, *, com_height: float) -> np.ndarray:
     """A standing posture of the robot in ``plant`` with the COG ``com_height`` [m] above the floor, where
     the whole-body IK starts.
 

@@ -156,17 +156,36 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     loggers = _add_loggers(builder, planner, ik, stop_params.servo_period)
     visualizer = stop_visualizer = None
     if meshcat is not None:
-        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat, scene_graph, planner, pattern,
-                                                        publish_period, robot=robot)
+        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat=meshcat, scene_graph=scene_graph,
+                                                        planner=planner, pattern=pattern,
+                                                        publish_period=publish_period, robot=robot)
     diagram = builder.Build()
     diagram.set_name("estop_diagram")
     return DiagramHandles(diagram, plant, scene_graph, pattern, trigger, planner, ik,
                           loggers, meshcat, visualizer, stop_visualizer, robot, layout)
 
 
-def add_meshcat_views(builder, meshcat, scene_graph, planner, pattern, publish_period, *, robot=None):
+def add_meshcat_views(builder, *, meshcat, scene_graph, planner, pattern, publish_period, robot=None):
     """The robot (``MeshcatVisualizer``, its illustration geometry) and the stop's traces, polygon, phase,
-    one-step indicator over the robot's head and follow camera (``StopVisualizer``); returns both."""
+    one-step indicator over the robot's head and follow camera (``StopVisualizer``).
+
+    Parameters
+    ----------
+    builder : pydrake.systems.framework.DiagramBuilder
+        Where to add them.
+    meshcat, scene_graph, planner, pattern
+        The Meshcat, the scene graph the robot is registered in, the :class:`StopPlannerSystem` and its
+        pattern.
+    publish_period : float
+        Meshcat publish period [s].
+    robot : RobotDescription or str, optional
+        The robot (its height places the indicator and the camera; default the ``default`` humanoid).
+
+    Returns
+    -------
+    tuple
+        ``(MeshcatVisualizer, StopVisualizer)``.
+    """
     from drake_estop.systems.visualization import INDICATOR_CLEARANCE, StopVisualizer, follow_camera_paths
 
     visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(

@@ -163,8 +163,9 @@ class WholeBodyIkSolver:
     ``success``; iterations stop early once every error is below
     ``convergence_ratio`` times its tolerance.
 
-    ``min_knee_bend`` [rad] (default 0: the URDF's own limit, a straight
-    knee) raises the knees' lower limit in the solve: a leg-extension limit.
+    ``min_knee_bend`` [rad] (default: the robot description's, 0 for the
+    built-in robots: the knee no straighter than its zero) raises the
+    knees' lower limit in the solve: a leg-extension limit.
     Near a straight knee its speed (the leg's extension rate / sin(knee))
     is unbounded, and a straight knee that must bend again drops the pelvis
     at once. With the floor the COG target that would stretch a leg is met
@@ -187,7 +188,7 @@ class WholeBodyIkSolver:
     def __init__(self, plant, *, max_iterations=30, com_tolerance=1e-3,
                  foot_position_tolerance=1e-3, foot_rotation_tolerance=1e-2,
                  orientation_tolerance=1e-2, convergence_ratio=0.01,
-                 rotation_weight=0.3, damping_bias=1e-9, min_knee_bend=0.0,
+                 rotation_weight=0.3, damping_bias=1e-9, min_knee_bend=None,
                  stall_iterations=2, min_improvement=0.01, robot=None):
         self._plant = plant
         self._robot = as_robot(robot)
@@ -200,7 +201,7 @@ class WholeBodyIkSolver:
         self._bias = damping_bias
         self._init_indices(plant)
         self._init_weights(rotation_weight)
-        self._raise_knee_limits(plant, min_knee_bend)
+        self._raise_knee_limits(plant, self._robot.min_knee_bend if min_knee_bend is None else min_knee_bend)
         self._init_stall(stall_iterations, min_improvement)
 
     # -- set-up -------------------------------------------------------------
@@ -508,7 +509,7 @@ class WholeBodyIK(LeafSystem):
         self._plant = plant
         self._period = servo_period
         self._declare_indices(plant)
-        q0 = (standing_seed(plant, self._robot, self._robot.walking_com_height) if initial_q is None
+        q0 = (standing_seed(plant, self._robot, com_height=self._robot.walking_com_height) if initial_q is None
               else np.asarray(initial_q, dtype=float))
         self._q_state = self.DeclareDiscreteState(q0)
         self._diag_state = self.DeclareDiscreteState(3)
@@ -629,7 +630,7 @@ def converged_posture(plant, com, left_foot, right_foot, upper_body: dict, *, so
     else the ``default`` humanoid). Raises RuntimeError if the IK cannot reach them.
     """
     solver = solver or WholeBodyIkSolver(plant, max_iterations=50, robot=robot)
-    q = standing_seed(plant, solver.robot, float(com[2]))
+    q = standing_seed(plant, solver.robot, com_height=float(com[2]))
     for _ in range(attempts):
         result = solver.solve(q, com, left_foot, right_foot, None, upper_body)
         q = result.q
