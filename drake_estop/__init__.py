@@ -12,7 +12,10 @@ The public API, for scripts, notebooks and system-level tests::
 
 Building blocks (Drake LeafSystems): `WalkingPatternSource`, `EStopTrigger`,
 `StopPlannerSystem`, `WholeBodyIK`; parameters: `GaitParameters`,
-`StopParameters`, `Sole`, `PhysicsParameters`, `Perturbations`, `Push`;
+`StopParameters`, `Sole`, `ArmSwing`, `PhysicsParameters`, `Perturbations`, `Push`;
+robots as data: `RobotDescription`, `load_robot` (``default``, ``g1``,
+``talos`` or a YAML file) and `add_robot` (``AddEmergencyStop(robot=...)``
+runs any of them);
 the planner itself: `plan_stop` returning a `StopPlan` (or raising
 `InfeasibleStop`), and `one_step_feasible`, whether a signal now would stop
 within one step; the online controller on the simulated robot: `run_online`
@@ -44,6 +47,10 @@ _EXPORTS = {
     "GaitParameters": "drake_estop.planning.gait",
     "Sole": "drake_estop.planning.gait",
     "NominalPattern": "drake_estop.planning.gait",
+    "ArmSwing": "drake_estop.planning.arms",
+    "RobotDescription": "drake_estop.robots.description",
+    "load_robot": "drake_estop.robots.loading",
+    "add_robot": "drake_estop.robots.plant",
     "StopParameters": "drake_estop.planning.plan",
     "StopPlan": "drake_estop.planning.plan",
     "InfeasibleStop": "drake_estop.planning.plan",

@@ -13,15 +13,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role, SceneGraph
+from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_estop.model import ALL_JOINTS, load_humanoid
-from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import PHASES, StopParameters
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.planner import PHASES
 from drake_estop.planning.rollout import rollout, stop_metrics
-from drake_estop.systems.diagram import add_port_loggers
+from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parameters
+from drake_estop.robots.plant import add_robot
+from drake_estop.systems.diagram import add_meshcat_views, add_port_loggers, initial_configuration, robot_layout
 from drake_estop.systems.ik import WholeBodyIK
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
@@ -94,7 +95,9 @@ class EmergencyStop:
     ik : WholeBodyIK
         Turns the COG / sole / posture references into joint positions.
     plant : pydrake.multibody.plant.MultibodyPlant
-        The humanoid's plant (the IK's model).
+        The robot's plant (the IK's model).
+    robot : drake_estop.robots.RobotDescription
+        The robot.
     scene_graph : pydrake.geometry.SceneGraph or None
         The scene graph the robot is drawn in (None when the user's plant is a
         system of the diagram and poses itself).
@@ -123,6 +126,7 @@ class EmergencyStop:
     planner: object
     ik: WholeBodyIK
     plant: MultibodyPlant
+    robot: object
     scene_graph: SceneGraph | None
     stop_request: object
     q: object
@@ -243,26 +247,28 @@ class EmergencyStop:
         return plan
 
 
-def _check_plant(plant):
-    """The user's plant must be finalized and hold the humanoid's joints."""
+def _check_plant(plant, robot):
+    """The user's plant must be finalized and hold the robot's joints."""
     if not isinstance(plant, MultibodyPlant):
         raise TypeError(f"plant must be a pydrake MultibodyPlant, got {type(plant).__name__}")
     if not plant.is_finalized():
         raise ValueError("plant must be finalized (call plant.Finalize()) before AddEmergencyStop")
-    missing = [name for name in ALL_JOINTS if not plant.HasJointNamed(name)]
+    missing = [name for name in robot.all_joints if not plant.HasJointNamed(name)]
     if missing:
         raise ValueError(f"plant lacks the humanoid's joints {missing[:3]}... ({len(missing)} of "
-                         f"{len(ALL_JOINTS)}); load it with drake_estop.load_humanoid(plant)")
+                         f"{len(robot.all_joints)} of robot {robot.name!r}); load it with "
+                         "drake_estop.robots.add_robot(plant, robot)"
+                         + (" or drake_estop.load_humanoid(plant)" if robot.name == "default" else ""))
 
 
 def _in_builder(builder, system):
     return any(s is system for s in builder.GetSystems())
 
 
-def _robot_plant(builder, plant, scene_graph):
+def _robot_plant(builder, plant, scene_graph, robot):
     """``(plant, scene_graph, pose_it)``: the IK's model and whether to pose it from ``q``."""
     if plant is not None:
-        _check_plant(plant)
+        _check_plant(plant, robot)
         if _in_builder(builder, plant):
             return plant, scene_graph, False  # a diagram system (e.g. physics): the user drives it
         pose_it = scene_graph is not None and plant.geometry_source_is_registered()
@@ -273,7 +279,7 @@ def _robot_plant(builder, plant, scene_graph):
         raise TypeError(f"scene_graph must be a pydrake SceneGraph, got {type(scene_graph).__name__}")
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    load_humanoid(plant)
+    add_robot(plant, robot, contact=False)
     plant.Finalize()
     return plant, scene_graph, True
 
@@ -284,21 +290,8 @@ def _add_loggers(builder, planner, ik, period):
     return add_port_loggers(builder, ports, period, prefix="estop_log_")
 
 
-def _add_meshcat(builder, meshcat, scene_graph, planner, pattern, publish_period):
-    """Robot (MeshcatVisualizer), stop traces and the follow camera (StopVisualizer)."""
-    from drake_estop.systems.visualization import StopVisualizer, follow_camera_paths
-
-    visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
-        publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
-    stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
-        meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths()))
-    for name in ("com", "zmp", "phase", "plan", "one_step_feasible"):
-        builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
-    return visualizer, stop_visualizer
-
-
 def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=None, estop_time=None,
-                     meshcat=None, log=True, publish_period=1.0 / 64.0):
+                     meshcat=None, log=True, publish_period=1.0 / 64.0, robot=None):
     """Add the emergency stop (trigger, stop planner, whole-body IK) to ``builder``.
 
     The robot walks the nominal pattern of ``gait`` until the stop latches
@@ -311,19 +304,22 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     builder : pydrake.systems.framework.DiagramBuilder
         The user's builder; it is not built here.
     plant : pydrake.multibody.plant.MultibodyPlant, optional
-        The humanoid (finalized, loaded with :func:`load_humanoid`). If it is a
+        The robot (finalized, loaded with :func:`drake_estop.robots.add_robot`,
+        or for the default humanoid :func:`load_humanoid`). If it is a
         system of ``builder`` (e.g. a physics plant), the IK's ``q`` output is
         left for the user to connect to the servos; otherwise the helper poses
         it in ``scene_graph`` from ``q`` when it is registered there.
-        Default: a new geometry-only plant of the humanoid.
+        Default: a new geometry-only plant of the robot (its own meshes).
     scene_graph : pydrake.geometry.SceneGraph, optional
         Where the robot is drawn. Default: a new one in ``builder`` (only when
         ``plant`` is not given).
     gait : GaitParameters, optional
-        The nominal walk (default: the paper's 0.3 m steps, 0.8 s cycle).
+        The nominal walk (default: the robot's,
+        :func:`drake_estop.robots.parameters.gait_parameters`; for the default
+        humanoid the paper's 0.3 m steps, 0.8 s cycle).
     stop : StopParameters, optional
         Weights and limits of the stop planner, servo period [s] (default:
-        the paper's).
+        the paper's, with the robot's leg reach and crouch depth).
     estop_time : float, optional
         Time of the stop signal [s], latched at the next servo tick. None:
         only ``stop_request`` or the Meshcat button stop the walk.
@@ -337,6 +333,10 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
         True), read with :meth:`EmergencyStop.log`.
     publish_period : float, optional
         Meshcat publish period [s] (default 1/64 s).
+    robot : RobotDescription or str, optional
+        The robot: a :class:`drake_estop.robots.RobotDescription`, a built-in
+        robot's name (``default``, ``g1``, ``talos``) or a description YAML
+        file (default: the ``default`` HRP-2-class humanoid).
 
     Returns
     -------
@@ -346,9 +346,10 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     Raises
     ------
     ValueError
-        If ``plant`` is not finalized or lacks the humanoid's joints, if
-        ``estop_time`` is not finite and non-negative, or if ``meshcat`` is
-        given without a scene graph to draw from.
+        If ``plant`` is not finalized or lacks the robot's joints, if
+        ``estop_time`` is not finite and non-negative, if ``meshcat`` is
+        given without a scene graph to draw from, if the gait swings joints
+        the robot lacks, or naming the field of a bad robot description.
     TypeError
         If ``plant`` or ``scene_graph`` has the wrong type.
 
@@ -361,18 +362,19 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     """
     if estop_time is not None and not (np.isfinite(estop_time) and estop_time >= 0):
         raise ValueError(f"estop_time must be a finite time >= 0 s (or None), got {estop_time!r}")
-    gait = gait or GaitParameters()
-    stop = stop or StopParameters()
+    robot = as_robot(robot)
+    gait = gait or gait_parameters(robot)
+    stop = stop or stop_parameters(robot)
     pattern = NominalPattern(gait)
+    layout = robot_layout(robot, pattern)
     if meshcat is not None and plant is not None and scene_graph is None:
         raise ValueError("meshcat needs a scene_graph to draw the robot from: pass the plant's scene_graph too")
-    plant, scene_graph, pose_it = _robot_plant(builder, plant, scene_graph)
+    plant, scene_graph, pose_it = _robot_plant(builder, plant, scene_graph, robot)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop, estop_time=estop_time,
-                                           meshcat=meshcat)
-    from drake_estop.systems.diagram import initial_configuration
-
+                                           meshcat=meshcat, layout=layout)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
-        plant=plant, servo_period=stop.servo_period, initial_q=initial_configuration(plant, pattern)))
+        plant=plant, servo_period=stop.servo_period, robot=robot,
+        initial_q=initial_configuration(plant, pattern, robot=robot)))
     connect_reference(builder, planner, ik)
     if pose_it:
         to_pose = builder.AddNamedSystem("q_to_pose", MultibodyPositionToGeometryPose(plant))
@@ -381,9 +383,10 @@ def AddEmergencyStop(builder, *, plant=None, scene_graph=None, gait=None, stop=N
     loggers = _add_loggers(builder, planner, ik, stop.servo_period) if log else {}
     visualizer = stop_visualizer = None
     if meshcat is not None:
-        visualizer, stop_visualizer = _add_meshcat(builder, meshcat, scene_graph, planner, pattern,
-                                                   publish_period)
-    return EmergencyStop(pattern=pattern, trigger=trigger, planner=planner, ik=ik, plant=plant,
+        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat=meshcat, scene_graph=scene_graph,
+                                                        planner=planner, pattern=pattern,
+                                                        publish_period=publish_period, robot=robot)
+    return EmergencyStop(pattern=pattern, trigger=trigger, planner=planner, ik=ik, plant=plant, robot=robot,
                          scene_graph=scene_graph, stop_request=trigger.stop_request_port, q=ik.q_port,
                          com=planner.GetOutputPort("com"), zmp=planner.GetOutputPort("zmp"),
                          phase=planner.GetOutputPort("phase"),

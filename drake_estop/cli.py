@@ -16,12 +16,8 @@ from drake_estop.planning.gait import MAX_TURN_DEG, GaitParameters, NominalPatte
 from drake_estop.planning.plan import OBJECTIVES
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import rollout, stop_metrics, write_log, write_summary
+from drake_estop.robots.parameters import as_robot, com_height_range
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
-
-# COG heights the humanoid's legs reach (models/README.md): straight legs, and knees at their limit
-COG_HEIGHT_STRAIGHT_LEGS = 0.863
-COG_HEIGHT_LOWEST = 0.54
-
 
 # -- option values: argparse ``type=`` functions; a bad value exits with status 2 and argparse
 # names the option ("argument --crouch-depth: ...")
@@ -63,6 +59,11 @@ def _add_scenario_options(p):
     s.add_argument("--scenario-text", metavar="YAML", help="the same, inline, e.g. '{gait: {step_length: 0.2}}'")
     s.add_argument("--print-scenario", action="store_true",
                    help="print the effective scenario as YAML (every field) and exit")
+    s.add_argument("--robot", metavar="NAME|FILE.yaml", default=None,
+                   help="the humanoid: default (the HRP-2-class model), g1 (Unitree G1), talos (PAL TALOS; both "
+                        "need pip install -e '.[robots]') or a robot description file (drake_estop.robots); the "
+                        "gait and stop defaults below become its own (default: the scenario's robot, "
+                        "%(default)s: default)")
 
 
 def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
@@ -79,9 +80,10 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
     g.add_argument("--double-support-ratio", type=number(low=0.0, high=1.0, low_open=True, high_open=True),
                    default=_GAIT.double_support_ratio,
                    help="share of the step cycle in double support (default %(default)s)")
-    g.add_argument("--com-height", default=_GAIT.com_height,
-                   type=number(low=COG_HEIGHT_LOWEST, high=COG_HEIGHT_STRAIGHT_LEGS, low_open=True, unit=" m"),
-                   help="COG height of the LIPM [m] (default %(default)s, HRP-2's walking pattern)")
+    g.add_argument("--com-height", default=_GAIT.com_height, type=positive_float,
+                   help="COG height of the LIPM [m], above the lowest the robot's legs reach and at most their "
+                        "straight-leg height (default %(default)s: the robot's walking height, HRP-2's 0.814 for "
+                        "the default robot)")
     g.add_argument("--num-steps", type=number(low=2, integer=True), default=_GAIT.num_steps,
                    help="steps of the nominal walk, the last one closing the feet (default %(default)s)")
     g.add_argument("--turn", type=number(low=-MAX_TURN_DEG, high=MAX_TURN_DEG, unit=" deg"), default=_GAIT.turn,
@@ -191,6 +193,7 @@ def _add_simulate(sub, scenario: Scenario):
 
 
 def _parameters(args):
+    args.robot_description = as_robot(args.scenario.robot)
     gait = replace(args.scenario.gait, **{name: getattr(args, name) for name, _ in _scalar_fields(GaitParameters)})
     stop = replace(args.scenario.stop, crouch=not args.no_crouch,
                    **{name: getattr(args, name) for name, _ in _scalar_fields(StopParameters) if name != "crouch"})
@@ -205,14 +208,28 @@ def _parameters(args):
         raise ValueError(f"step_length must be >= 0, got {gait.step_length}")
     if args.after_halt < 1.0 or not math.isfinite(args.after_halt):
         raise ValueError(f"after_halt must be at least 1 s, got {args.after_halt}")
-    if not args.no_crouch and gait.com_height - stop.crouch_depth < COG_HEIGHT_LOWEST:
+    lowest, highest = com_height_range(args.robot_description)
+    if not lowest < gait.com_height <= highest:
+        raise ValueError(f"com_height must be in ({lowest:g}, {highest:g}] m for robot "
+                         f"{args.robot_description.name!r} (knees at their limit, straight legs), "
+                         f"got {gait.com_height:g}")
+    if not args.no_crouch and gait.com_height - stop.crouch_depth < lowest:
         raise ValueError(f"crouch_depth {stop.crouch_depth} m takes the COG from {gait.com_height} m below "
-                         f"{COG_HEIGHT_LOWEST} m, the lowest the legs reach (knees at their limit)")
+                         f"{lowest} m, the lowest the legs of robot {args.robot_description.name!r} reach "
+                         "(knees at their limit)")
     if getattr(args, "meshcat_port", None) is not None and not args.meshcat:
         raise ValueError("meshcat_port needs --meshcat")
     if getattr(args, "meshcat_host", None) is not None and not args.meshcat:
         raise ValueError("meshcat_host needs --meshcat")
     return gait, stop
+
+
+def _default_robot_only(args, what: str) -> None:
+    """Raise ValueError naming ``robot`` unless the run's robot is the default humanoid (the physics
+    simulation, its plant, servos, sensors and estimator, are the default's)."""
+    if args.robot_description.name != "default":
+        raise ValueError(f"robot: {what} runs the default robot only; robot {args.robot_description.name!r} "
+                         "runs the kinematic plan (--kinematic) and the Drake diagram (the default mode)")
 
 
 def _controller(args):
@@ -248,6 +265,8 @@ def _simulate(args) -> int:
         raise ValueError(f"estop_time {estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
     if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
+    if args.physics:
+        _default_robot_only(args, "the physics simulation (--physics)")
     perturbations = perturbations_from_args(args)
     controller = _controller(args)
     online_only = _online_only_settings(controller, perturbations)
@@ -272,7 +291,7 @@ def _simulate(args) -> int:
             print("walk ended without a stop signal")
             return 0
     data = rollout(plan, after_halt=args.after_halt)
-    summary = plan.summary()
+    summary = {"robot": args.robot_description.name, **plan.summary()}
     summary["metrics"] = stop_metrics(plan, data)
     summary.update(diagram_summary)
     if args.log:
@@ -383,7 +402,7 @@ def _run_diagram(args, gait, stop, estop_time):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # IK misses are reported in the summary below
         result = simulate_diagram(gait, stop, estop_time, html=args.html, meshcat=meshcat,
-                                  after_halt=args.after_halt)
+                                  after_halt=args.after_halt, robot=args.robot_description)
     summary = {
         "ik": result.error_summary(),
         "realtime_factor": result.realtime_factor,
@@ -432,6 +451,7 @@ def _sweep(args) -> int:
 
     gait, stop = _parameters(args)
     controller = replace(args.scenario.controller, kind=args.controller)
+    _default_robot_only(args, "the physics sweep")
     if args.print_scenario:
         print(dump_scenario(replace(args.scenario, gait=gait, stop=stop, simulation="physics",
                                     controller=controller)), end="")
@@ -527,20 +547,22 @@ def build_parser(scenario: Scenario | None = None) -> argparse.ArgumentParser:
 
 
 def _scenario_from(argv) -> Scenario:
-    """The scenario named by --scenario-file / --scenario-text in ``argv`` (default ``Scenario()``)."""
+    """The scenario named by --scenario-file / --scenario-text in ``argv`` (default ``Scenario()``), for the
+    robot of --robot if given (its gait and stop defaults; see :func:`drake_estop.scenario.load_scenario`)."""
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--scenario-file")
     pre.add_argument("--scenario-text")
+    pre.add_argument("--robot")
     known, _ = pre.parse_known_args(argv)
     if known.scenario_file is not None and known.scenario_text is not None:
         raise ValueError("give --scenario-file or --scenario-text, not both")
     if known.scenario_file is not None:
         if not Path(known.scenario_file).is_file():
             raise FileNotFoundError(f"--scenario-file: no such file {known.scenario_file}")
-        return load_scenario(filename=known.scenario_file)
+        return load_scenario(filename=known.scenario_file, robot=known.robot)
     if known.scenario_text is not None:
-        return load_scenario(text=known.scenario_text)
-    return Scenario()
+        return load_scenario(text=known.scenario_text, robot=known.robot)
+    return load_scenario(text="{}", robot=known.robot)
 
 
 def main(argv=None) -> int:

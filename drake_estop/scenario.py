@@ -9,6 +9,7 @@ configuration (Drake's ``MultibodyPlantConfig``) and the perturbations of the
 simulated robot. Every field has a default, so a scenario file names only
 what differs, e.g.::
 
+    robot: default        # or g1, talos, or a description file (drake_estop.robots)
     gait: {step_length: 0.3, step_time: 0.8}
     stop: {a_ss: 5.0, b_ss: 1000.0}
     estop_time: 3.4
@@ -21,6 +22,11 @@ what differs, e.g.::
 '{...}'``) starts from it; options given on the command line override it.
 An unknown key is an error naming the key (``yaml_load_typed`` is strict),
 and the parameter classes validate the values as everywhere else.
+
+The ``robot`` names the humanoid; what the document leaves out of ``gait``
+and ``stop`` is that robot's (:func:`scenario_for_robot`: its COG height,
+steps, sole, arm swing, leg reach, crouch), so ``robot: g1`` alone walks and
+stops the G1 as its description says.
 
 The project's parameter classes use postponed annotations and bare ``tuple``
 fields, which ``yaml_load_typed`` cannot read directly; :func:`yaml_schema`
@@ -41,6 +47,7 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 
 from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.perturbations import Perturbations, Push
+from drake_estop.planning.arms import ArmSwing
 from drake_estop.planning.gait import Footstep, GaitParameters
 from drake_estop.planning.planner import StopParameters
 
@@ -59,6 +66,10 @@ class Scenario:
 
     Attributes
     ----------
+    robot : str
+        The humanoid: ``default`` (the HRP-2-class model), ``g1``, ``talos`` or the path of a robot
+        description YAML file (:func:`drake_estop.robots.load_robot`; in a scenario file, relative
+        to its folder). Its gait and stop parameters are the defaults of ``gait`` and ``stop``.
     gait : GaitParameters
         The nominal walk (lengths in m, times in s).
     stop : StopParameters
@@ -82,6 +93,7 @@ class Scenario:
         Seconds simulated and logged after the halt ends (>= 1).
     """
 
+    robot: str = "default"
     gait: GaitParameters = field(default_factory=GaitParameters)
     stop: StopParameters = field(default_factory=StopParameters)
     estop_time: float | None = 3.4
@@ -92,6 +104,8 @@ class Scenario:
     after_halt: float = 1.0
 
     def __post_init__(self):
+        if not isinstance(self.robot, str) or not self.robot.strip():
+            raise ValueError(f"robot must be a robot's name or a description file, got {self.robot!r}")
         if self.simulation not in SIMULATIONS:
             raise ValueError(f"simulation must be one of {SIMULATIONS}, got {self.simulation!r}")
         if not isinstance(self.controller, ControllerOptions):
@@ -188,8 +202,40 @@ def _register(*classes):
         _ORIGINAL[yaml_schema(cls)] = cls
 
 
+def scenario_for_robot(robot: str, *, base: Scenario | None = None) -> Scenario:
+    """``base`` (default ``Scenario()``) with ``robot`` and that robot's gait and stop parameters
+    (:func:`drake_estop.robots.parameters.gait_parameters`, ``stop_parameters``).
+
+    Raises
+    ------
+    ValueError
+        Naming ``robot`` and the description's field when the robot cannot be loaded.
+    """
+    from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parameters
+
+    base = base or Scenario()
+    try:
+        description = as_robot(robot)
+    except ValueError as error:
+        raise ValueError(f"robot {robot!r}: {error}") from error
+    return dataclasses.replace(base, robot=str(robot), gait=gait_parameters(description),
+                               stop=stop_parameters(description))
+
+
+def _document_robot(document, filename, robot) -> str | None:
+    """The robot a scenario names: ``robot`` if given, else the document's ``robot`` (a description file
+    relative to the scenario file's folder), else None."""
+    if robot is not None:
+        return str(robot)
+    named = document.get("robot") if isinstance(document, dict) else None
+    if not isinstance(named, str) or filename is None or not named.endswith((".yaml", ".yml")):
+        return named if isinstance(named, str) else None
+    path = Path(named)
+    return str(path if path.is_absolute() else Path(filename).resolve().parent / path)
+
+
 def load_scenario(*, filename: str | Path | None = None, text: str | None = None,
-                  defaults: Scenario | None = None) -> Scenario:
+                  defaults: Scenario | None = None, robot: str | None = None) -> Scenario:
     """A :class:`Scenario` from a YAML file or string (exactly one), on top of ``defaults``.
 
     Parameters
@@ -200,7 +246,10 @@ def load_scenario(*, filename: str | Path | None = None, text: str | None = None
         The same, as a string, e.g. ``"{gait: {step_length: 0.2}, estop_time: 3.3}"`` (step length [m],
         signal time [s]).
     defaults : Scenario, optional
-        What the document does not name (default: ``Scenario()``).
+        What the document does not name (default: ``Scenario()``); when the document (or ``robot``)
+        names another robot, its gait and stop are that robot's (:func:`scenario_for_robot`).
+    robot : str, optional
+        The robot, in place of the document's ``robot`` (the command line's ``--robot``).
 
     Returns
     -------
@@ -221,9 +270,13 @@ def load_scenario(*, filename: str | Path | None = None, text: str | None = None
         document = yaml.safe_load(Path(filename).read_text() if text is None else text)
         if document is not None:
             _check_document(document, Scenario)
+        named = _document_robot(document, filename, robot)
+        if named is not None and named != defaults.robot:
+            defaults = scenario_for_robot(named, base=defaults)
         schema = yaml_load_typed(schema=yaml_schema(Scenario), filename=None if filename is None else str(filename),
                                  data=text, defaults=_to_schema(defaults, Scenario))
-        return _from_schema(schema, Scenario)
+        scenario = _from_schema(schema, Scenario)
+        return dataclasses.replace(scenario, robot=named) if named is not None else scenario
     except (RuntimeError, TypeError, ValueError, KeyError, OSError, yaml.YAMLError) as error:
         raise ValueError(f"{source}: {error}") from error
 
@@ -288,4 +341,4 @@ def _null_paths(value, path=()) -> list:
     return paths
 
 
-_register(Push, Perturbations, Footstep, GaitParameters, StopParameters, ControllerOptions, Scenario)
+_register(Push, Perturbations, Footstep, ArmSwing, GaitParameters, StopParameters, ControllerOptions, Scenario)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drake_estop.planning import lipm
+from drake_estop.planning.arms import DEFAULT_ARM_JOINTS, DEFAULT_ARM_NEUTRAL, ArmSwing
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,10 @@ class GaitParameters:
     lift_height : float
         Swing-foot apex above the floor [m].
     arm_swing : float
-        Shoulder-pitch swing amplitude [rad].
+        Shoulder swing amplitude [rad].
+    arms : ArmSwing
+        The joints that swing (and that the stop halts, eq. 32-33), their neutral angles [rad] and
+        shares of the swing (default: the HRP-2-class humanoid's shoulder pitches and elbows).
     sole : Sole
         The sole rectangle [m].
     turn : float
@@ -149,7 +153,8 @@ class GaitParameters:
     initial_shift_time: float = 1.25  # weight shift before the first step [s] (see README: scenario timing)
     final_shift_time: float = 1.0  # double support that ends the walk at rest [s]
     lift_height: float = 0.05  # swing-foot apex above the floor [m]
-    arm_swing: float = 0.15  # shoulder-pitch swing amplitude [rad]
+    arm_swing: float = 0.15  # shoulder swing amplitude [rad]
+    arms: ArmSwing = field(default_factory=ArmSwing)  # the swinging joints (planning/arms.py)
     sole: Sole = field(default_factory=Sole)
     turn: float = 0.0  # heading change per step [deg], positive to the left
     side_step: float = 0.0  # each foot's sideways step [m], positive to the left (widen, then close)
@@ -173,6 +178,8 @@ class GaitParameters:
         for name in ("turn", "side_step"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+        if not isinstance(self.arms, ArmSwing):
+            raise ValueError(f"arms must be an ArmSwing (joints, neutral, gains), got {self.arms!r}")
         if abs(self.turn) > MAX_TURN_DEG:
             raise ValueError(f"turn {self.turn} deg per step is beyond the limit of {MAX_TURN_DEG} deg")
         if self.footsteps:
@@ -199,9 +206,10 @@ class GaitParameters:
         return lipm.omega(self.com_height)
 
 
-# Upper-body joints driven by the pattern (names as in models/humanoid.urdf).
-ARM_JOINTS = ("l_shoulder_pitch", "r_shoulder_pitch", "l_elbow", "r_elbow")
-ARM_NEUTRAL = np.array([0.0, 0.0, -0.3, -0.3])
+# The default humanoid's upper-body joints driven by the pattern (names as in models/humanoid.urdf);
+# a gait's own are ``GaitParameters.arms``.
+ARM_JOINTS = DEFAULT_ARM_JOINTS
+ARM_NEUTRAL = np.array(DEFAULT_ARM_NEUTRAL)
 
 
 @dataclass
@@ -222,7 +230,7 @@ class PatternState:
     next_landing: np.ndarray | None  # (2,) nominal landing of the swing foot
     rear_foot: str | None  # in double support: the foot the ZMP leaves
     step_index: int  # index of the current step (0 = initial shift)
-    upper_body: np.ndarray  # (len(ARM_JOINTS),)
+    upper_body: np.ndarray  # (len(params.arms.joints),)
     upper_body_rate: np.ndarray
     feet_yaw: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # side -> heading [rad]
     feet_yaw_rate: dict = field(default_factory=lambda: {side: 0.0 for side in SIDES})  # [rad/s]
@@ -401,15 +409,15 @@ class NominalPattern:
         return yaw, rate
 
     def upper_body(self, t):
-        """Arm joint angles and rates (ARM_JOINTS order) at ``t``: arm swing against the legs."""
+        """Arm joint angles and rates (``params.arms.joints`` order) at ``t``: arm swing against the legs."""
         p = self.params
         phase = math.pi * (t - self.walk_start) / p.step_time
         envelope, envelope_rate = _window(t, self.walk_start - 0.5, self.walk_start,
                                           self.last_touchdown, self.end_time)
         swing = p.arm_swing * math.sin(phase)
         swing_rate = p.arm_swing * math.cos(phase) * math.pi / p.step_time
-        sign = np.array([1.0, -1.0, 0.5, -0.5])
-        q = ARM_NEUTRAL + sign * swing * envelope
+        sign = p.arms.gain_array
+        q = p.arms.neutral_array + sign * swing * envelope
         qd = sign * (swing_rate * envelope + swing * envelope_rate)
         return q, qd
 

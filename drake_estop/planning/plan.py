@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drake_estop.planning import lipm
-from drake_estop.planning.gait import ARM_NEUTRAL, NominalPattern, PatternState
+from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
 
 #: [s] an upper bound on signal-to-halt-end of any stop (two steps and the longest halt, re-plans
@@ -459,11 +459,11 @@ class StopPlan:
             q = q0 + qd0 * tau - qd0 / span * tau**2 + qd0 / (3 * span**2) * tau**3  # eq. 32
             qd = qd0 * (1.0 - tau / span) ** 2
             return q, qd
-        peak = self.upper_body_peak
+        peak, neutral = self.upper_body_peak, self.pattern.params.arms.neutral_array
         s = min((t - self.slowdown_end) / (self.halt_end - self.slowdown_end), 1.0)
         sigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s))
         dsigma = float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1)) / (self.halt_end - self.slowdown_end)
-        return peak + (ARM_NEUTRAL - peak) * sigma, (ARM_NEUTRAL - peak) * dsigma
+        return peak + (neutral - peak) * sigma, (neutral - peak) * dsigma
 
     def support_sides(self, t: float, feet=None) -> list:
         """Feet on the ground at ``t`` ('left'/'right'); ``feet`` from :meth:`feet` if given."""

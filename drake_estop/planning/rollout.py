@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drake_estop.planning.gait import ARM_JOINTS
+from drake_estop.planning.arms import DEFAULT_ARM_JOINTS
 from drake_estop.planning.lipm import GRAVITY
 from drake_estop.planning.planner import StopPlan
 
@@ -35,8 +35,9 @@ class Rollout:
     zmp: np.ndarray  # (n, 2)
     phases: list
     feet: dict  # side -> (n, 3) ankle x, y, lift
-    upper_body: np.ndarray  # (n, len(ARM_JOINTS))
+    upper_body: np.ndarray  # (n, len(arm_joints))
     feet_yaw: dict | None = None  # side -> (n,) heading [rad]; None: level soles heading along x
+    arm_joints: tuple = DEFAULT_ARM_JOINTS  # the joints of upper_body's columns (the gait's arms.joints)
 
     def rows(self):
         yaw = self.feet_yaw or {side: np.zeros(len(self.times)) for side in ("left", "right")}
@@ -51,7 +52,7 @@ class Rollout:
                 "left_z": self.feet["left"][i, 2], "right_x": self.feet["right"][i, 0],
                 "right_y": self.feet["right"][i, 1], "right_z": self.feet["right"][i, 2],
                 "left_yaw": yaw["left"][i], "right_yaw": yaw["right"][i],
-                **{f"qref_{name}": self.upper_body[i, k] for k, name in enumerate(ARM_JOINTS)},
+                **{f"qref_{name}": self.upper_body[i, k] for k, name in enumerate(self.arm_joints)},
             }
 
 
@@ -74,7 +75,8 @@ def rollout(plan: StopPlan, *, after_halt: float = 1.0, start: float = 0.0) -> R
     z, zd, zdd = plan.com_height(times)
     feet = {side: np.zeros((len(times), 3)) for side in ("left", "right")}
     yaw = {side: np.zeros(len(times)) for side in ("left", "right")}
-    upper = np.zeros((len(times), len(ARM_JOINTS)))
+    arm_joints = plan.pattern.params.arms.joints
+    upper = np.zeros((len(times), len(arm_joints)))
     phases = []
     for i, t in enumerate(times):
         for side, value in plan.feet(t).items():
@@ -84,7 +86,7 @@ def rollout(plan: StopPlan, *, after_halt: float = 1.0, start: float = 0.0) -> R
         upper[i] = plan.upper_body(t)[0]
         phases.append(plan.phase(t))
     return Rollout(times, np.column_stack([pos, z]), np.column_stack([vel, zd]),
-                   np.column_stack([acc, zdd]), zmp, phases, feet, upper, yaw)
+                   np.column_stack([acc, zdd]), zmp, phases, feet, upper, yaw, arm_joints)
 
 
 def write_log(path, data: Rollout, extra_columns: dict | None = None):

@@ -6,7 +6,11 @@ upper-body joints, walking COG height, gait defaults, servo gains);
 :func:`load_robot` reads one by name (``default``, ``g1``, ``talos``) or from a
 YAML file and checks it against its model; :func:`add_robot` puts the robot in
 a ``MultibodyPlant``; :mod:`drake_estop.robots.measure` measures what follows
-from the model (mass, leg length, reach, the standing posture).
+from the model (mass, leg length, reach, the standing posture);
+:mod:`drake_estop.robots.parameters` makes the planner's gait and stop
+parameters of a robot (:func:`gait_parameters`, :func:`stop_parameters`), with
+which the Drake diagram, ``AddEmergencyStop(robot=...)``, a scenario's
+``robot`` and ``drake-estop simulate --robot`` run it.
 
 ``g1`` and ``talos`` use the models of the ``example-robot-data`` package
 (``pip install -e '.[robots]'``; it installs the URDFs and STL meshes under
@@ -29,13 +33,17 @@ the upper body at zero; "knee" is the knee bend at the walking COG height):
 | standing half width [m] | 0.060 | 0.1185 | 0.085 |
 | sole toe / heel [m] | 0.135 / 0.105 | 0.12 / 0.05 | 0.095 / 0.105 |
 | sole inner / outer [m] | 0.055 / 0.081 | 0.025 / 0.025 | 0.055 / 0.055 |
-| step length / width [m] | 0.30 / 0.19 | 0.293 / 0.305 | 0.346 / 0.251 |
+| step length / width [m] | 0.30 / 0.19 | 0.27 / 0.25 | 0.346 / 0.251 |
 | step time [s] | 0.80 | 0.79 | 0.86 |
-| fore / rear reach [m] | 0.195 / 0.26 | 0.184 / 0.225 | 0.241 / 0.300 |
+| swing lift / crouch [m] | 0.05 / 0.04 | 0.049 / 0.039 | 0.058 / 0.046 |
+| fore / rear reach [m] | 0.195 / 0.26 | 0.186 / 0.228 | 0.241 / 0.29 |
+| arm swing | shoulder pitch, elbow | shoulder pitch, elbow | arm joint 1, elbow |
 
 The default's gait and reach are its description's (the planner's defaults);
 the others' are scaled and measured (:mod:`drake_estop.robots.measure`; the
-default measures 0.198 / 0.250 m). The walking COG heights of ``g1`` and
+default measures 0.198 / 0.250 m), but for the G1's step length and width
+and TALOS's rear reach (measured 0.300 m), which their descriptions set (the
+YAML files say why). The walking COG heights of ``g1`` and
 ``talos`` put the COG 7 % of the leg length below the straight-leg COG, as the
 default's 0.814 m does; their sole rectangles and gains are explained in their
 YAML files.
@@ -49,6 +57,7 @@ from drake_estop.robots.description import (
     PackagePath,
     RobotDescription,
     ServoGain,
+    SwingJoint,
 )
 from drake_estop.robots.loading import BUILT_IN, MissingRobotPackage, load_robot, read_description
 from drake_estop.robots.measure import (
@@ -63,12 +72,14 @@ from drake_estop.robots.measure import (
     reach_limits,
     robot_facts,
 )
+from drake_estop.robots.parameters import as_robot, com_height_range, gait_parameters, stop_parameters
 from drake_estop.robots.plant import JointLimits, add_robot, joint_limits, set_servo_gains, sole_frame
 
 __all__ = [
     "BUILT_IN", "Foot", "GaitDefaults", "JointAngle", "JointLimits", "LegJoints", "LimitOverride",
-    "MissingRobotPackage", "PackagePath", "Reach", "RobotDescription", "RobotFacts", "ServoGain", "add_robot",
-    "gait_defaults", "joint_limits", "load_robot", "max_fore_reach", "max_rear_reach", "measure_reach",
+    "MissingRobotPackage", "PackagePath", "Reach", "RobotDescription", "RobotFacts", "ServoGain", "SwingJoint",
+    "add_robot", "as_robot", "com_height_range", "gait_defaults", "gait_parameters", "joint_limits", "load_robot",
+    "max_fore_reach", "max_rear_reach", "measure_reach",
     "nominal_standing_configuration", "reach_limits", "read_description", "robot_facts", "set_servo_gains",
-    "sole_frame",
+    "sole_frame", "stop_parameters",
 ]

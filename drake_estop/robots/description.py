@@ -194,6 +194,32 @@ class JointAngle:
 
 
 @dataclass(frozen=True)
+class SwingJoint:
+    """A joint of the walk's arm swing: at ``neutral + gain * swing`` for the shoulder's swing ``swing``.
+
+    Attributes
+    ----------
+    joint : str
+        The joint name (one of the description's upper-body joints).
+    neutral : float
+        Its angle with the arms at rest [rad].
+    gain : float
+        Its angle change per radian of swing (dimensionless; the sign says which way it turns).
+    """
+
+    joint: str = ""
+    neutral: float = 0.0
+    gain: float = 0.0
+
+    def __post_init__(self):
+        _check_name("joint", self.joint)
+        for name in ("neutral", "gain"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+
+
+@dataclass(frozen=True)
 class PackagePath:
     """Where a ``package://NAME/`` URI of the model points.
 
@@ -273,6 +299,23 @@ class RobotDescription:
         Velocity and effort limits for joints whose model gives none.
     nominal_posture : tuple of JointAngle
         Upper-body joints held away from zero in the standing posture.
+    arm_swing : tuple of SwingJoint
+        The joints the walk swings against the legs and the stop halts (eq. 32-33); empty: no arm
+        swing. Every other upper-body joint holds its standing angle.
+    lift_height : float or None
+        Swing-foot apex above the floor [m]; None: the default's 0.05 m scaled by the leg length.
+    crouch_depth : float or None
+        COG lowering during the stop (IV.A) [m]; None: the default's 0.04 m scaled by the leg length.
+    lowest_com_height : float or None
+        The lowest COG height the legs reach, knees at their limit [m] (the least ``com_height`` a
+        gait may ask for); None: the default's 0.323 m below its straight-leg COG, scaled.
+    height : float or None
+        Standing height, the top of the head [m] (Meshcat's indicator is drawn above it); None:
+        the default's 1.54 m scaled by the straight-leg COG height.
+    min_knee_bend : float
+        The least knee angle the kinematic whole-body IK allows, in [0, 1) [rad]: a leg-extension limit
+        above the model's own (default 0: no straighter than the knee's zero; near a straight knee its
+        speed, the leg's extension rate over sin(knee), is unbounded).
     keep_model_collisions : bool
         Keep the model's own collision geometry (primitives and OBJ/VTK/glTF meshes only);
         otherwise only the sole contact geometry collides.
@@ -304,6 +347,12 @@ class RobotDescription:
     limit_overrides: tuple[LimitOverride, ...] = ()
     nominal_posture: tuple[JointAngle, ...] = ()
     keep_model_collisions: bool = False
+    arm_swing: tuple[SwingJoint, ...] = ()
+    lift_height: float | None = None
+    crouch_depth: float | None = None
+    lowest_com_height: float | None = None
+    height: float | None = None
+    min_knee_bend: float = 0.0
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -314,9 +363,12 @@ class RobotDescription:
         _check_positive("walking_com_height", self.walking_com_height)
         _check_positive("sole_thickness", self.sole_thickness)
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
-                     "max_rear_reach"):
+                     "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
+        bend = self.min_knee_bend
+        if isinstance(bend, bool) or not isinstance(bend, (int, float)) or not 0.0 <= bend < 1.0:
+            raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {bend!r}")
         self._check_joint_lists()
         self._check_gains()
 
@@ -332,6 +384,11 @@ class RobotDescription:
         for i, entry in enumerate(self.nominal_posture):
             if entry.joint not in self.upper_body_joints:
                 raise ValueError(f"nominal_posture[{i}]: {entry.joint!r} is not one of the upper-body joints")
+        for i, entry in enumerate(self.arm_swing):
+            if entry.joint not in self.upper_body_joints:
+                raise ValueError(f"arm_swing[{i}]: {entry.joint!r} is not one of the upper-body joints")
+            if entry.joint in [other.joint for other in self.arm_swing[:i]]:
+                raise ValueError(f"arm_swing[{i}]: {entry.joint!r} is listed twice")
 
     def _check_gains(self):
         if not self.servo_gains:
@@ -376,6 +433,12 @@ class RobotDescription:
     def servo_gain(self, joint: str) -> ServoGain | None:
         """The first of ``servo_gains`` whose key is in ``joint``'s name, or None."""
         return next((gain for gain in self.servo_gains if gain.key in joint), None)
+
+    def standing_angles(self) -> tuple[float, ...]:
+        """The upper-body joints' angles in the standing posture (``nominal_posture``, else 0) [rad],
+        in :attr:`upper_body_joints` order."""
+        posture = {entry.joint: float(entry.angle) for entry in self.nominal_posture}
+        return tuple(posture.get(joint, 0.0) for joint in self.upper_body_joints)
 
     def sole(self) -> Sole:
         """The planner's sole rectangle: the smaller of the two feet's distances on each side [m]."""

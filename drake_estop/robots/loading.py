@@ -45,6 +45,7 @@ from drake_estop.robots.description import (
     PackagePath,
     RobotDescription,
     ServoGain,
+    SwingJoint,
 )
 
 #: The robots shipped with the package: name -> description file in this folder.
@@ -54,7 +55,7 @@ MODELS_PACKAGE = "drake_estop_models"
 #: Model file kinds Drake's parser reads.
 MODEL_SUFFIXES = (".urdf", ".sdf", ".xml")
 
-_CLASSES = (Foot, JointAngle, LegJoints, LimitOverride, PackagePath, ServoGain, RobotDescription)
+_CLASSES = (Foot, JointAngle, LegJoints, LimitOverride, PackagePath, ServoGain, SwingJoint, RobotDescription)
 
 
 class MissingRobotPackage(ValueError):
@@ -191,6 +192,7 @@ def load_robot(name_or_path: str | Path, *, check_model: bool = True) -> RobotDe
     Returns
     -------
     RobotDescription
+        Lengths in [m], angles in [rad] unless a field's name says ``_deg``.
 
     Raises
     ------

@@ -7,8 +7,10 @@
         StopPlannerSystem --com, zmp, phase, plan, one_step_feasible--> StopVisualizer (Meshcat traces)
         loggers: planner com / com_vel / zmp / feet / phase / one_step_feasible, IK q and IK errors
 
-The humanoid is kinematic: the plant is registered with the SceneGraph for
-its geometry only and posed by the IK's positions (no dynamics, no contact).
+The robot (the ``default`` humanoid, or any described one: ``robot=``) is
+kinematic: the plant is registered with the SceneGraph for its geometry only
+(the model's own meshes, :func:`drake_estop.robots.add_robot`) and posed by
+the IK's positions (no dynamics, no contact).
 The MultibodyPlant itself is not a System of the diagram; the handles keep it
 alive (MultibodyPositionToGeometryPose references it).
 """
@@ -27,19 +29,15 @@ from pydrake.systems.framework import DiagramBuilder, EventStatus
 from pydrake.systems.primitives import LogVectorOutput
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_estop.model import (
-    ALL_JOINTS,
-    LEFT_SOLE,
-    RIGHT_SOLE,
-    UPPER_BODY_JOINTS,
-    joint_position_indices,
-    load_humanoid,
-)
-from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.model import joint_position_indices
+from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.plan import LONGEST_STOP
-from drake_estop.planning.planner import PHASES, StopParameters
+from drake_estop.planning.planner import PHASES
+from drake_estop.robots.description import SIDES
+from drake_estop.robots.parameters import as_robot, gait_parameters, standing_height, stop_parameters
+from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
-from drake_estop.systems.reference import REFERENCE_LAYOUT, REFERENCE_SLICES, reference_vector
+from drake_estop.systems.reference import ReferenceLayout, pattern_layout, reference_vector
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
 #: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
@@ -63,31 +61,41 @@ class DiagramHandles:
     meshcat: object = None
     visualizer: object = None
     stop_visualizer: object = None
+    robot: object = None  # the RobotDescription
+    layout: ReferenceLayout = None
 
 
-def initial_configuration(plant, pattern, *, attempts=20):
+def robot_layout(robot, pattern) -> ReferenceLayout:
+    """The reference layout of ``robot`` (a description, a name or None: the default) walking ``pattern``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``gait.arms.joints`` when the pattern swings joints the robot's upper body lacks.
+    """
+    return pattern_layout(pattern, ReferenceLayout.of(as_robot(robot), pattern.params.arms))
+
+
+def initial_configuration(plant, pattern, *, attempts=20, robot=None):
     """IK solution for the pattern at t = 0 (the first tick starts converged).
 
-    The standing posture of model.py has the feet under the hips; the walk
-    starts with the feet ``step_width`` apart, so the IK is solved offline
-    here instead of letting the first servo tick jump.
+    The standing posture has the feet under the hips; the walk starts with
+    the feet ``step_width`` apart, so the IK is solved offline here instead
+    of letting the first servo tick jump. ``robot``: the robot in ``plant``
+    (default: the ``default`` humanoid).
     """
-    parts = _split(reference_vector(0.0, pattern=pattern))
+    layout = robot_layout(robot, pattern)
+    parts = layout.split(reference_vector(0.0, pattern=pattern, layout=layout))
     return converged_posture(plant, parts["com"], parts["left_foot"], parts["right_foot"],
-                             dict(zip(UPPER_BODY_JOINTS, parts["upper_body"])), attempts=attempts)
+                             dict(zip(layout.upper_body, parts["upper_body"])), attempts=attempts, robot=robot)
 
 
-def _split(reference):
-    """Dict name -> entry of a reference vector (REFERENCE_LAYOUT)."""
-    return {name: reference[REFERENCE_SLICES[name]] for name, _ in REFERENCE_LAYOUT}
-
-
-def _add_plant(builder):
-    """SceneGraph in the diagram, humanoid plant registered for geometry."""
+def _add_plant(builder, robot):
+    """SceneGraph in the diagram, the robot's plant registered for geometry (its visuals, no contact)."""
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
-    load_humanoid(plant)
+    add_robot(plant, robot, contact=False)
     plant.Finalize()
     return plant, scene_graph
 
@@ -114,28 +122,32 @@ def _add_loggers(builder, planner, ik, period):
 
 
 def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshcat=None,
-                  button_name="Emergency stop", publish_period=1.0 / 64.0):
+                  button_name="Emergency stop", publish_period=1.0 / 64.0, robot=None):
     """Build the e-stop diagram; returns :class:`DiagramHandles`.
 
     ``estop_time`` schedules the stop (None: only the Meshcat button or the
     exported ``stop_request`` input stop the walk).  With ``meshcat`` the
     robot (MeshcatVisualizer), traces and phase (StopVisualizer) are drawn
-    and an "Emergency stop" button is added.
+    and an "Emergency stop" button is added. ``robot`` (a
+    :class:`~drake_estop.robots.RobotDescription`, a built-in name or a
+    description file; default the ``default`` humanoid) is the robot; the
+    gait and stop parameters default to its own
+    (:func:`drake_estop.robots.parameters.gait_parameters`, ``stop_parameters``).
     """
-    from drake_estop.systems.visualization import StopVisualizer, follow_camera_paths
-
-    gait_params = gait_params or GaitParameters()
-    stop_params = stop_params or StopParameters()
+    robot = as_robot(robot)
+    gait_params = gait_params or gait_parameters(robot)
+    stop_params = stop_params or stop_parameters(robot)
     pattern = NominalPattern(gait_params)
+    layout = robot_layout(robot, pattern)
     builder = DiagramBuilder()
-    plant, scene_graph = _add_plant(builder)
+    plant, scene_graph = _add_plant(builder, robot)
     trigger, planner = add_stop_controller(
         builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-        meshcat=meshcat, button_name=button_name)
+        meshcat=meshcat, button_name=button_name, layout=layout)
     builder.ExportInput(trigger.stop_request_port, "stop_request")
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
-        plant=plant, servo_period=stop_params.servo_period,
-        initial_q=initial_configuration(plant, pattern)))
+        plant=plant, servo_period=stop_params.servo_period, robot=robot,
+        initial_q=initial_configuration(plant, pattern, robot=robot)))
     connect_reference(builder, planner, ik)
     to_pose = builder.AddNamedSystem("q_to_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(ik.q_port, to_pose.get_input_port())
@@ -144,17 +156,46 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     loggers = _add_loggers(builder, planner, ik, stop_params.servo_period)
     visualizer = stop_visualizer = None
     if meshcat is not None:
-        visualizer = MeshcatVisualizer.AddToBuilder(
-            builder, scene_graph, meshcat, MeshcatVisualizerParams(
-                publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
-        stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
-            meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths()))
-        for name in ("com", "zmp", "phase", "plan", "one_step_feasible"):
-            builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
+        visualizer, stop_visualizer = add_meshcat_views(builder, meshcat=meshcat, scene_graph=scene_graph,
+                                                        planner=planner, pattern=pattern,
+                                                        publish_period=publish_period, robot=robot)
     diagram = builder.Build()
     diagram.set_name("estop_diagram")
     return DiagramHandles(diagram, plant, scene_graph, pattern, trigger, planner, ik,
-                          loggers, meshcat, visualizer, stop_visualizer)
+                          loggers, meshcat, visualizer, stop_visualizer, robot, layout)
+
+
+def add_meshcat_views(builder, *, meshcat, scene_graph, planner, pattern, publish_period, robot=None):
+    """The robot (``MeshcatVisualizer``, its illustration geometry) and the stop's traces, polygon, phase,
+    one-step indicator over the robot's head and follow camera (``StopVisualizer``).
+
+    Parameters
+    ----------
+    builder : pydrake.systems.framework.DiagramBuilder
+        Where to add them.
+    meshcat, scene_graph, planner, pattern
+        The Meshcat, the scene graph the robot is registered in, the :class:`StopPlannerSystem` and its
+        pattern.
+    publish_period : float
+        Meshcat publish period [s].
+    robot : RobotDescription or str, optional
+        The robot (its height places the indicator and the camera; default the ``default`` humanoid).
+
+    Returns
+    -------
+    tuple
+        ``(MeshcatVisualizer, StopVisualizer)``.
+    """
+    from drake_estop.systems.visualization import INDICATOR_CLEARANCE, StopVisualizer, follow_camera_paths
+
+    visualizer = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
+        publish_period=publish_period, role=Role.kIllustration, prefix="robot"))
+    stop_visualizer = builder.AddNamedSystem("stop_visualizer", StopVisualizer(
+        meshcat=meshcat, pattern=pattern, publish_period=publish_period, follow=follow_camera_paths(),
+        indicator_height=standing_height(as_robot(robot)) + INDICATOR_CLEARANCE))
+    for name in ("com", "zmp", "phase", "plan", "one_step_feasible"):
+        builder.Connect(planner.GetOutputPort(name), stop_visualizer.GetInputPort(name))
+    return visualizer, stop_visualizer
 
 
 # --------------------------------------------------------------------------
@@ -171,7 +212,7 @@ class DiagramResult:
     zmp: np.ndarray  # (n, 2)
     phases: list  # PHASES labels
     feet: dict  # side -> (n, 3) sole xyz targets
-    q: dict  # "q_<joint>" -> (n,) for every joint in ALL_JOINTS
+    q: dict  # "q_<joint>" -> (n,) for every joint the robot's description names
     q_full: np.ndarray  # (n, nq) plant positions
     ik_com_err: np.ndarray  # (n,) recomputed with the plant at the logged q [m]
     ik_foot_err: np.ndarray  # (n,) worst sole position error [m]
@@ -220,10 +261,10 @@ class DiagramResult:
         }
 
 
-def _sole_errors(plant, q_log, left, right):
+def _sole_errors(plant, robot, q_log, left, right):
     """COG and worst sole position / rotation error at every logged q (plant FK)."""
     context = plant.CreateDefaultContext()
-    frames = (plant.GetFrameByName(LEFT_SOLE), plant.GetFrameByName(RIGHT_SOLE))
+    frames = tuple(sole_frame(plant, robot, side) for side in SIDES)
     n = q_log.shape[0]
     com = np.empty((n, 3))
     pos_err = np.zeros(n)
@@ -263,9 +304,9 @@ def _align_ticks(handles, context):
     """
     times, data = _logged(handles, context)
     plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
-    targets = np.array([reference_vector(t, pattern=handles.pattern, plan=plan)
+    targets = np.array([reference_vector(t, pattern=handles.pattern, plan=plan, layout=handles.layout)
                         for t in times[:-1]])
-    ref = {name: targets[:, sl] for name, sl in REFERENCE_SLICES.items()}
+    ref = handles.layout.split(targets)
     solved = {name: data[name][1:] for name in
               ("q", "ik_com_error", "ik_foot_error", "velocity_limit_violations", "one_step_feasible")}
     return times[:-1], ref, solved, data, plan
@@ -273,12 +314,12 @@ def _align_ticks(handles, context):
 
 def collect_result(handles, context, *, wall_time, html=None):
     """Build a :class:`DiagramResult` from the loggers in ``context``."""
-    plant = handles.plant
+    plant, joint_names = handles.plant, handles.robot.all_joints
     times, ref, solved, logged, plan = _align_ticks(handles, context)
     q_log = solved["q"]
-    com_fk, foot_err, rot_err = _sole_errors(plant, q_log, ref["left_foot"], ref["right_foot"])
+    com_fk, foot_err, rot_err = _sole_errors(plant, handles.robot, q_log, ref["left_foot"], ref["right_foot"])
     com_err = np.linalg.norm(com_fk - ref["com"], axis=1)
-    idx = joint_position_indices(plant, ALL_JOINTS)
+    idx = joint_position_indices(plant, joint_names)
     lower, upper = plant.GetPositionLowerLimits()[idx], plant.GetPositionUpperLimits()[idx]
     joints = q_log[:, idx]
     limit_viol = np.sum((joints < lower - 1e-9) | (joints > upper + 1e-9), axis=1)
@@ -291,7 +332,7 @@ def collect_result(handles, context, *, wall_time, html=None):
         times=times, com=ref["com"], com_vel=ref["com_vel"], zmp=ref["zmp"],
         phases=[PHASES[int(round(p))] for p in ref["phase"][:, 0]],
         feet={"left": ref["left_foot"][:, :3], "right": ref["right_foot"][:, :3]},
-        q={f"q_{name}": joints[:, k] for k, name in enumerate(ALL_JOINTS)},
+        q={f"q_{name}": joints[:, k] for k, name in enumerate(joint_names)},
         q_full=q_log, ik_com_err=com_err, ik_foot_err=foot_err, ik_foot_rot_err=rot_err,
         ik_reported_com_err=solved["ik_com_error"][:, 0],
         ik_reported_foot_err=solved["ik_foot_error"][:, 0],
@@ -315,8 +356,9 @@ def _warn_failures(result):
                       RuntimeWarning, stacklevel=3)
 
 
-def _end_time(handles, context, after_halt):
-    """Halt end of the stored plan (or end of the walk) plus ``after_halt``."""
+def end_time(handles, context, after_halt):
+    """Halt end of the stored plan (or end of the walk) plus ``after_halt`` [s], and the tick that logs the
+    last solve."""
     plan = handles.planner.plan(handles.planner.GetMyContextFromRoot(context))
     end = plan.halt_end if plan is not None else handles.pattern.end_time
     # one and a half ticks more: the solve of the last tick is logged at the next
@@ -335,7 +377,7 @@ def run(handles, *, after_halt=1.0, realtime_rate=0.0):
     context = simulator.get_mutable_context()
 
     def monitor(root_context):
-        if root_context.get_time() >= _end_time(handles, root_context, after_halt) - 1e-9:
+        if root_context.get_time() >= end_time(handles, root_context, after_halt) - 1e-9:
             return EventStatus.ReachedTermination(handles.diagram, "past the halt")
         return EventStatus.DidNothing()
 
@@ -343,20 +385,20 @@ def run(handles, *, after_halt=1.0, realtime_rate=0.0):
     start = time.perf_counter()
     simulator.Initialize()
     # the bound is never reached: the walk's end (where the latest stop ends) plus the longest stop
-    simulator.AdvanceTo(_end_time(handles, context, after_halt) + LONGEST_STOP)
+    simulator.AdvanceTo(end_time(handles, context, after_halt) + LONGEST_STOP)
     simulator.clear_monitor()
     return simulator, time.perf_counter() - start
 
 
 
 def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html=None,
-                     meshcat=None, after_halt=1.0, realtime_rate=None):
+                     meshcat=None, after_halt=1.0, realtime_rate=None, robot=None):
     """Build, run to ``halt_end + after_halt`` and collect a :class:`DiagramResult`.
 
     ``html``: write a self-contained Meshcat replay there (a Meshcat is
     created if none is given).  ``realtime_rate`` defaults to 1 for a live
     Meshcat without a replay file (so a person can press the button), else
-    as fast as possible.
+    as fast as possible. ``robot``: see :func:`build_diagram`.
     """
     from drake_estop.systems.visualization import add_floor_under, make_meshcat, start_recording, write_replay
 
@@ -365,7 +407,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     if realtime_rate is None:
         realtime_rate = 1.0 if (meshcat is not None and html is None) else 0.0
     handles = build_diagram(gait_params=gait_params, stop_params=stop_params,
-                            estop_time=estop_time, meshcat=meshcat)
+                            estop_time=estop_time, meshcat=meshcat, robot=robot)
     if meshcat is not None:
         add_floor_under(meshcat, handles.pattern)  # the camera: StopVisualizer
     if html is not None:
@@ -376,6 +418,6 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     return collect_result(handles, simulator.get_context(), wall_time=wall, html=html)
 
 
-__all__ = ["DiagramHandles", "DiagramResult", "build_diagram", "simulate_diagram",
-           "collect_result", "run", "initial_configuration", "IK_COM_BOUND",
+__all__ = ["DiagramHandles", "DiagramResult", "build_diagram", "simulate_diagram", "add_meshcat_views",
+           "collect_result", "run", "initial_configuration", "robot_layout", "IK_COM_BOUND",
            "IK_FOOT_BOUND", "IK_FOOT_ROT_BOUND"]

@@ -26,18 +26,10 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.model import (
-    ALL_JOINTS,
-    FLOATING_BASE,
-    LEFT_SOLE,
-    LEG_JOINTS,
-    RIGHT_SOLE,
-    UPPER_BODY_JOINTS,
-    joint_position_indices,
-    joint_velocity_indices,
-    load_humanoid,
-    nominal_standing_configuration,
-)
+from drake_estop.model import joint_position_indices, joint_velocity_indices
+from drake_estop.robots.description import SIDES
+from drake_estop.robots.parameters import as_robot, standing_seed
+from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.timing import timed
 
 # --------------------------------------------------------------------------
@@ -160,13 +152,20 @@ class _Errors:
 class WholeBodyIkSolver:
     """Damped-Newton whole-body IK on a finalized humanoid ``plant``.
 
+    ``robot`` (a :class:`drake_estop.robots.RobotDescription`, a built-in
+    robot's name or a description file; default: the ``default`` humanoid)
+    names the floating base, the sole frames, the leg and upper-body joints
+    of ``plant`` (built with :func:`drake_estop.robots.add_robot`, or for
+    the default robot :func:`drake_estop.model.load_humanoid`).
+
     Tolerances ``com_tolerance`` / ``foot_position_tolerance`` [m] and
     ``foot_rotation_tolerance`` / ``orientation_tolerance`` [rad] decide
     ``success``; iterations stop early once every error is below
     ``convergence_ratio`` times its tolerance.
 
-    ``min_knee_bend`` [rad] (default 0: the URDF's own limit, a straight
-    knee) raises the knees' lower limit in the solve: a leg-extension limit.
+    ``min_knee_bend`` [rad] (default: the robot description's, 0 for the
+    built-in robots: the knee no straighter than its zero) raises the
+    knees' lower limit in the solve: a leg-extension limit.
     Near a straight knee its speed (the leg's extension rate / sin(knee))
     is unbounded, and a straight knee that must bend again drops the pelvis
     at once. With the floor the COG target that would stretch a leg is met
@@ -189,9 +188,10 @@ class WholeBodyIkSolver:
     def __init__(self, plant, *, max_iterations=30, com_tolerance=1e-3,
                  foot_position_tolerance=1e-3, foot_rotation_tolerance=1e-2,
                  orientation_tolerance=1e-2, convergence_ratio=0.01,
-                 rotation_weight=0.3, damping_bias=1e-9, min_knee_bend=0.0,
-                 stall_iterations=2, min_improvement=0.01):
+                 rotation_weight=0.3, damping_bias=1e-9, min_knee_bend=None,
+                 stall_iterations=2, min_improvement=0.01, robot=None):
         self._plant = plant
+        self._robot = as_robot(robot)
         self._context = plant.CreateDefaultContext()
         self.max_iterations = max_iterations
         self._tol = np.array([com_tolerance, foot_position_tolerance,
@@ -201,27 +201,27 @@ class WholeBodyIkSolver:
         self._bias = damping_bias
         self._init_indices(plant)
         self._init_weights(rotation_weight)
-        self._raise_knee_limits(plant, min_knee_bend)
+        self._raise_knee_limits(plant, self._robot.min_knee_bend if min_knee_bend is None else min_knee_bend)
         self._init_stall(stall_iterations, min_improvement)
 
     # -- set-up -------------------------------------------------------------
 
     def _init_indices(self, plant):
         """Cache frames and q/v indices used every iteration."""
-        base = plant.GetBodyByName(FLOATING_BASE)
+        robot = self._robot
+        base = plant.GetBodyByName(robot.floating_base)
         self._base_q = base.floating_positions_start()
         base_v = base.floating_velocities_start_in_v()
         self._v_sel = np.concatenate([np.arange(base_v, base_v + 6),
-                                      joint_velocity_indices(plant, LEG_JOINTS)])
-        self._leg_q = joint_position_indices(plant, LEG_JOINTS)
-        self._upper_q = dict(zip(UPPER_BODY_JOINTS, joint_position_indices(
-            plant, UPPER_BODY_JOINTS)))
+                                      joint_velocity_indices(plant, robot.leg_joints)])
+        self._leg_q = joint_position_indices(plant, robot.leg_joints)
+        upper_body = robot.upper_body_joints
+        self._upper_q = dict(zip(upper_body, joint_position_indices(plant, upper_body)))
         self._lower = plant.GetPositionLowerLimits()
         self._upper = plant.GetPositionUpperLimits()
-        self._all_q = joint_position_indices(plant, ALL_JOINTS)
+        self._all_q = joint_position_indices(plant, robot.all_joints)
         self._world = plant.world_frame()
-        self._soles = (plant.GetFrameByName(LEFT_SOLE),
-                       plant.GetFrameByName(RIGHT_SOLE))
+        self._soles = tuple(sole_frame(plant, robot, side) for side in SIDES)
         self._base_frame = base.body_frame()
         self._nv = plant.num_velocities()
 
@@ -230,10 +230,9 @@ class WholeBodyIkSolver:
         if not (math.isfinite(min_knee_bend) and 0.0 <= min_knee_bend < 1.0):
             raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {min_knee_bend!r}")
         self._lower = self._lower.copy()
-        for name in LEG_JOINTS:
-            if name.endswith("knee"):
-                index = plant.GetJointByName(name).position_start()
-                self._lower[index] = max(self._lower[index], min_knee_bend)
+        for side in SIDES:
+            index = plant.GetJointByName(self._robot.leg(side).knee).position_start()
+            self._lower[index] = max(self._lower[index], min_knee_bend)
 
     def _init_stall(self, stall_iterations, min_improvement):
         """Validated stagnation stop (``None``: off)."""
@@ -254,6 +253,11 @@ class WholeBodyIkSolver:
     def plant(self):
         """The MultibodyPlant this solver works on."""
         return self._plant
+
+    @property
+    def robot(self):
+        """The robot's :class:`~drake_estop.robots.RobotDescription`."""
+        return self._robot
 
     # -- kinematics ---------------------------------------------------------
 
@@ -457,7 +461,8 @@ class WholeBodyIK(LeafSystem):
       - ``com`` (3): COG target in world [m].
       - ``left_foot`` / ``right_foot`` (7): sole-frame pose in world as
         ``[x, y, z, qw, qx, qy, qz]`` (quaternion normalised internally).
-      - ``upper_body`` (18): joint targets in ``UPPER_BODY_JOINTS`` order.
+      - ``upper_body`` (one per upper-body joint of the robot, 18 for the
+        default): joint targets [rad] in ``robot.upper_body_joints`` order.
       - ``q`` (plant.num_positions()): full plant positions.
       - ``ik_com_error`` (1): COG error norm of the last solve [m].
       - ``ik_foot_error`` (1): worst sole position error of the last solve
@@ -481,19 +486,30 @@ class WholeBodyIK(LeafSystem):
         Initial positions (plant.num_positions()) [m, rad]; default the
         standing posture.
     solver : WholeBodyIkSolver, optional
-        A configured solver (default: one for ``plant``).
+        A configured solver (default: one for ``plant`` and ``robot``).
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every solve [s].
+    robot : RobotDescription or str, optional
+        The robot in ``plant`` (default: the solver's, else the ``default``
+        humanoid); see :class:`WholeBodyIkSolver`.
+
+    Raises
+    ------
+    ValueError
+        If ``robot`` is not the given solver's.
     """
 
     def __init__(self, *, plant, servo_period=0.005, initial_q=None,
-                 solver=None, timer=None):
+                 solver=None, timer=None, robot=None):
         super().__init__()
-        self._solver = solver or WholeBodyIkSolver(plant)
+        if solver is not None and robot is not None and as_robot(robot) != solver.robot:
+            raise ValueError(f"robot {as_robot(robot).name!r} is not the solver's ({solver.robot.name!r})")
+        self._solver = solver or WholeBodyIkSolver(plant, robot=robot)
+        self._robot = self._solver.robot
         self._plant = plant
         self._period = servo_period
         self._declare_indices(plant)
-        q0 = (nominal_standing_configuration(plant) if initial_q is None
+        q0 = (standing_seed(plant, self._robot, com_height=self._robot.walking_com_height) if initial_q is None
               else np.asarray(initial_q, dtype=float))
         self._q_state = self.DeclareDiscreteState(q0)
         self._diag_state = self.DeclareDiscreteState(3)
@@ -508,8 +524,8 @@ class WholeBodyIK(LeafSystem):
 
     def _declare_indices(self, plant):
         """Joint indices and velocity limits used by the limit check."""
-        self._joint_q = joint_position_indices(plant, ALL_JOINTS)
-        v_idx = joint_velocity_indices(plant, ALL_JOINTS)
+        self._joint_q = joint_position_indices(plant, self._robot.all_joints)
+        v_idx = joint_velocity_indices(plant, self._robot.all_joints)
         self._vel_limit = np.minimum(-plant.GetVelocityLowerLimits()[v_idx],
                                      plant.GetVelocityUpperLimits()[v_idx])
 
@@ -519,7 +535,7 @@ class WholeBodyIK(LeafSystem):
         self.left_foot_port = self.DeclareVectorInputPort("left_foot", 7)
         self.right_foot_port = self.DeclareVectorInputPort("right_foot", 7)
         self.upper_body_port = self.DeclareVectorInputPort(
-            "upper_body", len(UPPER_BODY_JOINTS))
+            "upper_body", len(self._robot.upper_body_joints))
         self.q_port = self.DeclareStateOutputPort("q", self._q_state)
         self.com_error_port = self._declare_diag_output("ik_com_error", 0)
         self.foot_error_port = self._declare_diag_output("ik_foot_error", 1)
@@ -566,7 +582,7 @@ class WholeBodyIK(LeafSystem):
         com, left, right, upper = inputs
         result = self._solver.solve(
             q_old, com, left, right, None,
-            dict(zip(UPPER_BODY_JOINTS, upper)),
+            dict(zip(self._robot.upper_body_joints, upper)),
             context=self._scratch_context(context))
         discrete_state.set_value(self._q_state, result.q)
         discrete_state.set_value(self._diag_state, [
@@ -589,31 +605,36 @@ def pose_vector(pose):
 _SHARED = {}
 
 
-def shared_ik():
-    """``(plant, solver, context)``: a kinematic-only humanoid plant, its :class:`WholeBodyIkSolver` and a
-    context, built once per process and shared (the IK of every diagram and of the offline reference)."""
-    if "plant" not in _SHARED:
+def shared_ik(robot=None):
+    """``(plant, solver, context)``: a kinematic-only plant of ``robot`` (default: the ``default``
+    humanoid; a name, a description file or a :class:`~drake_estop.robots.RobotDescription`), its
+    :class:`WholeBodyIkSolver` and a context, built once per process and robot and shared (the IK of every
+    diagram and of the offline reference)."""
+    description = as_robot(robot)
+    if description not in _SHARED:
         from pydrake.multibody.plant import MultibodyPlant
         plant = MultibodyPlant(0.0)
-        load_humanoid(plant)
+        add_robot(plant, description, contact=False)
         plant.Finalize()
-        _SHARED["plant"], _SHARED["solver"] = plant, WholeBodyIkSolver(plant)
-        _SHARED["context"] = plant.CreateDefaultContext()
-    return _SHARED["plant"], _SHARED["solver"], _SHARED["context"]
+        _SHARED[description] = plant, WholeBodyIkSolver(plant, robot=description), plant.CreateDefaultContext()
+    return _SHARED[description]
 
 
-def converged_posture(plant, com, left_foot, right_foot, upper_body: dict, *, solver=None, attempts: int = 20):
+def converged_posture(plant, com, left_foot, right_foot, upper_body: dict, *, solver=None, attempts: int = 20,
+                      robot=None):
     """The IK posture that reaches these targets from the standing posture, iterated until a solve
     starts converged (so the first servo tick does not jump).
 
     ``com`` [m] xyz; ``left_foot`` / ``right_foot`` sole poses ``[x, y, z, qw, qx, qy, qz]``;
-    ``upper_body`` joint name -> angle [rad]. Raises RuntimeError if the IK cannot reach them.
+    ``upper_body`` joint name -> angle [rad]; ``robot`` the robot in ``plant`` (default: the solver's,
+    else the ``default`` humanoid). Raises RuntimeError if the IK cannot reach them.
     """
-    solver = solver or WholeBodyIkSolver(plant, max_iterations=50)
-    q = nominal_standing_configuration(plant, float(com[2]))
+    solver = solver or WholeBodyIkSolver(plant, max_iterations=50, robot=robot)
+    q = standing_seed(plant, solver.robot, com_height=float(com[2]))
     for _ in range(attempts):
         result = solver.solve(q, com, left_foot, right_foot, None, upper_body)
         q = result.q
         if result.success and result.iterations <= 1:
             return q
-    raise RuntimeError(f"the IK cannot reach the initial posture (COG error {result.com_error:.2e} m)")
+    raise RuntimeError(f"the IK cannot reach the initial posture of robot {solver.robot.name!r} "
+                       f"(COG error {result.com_error:.2e} m)")

@@ -8,21 +8,26 @@
 * :class:`WalkingPatternSource` plays the nominal walking pattern
   (:class:`drake_estop.planning.gait.NominalPattern`) at the context time.
 
-Reference layout shared by the reference sources (all world frame, SI):
-``com`` (3) x, y, z of the COG; ``com_vel`` (3); ``zmp`` (2);
-``left_foot`` / ``right_foot`` (7) sole-frame pose ``[x, y, z, qw, qx, qy,
-qz]`` -- the sole frame lies directly below the ankle, so its xy is the ankle
-xy and its z is the ankle *lift* (the sole is on the floor at z = 0), which is
-what :class:`drake_estop.systems.ik.WholeBodyIK` expects; ``upper_body`` (18) joint
-targets in ``UPPER_BODY_JOINTS`` order (the IK's order: the pattern's
-``ARM_JOINTS`` written in, every other upper-body joint at 0); ``arm_joints``
-(4) the same arm angles in ``ARM_JOINTS`` order; ``phase`` (1) the index of
-the phase in ``PHASES``.
+Reference layout shared by the reference sources (all world frame, SI;
+:class:`ReferenceLayout`): ``com`` (3) x, y, z of the COG; ``com_vel`` (3);
+``zmp`` (2); ``left_foot`` / ``right_foot`` (7) sole-frame pose ``[x, y, z, qw,
+qx, qy, qz]`` -- the sole frame lies directly below the ankle, so its xy is the
+ankle xy and its z is the ankle *lift* (the sole is on the floor at z = 0),
+which is what :class:`drake_estop.systems.ik.WholeBodyIK` expects;
+``upper_body`` (one per upper-body joint of the robot, the IK's order) joint
+targets: the gait's swinging joints (``GaitParameters.arms``) written in, every
+other upper-body joint at its standing angle; ``arm_joints`` (one per swinging
+joint) the same arm angles in ``arms.joints`` order; ``phase`` (1) the index of
+the phase in ``PHASES``. The default robot's layout (18 upper-body joints, 4
+swinging) is :data:`DEFAULT_LAYOUT`; :data:`REFERENCE_LAYOUT`,
+:data:`REFERENCE_SLICES` and :data:`REFERENCE_SIZE` are its entries.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -33,27 +38,93 @@ from drake_estop.planning.gait import ARM_JOINTS, SIDES, NominalPattern
 from drake_estop.planning.plan import PHASES
 from drake_estop.timing import timed
 
-#: Sizes of the reference outputs, in the order they sit in the cached vector.
-REFERENCE_LAYOUT = (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7),
-                    ("right_foot", 7), ("upper_body", len(UPPER_BODY_JOINTS)),
-                    ("arm_joints", len(ARM_JOINTS)), ("phase", 1))
-#: name -> slice of the reference vector, in REFERENCE_LAYOUT order
-REFERENCE_SLICES = {}
-_start = 0
-for _name, _size in REFERENCE_LAYOUT:
-    REFERENCE_SLICES[_name] = slice(_start, _start + _size)
-    _start += _size
-REFERENCE_SIZE = _start
-_ARM_IN_UPPER = np.array([UPPER_BODY_JOINTS.index(name) for name in ARM_JOINTS])
+
+@dataclass(frozen=True)
+class ReferenceLayout:
+    """Where each entry sits in the reference vector of a robot (module docstring).
+
+    Attributes
+    ----------
+    upper_body : tuple of str
+        The robot's upper-body joints, in the IK's order.
+    standing : tuple of float
+        Their standing angles [rad] (the joints the gait does not swing hold them).
+    arms : tuple of str
+        The gait's swinging joints (``GaitParameters.arms.joints``), each one of ``upper_body``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``gait.arms.joints[i]`` for a swinging joint that is not an upper-body joint.
+    """
+
+    upper_body: tuple = UPPER_BODY_JOINTS
+    standing: tuple = (0.0,) * len(UPPER_BODY_JOINTS)
+    arms: tuple = ARM_JOINTS
+
+    def __post_init__(self):
+        if len(self.standing) != len(self.upper_body):
+            raise ValueError(f"standing: {len(self.standing)} angles for {len(self.upper_body)} upper-body joints")
+        for i, joint in enumerate(self.arms):
+            if joint not in self.upper_body:
+                raise ValueError(f"gait.arms.joints[{i}]: {joint!r} is not an upper-body joint of the robot "
+                                 f"({', '.join(self.upper_body) or 'none'})")
+
+    @classmethod
+    def of(cls, description, arms) -> ReferenceLayout:
+        """The layout of a robot description (:class:`drake_estop.robots.RobotDescription`) and the gait's
+        :class:`~drake_estop.planning.arms.ArmSwing`."""
+        return cls(description.upper_body_joints, description.standing_angles(), arms.joints)
+
+    @functools.cached_property
+    def entries(self) -> tuple:
+        """``(name, size)`` of every entry, in the order they sit in the vector."""
+        return (("com", 3), ("com_vel", 3), ("zmp", 2), ("left_foot", 7), ("right_foot", 7),
+                ("upper_body", len(self.upper_body)), ("arm_joints", len(self.arms)), ("phase", 1))
+
+    @functools.cached_property
+    def slices(self) -> dict:
+        """name -> slice of the vector."""
+        out, start = {}, 0
+        for name, size in self.entries:
+            out[name] = slice(start, start + size)
+            start += size
+        return out
+
+    @property
+    def size(self) -> int:
+        """Length of the vector."""
+        return self.slices["phase"].stop
+
+    @functools.cached_property
+    def _arm_index(self) -> np.ndarray:
+        return np.array([self.upper_body.index(name) for name in self.arms], dtype=int)
+
+    def upper_body_vector(self, arm_q) -> np.ndarray:
+        """The ``upper_body`` entry: ``arm_q`` (``arms`` order) written into the standing angles [rad]."""
+        out = np.array(self.standing, dtype=float)
+        out[self._arm_index] = arm_q
+        return out
+
+    def split(self, reference) -> dict:
+        """name -> entry of a reference vector (or of an (n, size) array of them, by column)."""
+        return {name: reference[..., sl] for name, sl in self.slices.items()}
+
+
+#: The default robot's layout (models/humanoid.urdf's upper body, ARM_JOINTS swinging).
+DEFAULT_LAYOUT = ReferenceLayout()
+#: Sizes of the default layout's entries, in the order they sit in the cached vector.
+REFERENCE_LAYOUT = DEFAULT_LAYOUT.entries
+#: name -> slice of the default layout's vector, in REFERENCE_LAYOUT order
+REFERENCE_SLICES = DEFAULT_LAYOUT.slices
+REFERENCE_SIZE = DEFAULT_LAYOUT.size
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # a level sole heading along x
 _WALKING = float(PHASES.index("walking"))
 
 
 def upper_body_vector(arm_q):
-    """18-vector in UPPER_BODY_JOINTS order with ``arm_q`` (ARM_JOINTS order)."""
-    out = np.zeros(len(UPPER_BODY_JOINTS))
-    out[_ARM_IN_UPPER] = arm_q
-    return out
+    """The default layout's upper-body vector (UPPER_BODY_JOINTS order) with ``arm_q`` (ARM_JOINTS order)."""
+    return DEFAULT_LAYOUT.upper_body_vector(arm_q)
 
 
 def sole_pose(ankle, yaw: float = 0.0):
@@ -64,8 +135,8 @@ def sole_pose(ankle, yaw: float = 0.0):
     return np.concatenate([np.asarray(ankle, float)[:3], [math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)]])
 
 
-def reference_vector(t, *, pattern, plan=None):
-    """All reference outputs at time ``t`` as one REFERENCE_SIZE vector.
+def reference_vector(t, *, pattern, plan=None, layout=DEFAULT_LAYOUT):
+    """All reference outputs at time ``t`` as one vector of ``layout`` (default: the default robot's).
 
     Before the plan starts (or without a plan) this is the nominal pattern;
     the plan's evaluation functions return the nominal pattern before its
@@ -86,7 +157,7 @@ def reference_vector(t, *, pattern, plan=None):
     arm_q = source.upper_body(t)[0]
     return np.concatenate([
         pos[0], [z[0]], vel[0], [zd[0]], zmp[0], sole_pose(feet["left"], yaw["left"]),
-        sole_pose(feet["right"], yaw["right"]), upper_body_vector(arm_q), arm_q, [phase]])
+        sole_pose(feet["right"], yaw["right"]), layout.upper_body_vector(arm_q), arm_q, [phase]])
 
 
 def blended_reference(reference, blend, t):
@@ -100,7 +171,8 @@ def blended_reference(reference, blend, t):
     ``dv`` and fades to zero, at rest, over ``duration``. The fifth entry
     ``dfeet`` (2 x 3, left then right; optional) does the same for the sole
     positions, which a plan on measured footholds moves (a 1-2 cm step of a
-    loaded foot's target kicked the robot off the floor).
+    loaded foot's target kicked the robot off the floor). The COG and the
+    soles sit where :data:`REFERENCE_SLICES` says in every robot's layout.
     """
     if blend is None:
         return reference
@@ -120,20 +192,45 @@ def blended_reference(reference, blend, t):
             out[REFERENCE_SLICES[f"{side}_foot"]][:3] += offset * h0
     return out
 
+
+def pattern_layout(pattern: NominalPattern, layout: ReferenceLayout | None = None) -> ReferenceLayout:
+    """``layout`` checked against the pattern's swinging joints; None: the default robot's upper body with
+    the pattern's swinging joints.
+
+    Raises
+    ------
+    ValueError
+        Naming ``gait.arms.joints`` when the layout's swinging joints are not the pattern's.
+    """
+    arms = pattern.params.arms.joints
+    if layout is None:
+        return ReferenceLayout(arms=arms)
+    if layout.arms != arms:
+        raise ValueError(f"gait.arms.joints {list(arms)} are not the swinging joints of the robot's reference "
+                         f"layout {list(layout.arms)}: build the gait for this robot")
+    return layout
+
+
 class ReferenceSystem(LeafSystem):
     """Base of the reference sources: a cached reference vector and one output port per entry."""
 
-    def _declare_reference_outputs(self, prerequisites, timer=None):
+    def _declare_reference_outputs(self, prerequisites, timer=None, layout=DEFAULT_LAYOUT):
         """Cache the reference per context and declare its output ports (``timer``: the cache's
-        computation timed as ``"<class>.reference"``)."""
+        computation timed as ``"<class>.reference"``; ``layout``: the robot's :class:`ReferenceLayout`)."""
+        self._layout = layout
         self._reference = self.DeclareCacheEntry(
             "reference",
-            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(REFERENCE_SIZE)),
+            ValueProducer(allocate=lambda: AbstractValue.Make(np.zeros(layout.size)),
                           calc=timed(self._calc_reference_value, timer, f"{type(self).__name__}.reference")),
             prerequisites)
-        for name, size in REFERENCE_LAYOUT:  # one output port per entry, looked up by name
-            self.DeclareVectorOutputPort(name, size, self._output_calc(REFERENCE_SLICES[name]),
+        for name, size in layout.entries:  # one output port per entry, looked up by name
+            self.DeclareVectorOutputPort(name, size, self._output_calc(layout.slices[name]),
                                          prerequisites_of_calc={self._reference.ticket()})
+
+    @property
+    def layout(self) -> ReferenceLayout:
+        """Where each entry sits in the reference vector."""
+        return self._layout
 
     def _calc_reference_value(self, context, value):
         value.set_value(self._calc_reference(context))
@@ -148,7 +245,7 @@ class ReferenceSystem(LeafSystem):
         raise NotImplementedError
 
     def reference(self, context):
-        """The whole cached reference vector (REFERENCE_LAYOUT order)."""
+        """The whole cached reference vector (:attr:`layout` order)."""
         return self._reference.Eval(context)
 
 
@@ -172,27 +269,31 @@ class WalkingPatternSource(ReferenceSystem):
     ----------
     pattern : NominalPattern
         The walk to play; its clock is the context time [s].
+    layout : ReferenceLayout, optional
+        The robot's reference layout (default: the default robot's upper body, the pattern's swinging
+        joints).
 
     Notes
     -----
     Output ports (world frame, SI units): ``com`` (3) COG position [m];
     ``com_vel`` (3) [m/s]; ``zmp`` (2) [m]; ``left_foot`` / ``right_foot``
     (7) sole pose ``[x, y, z, qw, qx, qy, qz]`` ([m], unit quaternion, z is
-    the foot's lift above the floor); ``upper_body`` (18) joint targets in
-    ``UPPER_BODY_JOINTS`` order [rad]; ``arm_joints`` (4) the arm angles in
-    ``ARM_JOINTS`` order [rad]; ``phase`` (1) always the index of "walking"
+    the foot's lift above the floor); ``upper_body`` (18 for the default
+    robot) joint targets in ``layout.upper_body`` order [rad];
+    ``arm_joints`` (4 for the default robot) the arm angles in
+    ``layout.arms`` order [rad]; ``phase`` (1) always the index of "walking"
     in ``PHASES``.
     """
 
-    def __init__(self, *, pattern: NominalPattern):
+    def __init__(self, *, pattern: NominalPattern, layout: ReferenceLayout | None = None):
         super().__init__()
         self._pattern = pattern
-        self._declare_reference_outputs({self.time_ticket()})
+        self._declare_reference_outputs({self.time_ticket()}, layout=pattern_layout(pattern, layout))
 
     @property
     def pattern(self):
         return self._pattern
 
     def _calc_reference(self, context):
-        return reference_vector(context.get_time(), pattern=self._pattern)
+        return reference_vector(context.get_time(), pattern=self._pattern, layout=self._layout)
 

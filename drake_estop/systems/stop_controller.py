@@ -40,9 +40,11 @@ from drake_estop.planning.replan import MAX_REPLAN_SOLVES, ReplanPending, check_
 from drake_estop.systems.plan_sequence import PlanHandle, PlanSequence, last_landing
 from drake_estop.systems.reference import (
     REFERENCE_SLICES,
+    ReferenceLayout,
     ReferenceSystem,
     WalkingPatternSource,  # noqa: F401  a public building block, importable from here too
     blended_reference,
+    pattern_layout,
     reference_vector,
 )
 from drake_estop.systems.stop_numerics import (
@@ -238,6 +240,9 @@ class StopPlannerSystem(ReferenceSystem):
         simulation), for comparison.
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
+    layout : drake_estop.systems.reference.ReferenceLayout, optional
+        The robot's reference layout (its upper-body joints and their standing angles; default: the
+        default robot's with the pattern's swinging joints).
 
     Notes
     -----
@@ -262,7 +267,8 @@ class StopPlannerSystem(ReferenceSystem):
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
                  relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
-                 max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True, timer=None):
+                 max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True, timer=None,
+                 layout: ReferenceLayout | None = None):
         super().__init__()
         for name, value in (("replan_threshold", replan_threshold), ("bias_time_constant", bias_time_constant),
                             ("filter_time_constant", filter_time_constant), ("blend_time", blend_time),
@@ -314,7 +320,8 @@ class StopPlannerSystem(ReferenceSystem):
         # walk, computed before the run; the array path gives the bits of the one-instant one)
         ticks = np.arange(int(math.ceil(pattern.end_time / params.servo_period)) + 1) * params.servo_period
         self._pattern_com = pattern.com(ticks)[:2]
-        self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer)
+        self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer,
+                                        pattern_layout(pattern, layout))
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
@@ -589,7 +596,8 @@ class StopPlannerSystem(ReferenceSystem):
     def _calc_reference(self, context):
         handle = self._handle(context)
         t = context.get_time()
-        return blended_reference(reference_vector(t, pattern=self._pattern, plan=handle.plan), handle.blend, t)
+        return blended_reference(reference_vector(t, pattern=self._pattern, plan=handle.plan, layout=self._layout),
+                                 handle.blend, t)
 
     def _blend_into(self, context, plan):
         """The blend from the command now in force into ``plan`` (None if it starts continuous)."""
@@ -613,6 +621,8 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
 
     Returns ``(trigger, planner)``; the trigger's ``stop_request`` input is
     left unconnected (export or connect it for an external stop source).
+    ``planner_options`` go to :class:`StopPlannerSystem` (e.g. ``layout``, the
+    robot's reference layout).
     The compiled solver is loaded here, at build time (one throw-away plan),
     so the stop's servo tick does not pay for it.
     """

@@ -60,7 +60,9 @@ _TRACE_Z = 0.002  # lines slightly above the floor
 #: one-step indicator: value of the ``one_step_feasible`` input -> (name, plate text, colour)
 ONE_STEP_INDICATOR = {True: ("one_step", "stop now: one step", "#2e7d32"),
                       False: ("next_step", "stop now: next step", "#cc7a00")}
-_INDICATOR_HEIGHT = 1.62  # [m] the sphere's height, over the head (HRP-2 class: 1.54 m tall)
+#: [m] the indicator sphere above the robot's head (drake_estop.robots.parameters.standing_height)
+INDICATOR_CLEARANCE = 0.08
+_INDICATOR_HEIGHT = 1.62  # [m] the sphere's default height, over the default humanoid's head (1.54 m tall)
 
 
 # --------------------------------------------------------------------------
@@ -277,6 +279,10 @@ class StopVisualizer(LeafSystem):
         that a fixed camera (:func:`set_follow_camera`) keeps the robot framed
         (recorded into replays); see :func:`follow_camera_paths`. Empty: no
         follow camera.
+    indicator_height : float, optional
+        Height of the one-step indicator's sphere above the floor [m]
+        (default 1.62: over the default humanoid's head); the follow camera
+        scales with it.
 
     Notes
     -----
@@ -286,8 +292,12 @@ class StopVisualizer(LeafSystem):
     ``one_step`` (green) or ``next_step`` (amber) visible, the other hidden.
     """
 
-    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=()):
+    def __init__(self, *, meshcat, pattern, publish_period=1.0 / 64.0, prefix=PREFIX, follow=(),
+                 indicator_height=_INDICATOR_HEIGHT):
         super().__init__()
+        if not (np.isfinite(indicator_height) and indicator_height > 0):
+            raise ValueError(f"indicator_height must be a positive height [m], got {indicator_height!r}")
+        self._indicator_height = float(indicator_height)
         self._meshcat = meshcat
         self._follow = tuple(follow)
         self._pattern = pattern
@@ -322,7 +332,7 @@ class StopVisualizer(LeafSystem):
             m.SetLine(f"{p}/nominal/feet/step{k}", _sole_loop(sole, step["end"], step["swing"], step["end_yaw"]),
                       1.5, _NOMINAL_FOOT_RGBA)
         if self._follow:
-            set_follow_camera(m, pattern)
+            set_follow_camera(m, pattern, scale=self._indicator_height / _INDICATOR_HEIGHT)
         m.SetObject(f"{p}/markers/cog", Sphere(0.03), _COG_RGBA)
         m.SetObject(f"{p}/markers/cog_floor", Cylinder(0.02, 0.004), _COG_RGBA)
         m.SetObject(f"{p}/markers/zmp", Sphere(0.02), _ZMP_RGBA)
@@ -378,7 +388,8 @@ class StopVisualizer(LeafSystem):
         m.SetTransform(f"{self._prefix}/phase", RigidTransform(plate), t)
         if self.one_step_feasible_port.HasValue(context):  # plate under the phase plate, sphere over the head
             m.SetTransform(f"{self._prefix}/one_step", RigidTransform([plate[0], plate[1], plate[2] - 0.17]), t)
-            sphere = RigidTransform([com[0] - plate[0], com[1] - plate[1], _INDICATOR_HEIGHT - plate[2] + 0.17])
+            sphere = RigidTransform([com[0] - plate[0], com[1] - plate[1],
+                                     self._indicator_height - plate[2] + 0.17])
             for name, _, _ in ONE_STEP_INDICATOR.values():
                 m.SetTransform(f"{self._prefix}/one_step/{name}/sphere", sphere, t)
         if self._follow:
@@ -435,10 +446,11 @@ def follow_camera_paths(robot_prefix="robot", prefix=PREFIX):
     return (f"/drake/{robot_prefix}", prefix, "/Grid")
 
 
-def set_follow_camera(meshcat, pattern):
-    """Frame the robot at its start, from the front right and slightly above."""
+def set_follow_camera(meshcat, pattern, *, scale=1.0):
+    """Frame the robot at its start, from the front right and slightly above; ``scale`` (dimensionless):
+    the robot's height over the default humanoid's (the camera's distance and heights scale with it)."""
     x0 = float(pattern.com([0.0])[0][0, 0])
-    meshcat.SetCameraPose(np.array([x0 + 0.6, -1.3, 1.05]), np.array([x0, 0.0, 0.74]))
+    meshcat.SetCameraPose(np.array([x0 + 0.6 * scale, -1.3 * scale, 1.05 * scale]), np.array([x0, 0.0, 0.74 * scale]))
 
 
 def add_floor(meshcat, length=4.0, prefix=PREFIX, *, width=1.5, center_y=0.0):

@@ -1,0 +1,75 @@
+"""Each robot's stop over a stride, through the kinematic Drake diagram (trigger, planner, whole-body IK).
+
+    python benchmarks/bench_robots.py [--robots default g1 talos] [--every 1] [--json out.json]
+
+Imports the installed ``drake_estop`` (the G1 and TALOS need ``pip install -e '.[robots]'``).
+For every ``--every``-th servo tick of the robot's stride (single then double support of its third
+step), runs one stop through one diagram (:func:`drake_estop.systems.stride.sweep_stride`) and
+prints a table: signals, one-step share, the IK's worst COG and sole errors, ticks over the IK's
+bounds (1 mm, 1 mm, 0.01 rad), joint-ticks over a speed limit, time to rest (median, worst), the
+signals that do not stop in one step, and the robot's gait and limits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parameters
+from drake_estop.systems.stride import rows_as_dicts, stride_summary, sweep_stride
+
+HEADER = ("| robot | signals | one-step | IK COG max [mm] | IK sole max [mm] | ticks over IK bounds | "
+          "joint-speed violations | time to rest median / worst [s] | run [s] |")
+
+
+def run_robot(name: str, every: int) -> dict:
+    """The sweep of robot ``name``: its summary, rows, gait, stop limits and wall time [s]."""
+    description = as_robot(name)
+    start = time.perf_counter()
+    rows = sweep_stride(robot=description, every=every)
+    gait, stop = gait_parameters(description), stop_parameters(description)
+    return {"robot": name, "summary": stride_summary(rows), "rows": rows_as_dicts(rows),
+            "gait": {"com_height": gait.com_height, "step_length": gait.step_length, "step_width": gait.step_width,
+                     "step_time": gait.step_time, "lift_height": gait.lift_height},
+            "stop": {"max_fore_reach": stop.max_fore_reach, "max_rear_reach": stop.max_rear_reach,
+                     "crouch_depth": stop.crouch_depth}, "wall_time": time.perf_counter() - start}
+
+
+def table(results: list) -> str:
+    """A markdown table of the results of :func:`run_robot`, then each robot's signals that take two steps."""
+    lines = [HEADER, "| --- " * (HEADER.count("|") - 1) + "|"]
+    for result in results:
+        s = result["summary"]
+        lines.append(f"| {result['robot']} | {s['signals']} | {s['one_step']} ({100 * s['one_step_share']:.0f} %) | "
+                     f"{s['ik_com_error_max_m'] * 1e3:.3f} | {s['ik_foot_error_max_m'] * 1e3:.3f} | "
+                     f"{s['ik_ticks_over_bounds']} | {s['velocity_limit_violations']} | "
+                     f"{s['time_to_rest_median_s']:.3f} / {s['time_to_rest_max_s']:.3f} | {result['wall_time']:.0f} |")
+    for result in results:
+        others = [row for row in result["rows"] if row["case"] != "one-step"]
+        gait, stop = result["gait"], result["stop"]
+        lines.append(f"\n{result['robot']}: gait {gait}, stop {stop}; not one-step: "
+                     + (", ".join(f"{row['signal_time']:.3f} s ({row['support']}, {row['case']})" for row in others)
+                        or "none"))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=["default", "g1", "talos"], help="robot names or files")
+    parser.add_argument("--every", type=int, default=1, help="signal spacing in servo ticks (default %(default)s)")
+    parser.add_argument("--json", help="write the summaries and every row here")
+    args = parser.parse_args(argv)
+    if args.every < 1:
+        parser.error("--every must be >= 1")
+    results = [run_robot(name, args.every) for name in args.robots]
+    print(table(results))
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump(results, handle, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
