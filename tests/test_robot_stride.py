@@ -1,23 +1,14 @@
 """A stop at every 4th servo tick of a stride, each through the kinematic diagram, for the G1 and TALOS
 (``drake_estop.systems.stride``; ``benchmarks/bench_robots.py`` runs every tick)."""
 
-import importlib.metadata
-import importlib.util
 import warnings
 
 import numpy as np
 import pytest
+from robot_helpers import needs_robots
 
 from drake_estop.systems.diagram import build_diagram, simulate_diagram
 from drake_estop.systems.stride import StrideStop, run_signal, stride_summary, sweep_stride
-
-try:
-    importlib.metadata.distribution("example-robot-data")
-    HAVE_ROBOTS = importlib.util.find_spec("trimesh") is not None
-except importlib.metadata.PackageNotFoundError:
-    HAVE_ROBOTS = False
-needs_robots = pytest.mark.skipif(not HAVE_ROBOTS,
-                                  reason="the robots extra is not installed (pip install -e '.[robots]')")
 
 
 def test_a_requested_stop_runs_as_a_scheduled_one():

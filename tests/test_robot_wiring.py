@@ -4,8 +4,6 @@ scenario and the command line (``--robot``); the default robot exactly as before
 
 import csv
 import dataclasses
-import importlib.metadata
-import importlib.util
 import json
 import warnings
 
@@ -15,6 +13,7 @@ import yaml
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
+from robot_helpers import needs_robots
 
 from drake_estop import AddEmergencyStop
 from drake_estop.cli import main
@@ -36,13 +35,6 @@ from drake_estop.systems.diagram import robot_layout, simulate_diagram
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.reference import DEFAULT_LAYOUT, REFERENCE_SIZE, ReferenceLayout
 
-try:
-    importlib.metadata.distribution("example-robot-data")
-    HAVE_ROBOTS = importlib.util.find_spec("trimesh") is not None
-except importlib.metadata.PackageNotFoundError:
-    HAVE_ROBOTS = False
-needs_robots = pytest.mark.skipif(not HAVE_ROBOTS,
-                                  reason="the robots extra is not installed (pip install -e '.[robots]')")
 EXTERNAL = [pytest.param(name, marks=needs_robots) for name in ("g1", "talos")]
 #: a late single-support tick of each robot's third step: 0.09 s before its touchdown, as the paper's 3.4 s
 LATE_SINGLE_SUPPORT = {"default": 3.4, "g1": 3.37, "talos": 3.565}
