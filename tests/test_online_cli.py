@@ -34,13 +34,14 @@ def test_perturbations_need_physics(capsys):
 
 
 def _online_run_keywords(monkeypatch, args):
-    """The keyword arguments `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
+    """The keyword arguments `simulate --physics ARGS` passes to run_online, and its stop parameters under
+    ``"stop_params"`` (the run itself is cut short)."""
     import drake_estop.physics.online as online
 
     seen = {}
 
     def fake_run_online(gait, stop, estop_time, **kwargs):
-        seen.update(kwargs)
+        seen.update(kwargs, stop_params=stop)
         raise RuntimeError("stop here")
 
     monkeypatch.setattr(online, "run_online", fake_run_online)
@@ -50,17 +51,7 @@ def _online_run_keywords(monkeypatch, args):
 
 def _online_run_stop_parameters(monkeypatch, args):
     """The stop parameters `simulate --physics ARGS` passes to run_online (the run itself is cut short)."""
-    import drake_estop.physics.online as online
-
-    seen = []
-
-    def fake_run_online(gait, stop, estop_time, **kwargs):
-        seen.append(stop)
-        raise RuntimeError("stop here")
-
-    monkeypatch.setattr(online, "run_online", fake_run_online)
-    assert main(["simulate", "--physics", *args]) == 2
-    return seen[0]
+    return _online_run_keywords(monkeypatch, args)["stop_params"]
 
 
 def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):

@@ -397,6 +397,15 @@ _URDF = """<robot name="tiny">
 </robot>"""
 
 
+def _parsed_inspector(urdf_text):
+    """The geometry inspector of a plant that parsed ``urdf_text`` offline."""
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
+    model.offline_parser(plant).AddModelsFromString(urdf_text, "urdf")
+    plant.Finalize()
+    return scene_graph.model_inspector()
+
+
 def _tiny_urdf(tmp_path, visual):
     path = tmp_path / "tiny.urdf"
     path.write_text(_URDF.format(visual=visual))
@@ -411,11 +420,7 @@ def test_an_stl_visual_becomes_a_cached_obj_drake_parses(tmp_path):
     prepared = prepare_urdf(_tiny_urdf(tmp_path, "part.stl"), packages=None, visuals=True)
     assert "<collision" not in prepared.text and "<mimic" not in prepared.text
     assert prepared.fallbacks == []
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-    model.offline_parser(plant).AddModelsFromString(prepared.text, "urdf")
-    plant.Finalize()
-    inspector = scene_graph.model_inspector()
+    inspector = _parsed_inspector(prepared.text)
     (visual,) = inspector.GetAllGeometryIds(Role.kIllustration)
     obj = inspector.GetShape(visual).source().path()
     assert obj.suffix == ".obj" and obj.parent == cache_dir() / "meshes"
@@ -430,11 +435,7 @@ def test_a_mesh_that_cannot_be_converted_falls_back_to_the_collision_shape(tmp_p
         prepared = prepare_urdf(_tiny_urdf(tmp_path, "broken.dae"), packages=None, visuals=True)
     assert prepared.fallbacks == ["broken.dae"]
     assert "broken.dae" in caplog.text
-    builder = DiagramBuilder()
-    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-    model.offline_parser(plant).AddModelsFromString(prepared.text, "urdf")
-    plant.Finalize()
-    inspector = scene_graph.model_inspector()
+    inspector = _parsed_inspector(prepared.text)
     (visual,) = inspector.GetAllGeometryIds(Role.kIllustration)
     assert type(inspector.GetShape(visual)).__name__ == "Box"
     assert inspector.GetAllGeometryIds(Role.kProximity) == []

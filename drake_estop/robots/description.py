@@ -36,6 +36,12 @@ def _check_positive(name: str, value) -> None:
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
 
 
+def _check_finite(name: str, value) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is a finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+
+
 def _check_name(name: str, value) -> None:
     """Raise ``ValueError`` naming ``name`` unless ``value`` is a non-empty string."""
     if not isinstance(value, str) or not value.strip():
@@ -189,8 +195,7 @@ class JointAngle:
 
     def __post_init__(self):
         _check_name("joint", self.joint)
-        if isinstance(self.angle, bool) or not isinstance(self.angle, (int, float)) or not math.isfinite(self.angle):
-            raise ValueError(f"angle must be a finite number, got {self.angle!r}")
+        _check_finite("angle", self.angle)
 
 
 @dataclass(frozen=True)
@@ -214,9 +219,7 @@ class SwingJoint:
     def __post_init__(self):
         _check_name("joint", self.joint)
         for name in ("neutral", "gain"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
+            _check_finite(name, getattr(self, name))
 
 
 @dataclass(frozen=True)
