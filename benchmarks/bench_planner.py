@@ -31,6 +31,7 @@ from reference import reference_solve
 from scipy.optimize import linprog
 
 from drake_estop.planning.assembly import stop_problem
+from drake_estop.planning.brake import rest_points
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop, warm_up
 from drake_estop.planning.rollout import stride_ticks
@@ -57,8 +58,9 @@ MAX_ZMP_RATE = 3.0  # [m/s] the ZMP's speed limit of the LIPM bound
 
 
 def lipm_rest_bound(com, com_vel, zmp, midpoint, polygon_at, w, dt, margin, max_zmp_rate=MAX_ZMP_RATE,
-                    monotone=False, max_ticks=600):
-    """The least time [s] in which the LIPM can come to rest at ``midpoint``: a time-optimal LP over the ZMP.
+                    monotone=False, max_ticks=600, rest_to=None):
+    """The least time [s] in which the LIPM can come to rest at ``midpoint``, or anywhere on the segment
+    from ``midpoint`` to ``rest_to``: a time-optimal LP over the ZMP.
 
     The ZMP ``p_k`` is held over each servo tick ``[k dt, (k + 1) dt)`` (zero-order hold) and the COG
     follows x'' = w^2 (x - p) (eq. 4) exactly over it; per axis, with the divergent and convergent
@@ -74,6 +76,8 @@ def lipm_rest_bound(com, com_vel, zmp, midpoint, polygon_at, w, dt, margin, max_
     ----------
     com, com_vel, zmp, midpoint : array_like, (2,)
         The COG position [m] and velocity [m/s] and the ZMP [m] at the start; the rest point [m].
+    rest_to : array_like, (2,), optional
+        With it, the rest point is free on the segment from ``midpoint`` to it (one more LP variable).
     polygon_at : callable
         ``polygon_at(k)``: the support polygon (:class:`~drake_estop.planning.geometry.SupportPolygon`)
         over tick ``k``.
@@ -102,9 +106,11 @@ def lipm_rest_bound(com, com_vel, zmp, midpoint, polygon_at, w, dt, margin, max_
             polygons[k] = polygon_at(k)
         return polygons[k]
 
+    span = np.zeros(2) if rest_to is None else np.asarray(rest_to, float)[:2] - midpoint
+
     def feasible(ticks):
         return _rest_lp(com, com_vel, zmp, midpoint, [polygon(k) for k in range(ticks)], w, dt, margin,
-                        max_zmp_rate, monotone)
+                        max_zmp_rate, monotone, span)
 
     low, high = 0, 8
     while not feasible(high):
@@ -117,10 +123,11 @@ def lipm_rest_bound(com, com_vel, zmp, midpoint, polygon_at, w, dt, margin, max_
     return high * dt
 
 
-def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate, monotone):
-    """Whether a ZMP sequence over ``len(polygons)`` ticks brings the LIPM to rest at ``midpoint``
-    (:func:`lipm_rest_bound`'s LP; variables: ``p_x`` then ``p_y`` per tick)."""
+def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate, monotone, span):
+    """Whether a ZMP sequence over ``len(polygons)`` ticks brings the LIPM to rest at ``midpoint + s span``
+    for some ``s`` in [0, 1] (:func:`lipm_rest_bound`'s LP; variables: ``p_x`` then ``p_y`` per tick, then ``s``)."""
     n = len(polygons)
+    size = 2 * n + 1
     a = w * dt
     xi0, zeta0 = com + com_vel / w, com - com_vel / w
     ticks = np.arange(n)
@@ -129,10 +136,11 @@ def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate,
     zeta_row = (1.0 - math.exp(-a)) * np.exp(-(n - 1 - ticks) * a)  # zeta_N = e^-Na zeta0 + sum zeta_row p
     equality, rhs = [], []
     for axis in range(2):
-        for row, value in ((xi_row, midpoint[axis] * math.exp(-n * a) - xi0[axis]),
-                           (zeta_row, midpoint[axis] - math.exp(-n * a) * zeta0[axis])):
-            full = np.zeros(2 * n)
+        for row, value, rest_gain in ((xi_row, midpoint[axis] * math.exp(-n * a) - xi0[axis], math.exp(-n * a)),
+                                      (zeta_row, midpoint[axis] - math.exp(-n * a) * zeta0[axis], 1.0)):
+            full = np.zeros(size)
             full[axis * n:(axis + 1) * n] = row
+            full[2 * n] = -rest_gain * span[axis]
             equality.append(full)
             rhs.append(value)
     # the support polygons: n . p_k <= offset - margin
@@ -157,6 +165,9 @@ def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate,
                     values.append(sign)
                 else:
                     known += sign * midpoint[axis]
+                    rows.append(count)
+                    cols.append(2 * n)
+                    values.append(sign * span[axis])
                 if k > 0:
                     rows.append(count)
                     cols.append(axis * n + k - 1)
@@ -165,7 +176,7 @@ def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate,
                     known -= sign * zmp[axis]
                 bounds.append(step - known)
                 count += 1
-    upper = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(count, 2 * n))
+    upper = scipy.sparse.csr_matrix((values, (rows, cols)), shape=(count, size))
     bounds = np.array(bounds)
     if monotone:  # v_k = w (xi_k - zeta_k) / 2 >= 0 along x, k = 1..n
         k = ticks[:, None] + 1
@@ -173,25 +184,29 @@ def _rest_lp(com, com_vel, zmp, midpoint, polygons, w, dt, margin, max_zmp_rate,
         before = j < k
         xi_gain = np.where(before, (1.0 - math.exp(a)) * np.exp((k - 1 - j) * a), 0.0)
         zeta_gain = np.where(before, (1.0 - math.exp(-a)) * np.exp(-(k - 1 - j) * a), 0.0)
-        speed = np.zeros((n, 2 * n))
+        speed = np.zeros((n, size))
         speed[:, :n] = -(xi_gain - zeta_gain)
         upper = scipy.sparse.vstack([upper, scipy.sparse.csr_matrix(speed)]).tocsr()
         bounds = np.concatenate([bounds, np.exp(k[:, 0] * a) * xi0[0] - np.exp(-k[:, 0] * a) * zeta0[0]])
-    result = linprog(np.zeros(2 * n), A_ub=upper, b_ub=bounds, A_eq=np.array(equality), b_eq=np.array(rhs),
-                     bounds=(None, None), method="highs")
+    result = linprog(np.zeros(size), A_ub=upper, b_ub=bounds, A_eq=np.array(equality), b_eq=np.array(rhs),
+                     bounds=[(None, None)] * (2 * n) + [(0.0, 1.0)], method="highs")
     return result.status == 0
 
 
-def plan_rest_bound(plan, monotone=False):
+def plan_rest_bound(plan, monotone=False, free_rest=True):
     """:func:`lipm_rest_bound` from ``plan``'s start state on its own footholds (the support sole until
     its landing time, then both soles at its landing position: ``plan.polygon`` at each tick's middle),
     with its ``zmp_margin``; from the signal [s] (the plan starts at the signal or, finishing the nominal
-    step, at its touchdown)."""
+    step, at its touchdown). The rest anywhere the time objective may rest it (``free_rest``: on the
+    segment from the feet's midpoint toward the fore ankle, within the rear leg's reach,
+    :func:`~drake_estop.planning.brake.rest_points`), else at the midpoint."""
     state, dt = plan.start_state, plan.params.servo_period
     midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
+    rear, fore = sorted(plan.final_feet.values(), key=lambda xy: float(xy[0]))
+    rest_to = rest_points(rear, fore, plan.params.max_rear_reach)[-1] if free_rest else None
     bound = lipm_rest_bound(state.com, state.com_vel, state.zmp, midpoint,
                             lambda k: plan.polygon(plan.start_time + (k + 0.5) * dt), plan.pattern.w, dt,
-                            plan.params.zmp_margin, monotone=monotone)
+                            plan.params.zmp_margin, monotone=monotone, rest_to=rest_to)
     return plan.start_time - plan.signal_time + bound
 
 

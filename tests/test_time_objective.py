@@ -1,5 +1,5 @@
-"""StopParameters(objective="time"): the soonest rest at the feet's midpoint (planning/brake.py), every tick
-of the stride; its parameter, option and scenario field; re-plans from a pushed state."""
+"""StopParameters(objective="time"): the soonest rest between the feet (planning/brake.py), every tick of
+the stride; its parameter, option and scenario field; re-plans from a pushed state."""
 
 import json
 import math
@@ -21,6 +21,23 @@ TIME = StopParameters(objective="time")
 @pytest.fixture(scope="module")
 def time_plans(pattern, stride_times):
     return [plan_stop(pattern, t, TIME) for t in stride_times]
+
+
+def _rest_on_the_feet_segment(plan, rest, tol=1e-9):
+    """The rest point is where the time objective may rest the COG (brake.rest_points): on the segment
+    from the final feet's midpoint to the ankle ahead, within the rear leg's reach. Returns the fraction."""
+    feet = plan.final_feet
+    heading = np.array([math.cos(plan.heading), math.sin(plan.heading)])
+    rear, fore = sorted((feet["left"], feet["right"]), key=lambda xy: float(heading @ xy))
+    midpoint = 0.5 * (rear + fore)
+    half = fore - midpoint
+    offset = rest - midpoint
+    fraction = float(offset @ half / (half @ half)) if half @ half > 1e-18 else 0.0
+    np.testing.assert_allclose(offset, fraction * half, atol=tol, err_msg=str(plan.signal_time))
+    assert -tol <= fraction <= 1.0 + tol, (plan.signal_time, fraction)
+    if fraction > tol:  # beyond the midpoint only within the rear leg's reach
+        assert heading @ (rest - rear) <= plan.params.max_rear_reach + 1e-9, plan.signal_time
+    return fraction
 
 
 def _ticks(plan, start, end):
@@ -47,15 +64,19 @@ def test_one_step_wherever_the_paper_objective_is(time_plans, stride_plans):
     assert sum(plan.case == "one-step" for plan in time_plans) >= 0.85 * len(time_plans)
 
 
-def test_cog_at_rest_at_the_final_feet_midpoint_at_halt_end(time_plans):
+def test_cog_at_rest_between_the_feet_at_halt_end(time_plans):
+    """The COG rests on the segment from the feet's midpoint to the fore ankle (within the rear leg's
+    reach), the ZMP under it; at the midpoint itself wherever the stop reaches it without passing it."""
+    fractions = []
     for plan in time_plans:
-        midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
         pos, vel, _, zmp = plan.com([plan.halt_end, plan.halt_end + 2.0])
-        np.testing.assert_allclose(pos, [midpoint, midpoint], atol=1e-9, err_msg=str(plan.signal_time))  # eq. 27
+        np.testing.assert_allclose(pos[1], pos[0], atol=1e-9, err_msg=str(plan.signal_time))  # eq. 27
         np.testing.assert_allclose(vel, 0.0, atol=1e-9, err_msg=str(plan.signal_time))  # eq. 28
-        np.testing.assert_allclose(zmp, [midpoint, midpoint], atol=1e-9, err_msg=str(plan.signal_time))
+        np.testing.assert_allclose(zmp, pos, atol=1e-9, err_msg=str(plan.signal_time))
+        fractions.append(_rest_on_the_feet_segment(plan, pos[0]))
         # still moving just before: halt_end is when the COG comes to rest, not an arbitrary later time
         assert np.linalg.norm(plan.com([plan.halt_end - 0.05])[1]) > 1e-3, plan.signal_time
+    assert sum(f < 1e-9 for f in fractions) >= len(fractions) // 2, fractions  # most at the midpoint
 
 
 def test_lipm_residual_at_every_tick(time_plans, pattern):
@@ -121,14 +142,13 @@ def test_phase_times_ordered_on_ticks_and_the_limits_kept(time_plans):
 
 def test_turning_walk_keeps_the_margin_in_the_turned_soles():
     """The geometry goes through the support polygons of the turned soles: a turning walk's stops keep
-    the margin tick by tick and rest at the midpoint."""
+    the margin tick by tick and rest between the feet."""
     pattern = NominalPattern(GaitParameters(turn=15.0))
     for t in stride_ticks(pattern, TIME)[::10]:
         plan = plan_stop(pattern, float(t), TIME)
         for tick, zmp in zip(times := _ticks(plan, plan.start_time, plan.halt_end), plan.com(times)[3]):
             assert plan.polygon(tick).margin(zmp)[0] >= TIME.zmp_margin - 1e-9, (t, tick)
-        midpoint = 0.5 * (plan.final_feet["left"] + plan.final_feet["right"])
-        np.testing.assert_allclose(plan.com([plan.halt_end])[0][0], midpoint, atol=1e-9)
+        _rest_on_the_feet_segment(plan, plan.com([plan.halt_end])[0][0])
 
 
 @pytest.mark.parametrize("value", ["fast", "Time", None])
@@ -180,9 +200,8 @@ def _check_replan(plan, new, t, com, vel):
     pos, _, _, zmp = new.com(times)
     assert np.all(np.isfinite(pos)) and np.all(np.isfinite(zmp))
     assert min(float(new.polygon(s).margin(z)[0]) for s, z in zip(times, zmp)) >= TIME.zmp_margin - 1e-9
-    midpoint = 0.5 * (new.final_feet["left"] + new.final_feet["right"])
     end, rest, _, _ = new.com([new.halt_end + 1.0])
-    np.testing.assert_allclose(end[0], midpoint, atol=1e-9)
+    _rest_on_the_feet_segment(new, end[0])
     np.testing.assert_allclose(rest[0], 0.0, atol=1e-9)
 
 
@@ -191,7 +210,7 @@ def test_replan_from_a_pushed_state_is_valid_or_infeasible(pattern, signal):
     """Re-plans (online controller, after a push) of time-objective plans, in the swing (the ZMP
     moving on the support sole, then held) and after the landing: a plan continuous with the old
     one's ZMP (or, the ankle strategy, stepped to a point of the support sole and held there), from the
-    measured COG, inside the polygon, at rest at the midpoint; or InfeasibleStop. Never a NaN."""
+    measured COG, inside the polygon, at rest between the feet; or InfeasibleStop. Never a NaN."""
     plan = plan_stop(pattern, signal, TIME)
     outcomes = {"plan": 0, "infeasible": 0}
     for fraction in (0.05, 0.3, 0.6, 0.9):
@@ -238,15 +257,13 @@ def _backward_speed(plan):
     return max(0.0, float(-vel[:, 0].min()))
 
 
-def test_the_cog_never_backs_up_in_the_swing_where_the_step_is_replanned(time_plans):
-    """A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests on the midpoint (orbital
-    energy): coming back from past the midpoint is lost time. Over the single-support one-step ticks up
-    to 3.39 s (from 3.395 s on the swing foot lands too soon for a forward stop in the chains searched;
-    in double support the COG is already at or past the midpoint) no backward speed above 5 mm/s."""
-    swing = [plan for plan in time_plans if plan.case == "one-step" and plan.support == "single"
-             and plan.signal_time < 3.3925]
-    assert len(swing) >= 100
-    backward = {round(plan.signal_time, 3): _backward_speed(plan) for plan in swing}
+def test_the_cog_never_backs_up(time_plans):
+    """A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests (orbital energy): coming
+    back is lost time. At every tick of the stride, single and double support, no backward speed above
+    5 mm/s: where the COG cannot stop on the midpoint without passing it (late in the swing, in double
+    support at 0.4-0.55 m/s) it rests further on, between the feet."""
+    backward = {round(plan.signal_time, 3): _backward_speed(plan) for plan in time_plans}
+    assert len(backward) == 160
     assert max(backward.values()) <= 5e-3, {t: b for t, b in backward.items() if b > 5e-3}
 
 
@@ -307,3 +324,60 @@ def test_lipm_rest_bound_matches_the_bang_bang_stop(monotone):
                                   lambda k: _wide_polygon(front_limit + margin), w, dt, margin, max_zmp_rate=1e6,
                                   monotone=monotone)
     assert bound == pytest.approx(rest_time)
+
+
+def test_forward_stop_possible_counts_the_zmp_transition_to_the_front():
+    """The ZMP gets to the front P by a transition of at least ``ramp`` (eq. 12-14), braking less on the
+    way: a speed that the held ZMP would stop in time is too fast once the transition comes first, and
+    ``ramp = 0`` is the orbital-energy condition alone."""
+    from drake_estop.planning.brake import forward_stop_possible
+    from drake_estop.planning.geometry import SupportPolygon
+
+    w, front, rest = 3.5, 0.3, np.array([0.1, 0.0])
+    polygon = SupportPolygon([[-0.2, -0.1], [front, -0.1], [front, 0.1], [-0.2, 0.1]])
+    speed = 0.95 * w * math.sqrt(front**2 - (front - rest[0]) ** 2)
+    assert forward_stop_possible([0.0, 0.0], [speed, 0.0], rest, polygon, w, [0.0, 0.0], 0.0)
+    assert not forward_stop_possible([0.0, 0.0], [speed, 0.0], rest, polygon, w, [0.0, 0.0], 0.1)
+    slow = 0.5 * speed
+    assert forward_stop_possible([0.0, 0.0], [slow, 0.0], rest, polygon, w, [0.0, 0.0], 0.1)
+    # the required margin moves the front back
+    assert not forward_stop_possible([0.0, 0.0], [speed, 0.0], rest, polygon, w, required=0.05)
+
+
+def test_rest_points_run_from_the_midpoint_to_the_fore_ankle_within_the_rear_reach():
+    from drake_estop.planning.brake import REST_FRACTIONS, rest_points
+
+    rear, fore = np.array([0.0, 0.1]), np.array([0.3, -0.1])
+    points = rest_points(rear, fore, 0.26)
+    np.testing.assert_allclose(points[0], [0.15, 0.0])  # the midpoint first
+    np.testing.assert_allclose(points[-1, 0], 0.26)  # the rear leg's reach ends the segment
+    assert len(points) == sum(f * 0.15 + 0.15 < 0.26 for f in REST_FRACTIONS) + 1
+    for point in points:  # on the segment between the ankles
+        fraction = (point[0] - 0.15) / 0.15
+        np.testing.assert_allclose(point, [0.15, 0.0] + fraction * np.array([0.15, -0.1]), atol=1e-12)
+    assert np.all(np.diff(points[:, 0]) > 0)
+    np.testing.assert_allclose(rest_points(rear, fore, 1.0)[-1], fore)  # reach to spare: up to the fore ankle
+    np.testing.assert_allclose(rest_points(fore, rear, 1.0), [[0.15, 0.0]])  # "fore" behind: the midpoint alone
+    np.testing.assert_allclose(rest_points(rear, fore, 0.1), [[0.15, 0.0]])  # the midpoint out of reach already
+
+
+def test_lipm_rest_bound_with_a_free_rest_point_is_never_later():
+    """Resting anywhere on a segment from the midpoint (one more LP variable) is at least as soon as
+    resting on the midpoint, and sooner for a COG that would have to pass the midpoint and come back;
+    at rest on the segment it is zero."""
+    from scripts import load_script
+
+    bench = load_script("benchmarks/bench_planner.py")
+    w, dt, margin = 3.47, 0.005, 0.01
+    midpoint, rest_to = np.array([0.0, 0.0]), np.array([0.1, 0.0])
+    polygon = lambda k: _wide_polygon(0.3)  # noqa: E731
+    state = ([0.0, 0.0], [0.4, 0.0], [0.0, 0.0])  # at the midpoint, moving on at 0.4 m/s
+    fixed = bench.lipm_rest_bound(*state, midpoint, polygon, w, dt, margin)
+    free = bench.lipm_rest_bound(*state, midpoint, polygon, w, dt, margin, rest_to=rest_to)
+    assert free < fixed - 0.02, (free, fixed)
+    assert math.isinf(bench.lipm_rest_bound(*state, midpoint, polygon, w, dt, margin, monotone=True))
+    assert math.isfinite(bench.lipm_rest_bound(*state, midpoint, polygon, w, dt, margin, monotone=True,
+                                               rest_to=rest_to))
+    on = np.array([0.05, 0.0])
+    assert bench.lipm_rest_bound(on, [0.0, 0.0], on, midpoint, polygon, w, dt, margin, rest_to=rest_to) == \
+        pytest.approx(dt, abs=dt)

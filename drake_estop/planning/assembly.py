@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from drake_estop.planning import lipm
-from drake_estop.planning.brake import held_brake, moving_zmp, stop_brake, swing_brake
+from drake_estop.planning.brake import held_brake, moving_zmp, rest_points, stop_brake, swing_brake
 from drake_estop.planning.capture import capture_landing_y
 from drake_estop.planning.gait import NominalPattern, PatternState
 from drake_estop.planning.geometry import SupportPolygon
@@ -373,8 +373,10 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
         yaw = {side: float(state.feet_yaw[side]) for side in ("left", "right")}
         polygon = soles_polygon(sole, tuple((s, float(feet[s][0]), float(feet[s][1]), yaw[s]) for s in feet))
         required = min(params.zmp_margin, float(polygon.margin(zmp)[0]))  # or the walk's own margin at the start
+        rear, fore = sorted(feet.values(), key=lambda xy: float(xy[0]))
+        rests = rest_points(rear, fore, params.max_rear_reach)
         found = stop_brake(state.com, state.com_vel, zmp, state.zmp_rate, state.zmp_accel,
-                           [0.5 * (feet["left"] + feet["right"])], [polygon], params, w, required)
+                           rests, [polygon] * len(rests), params, w, required)
         return None if found is None else _brake_plan(pattern, state, params, signal_time, case, t_solve,
                                                       found[1], feet, yaw, None, polygon, required)
     support = state.support_foot
@@ -424,9 +426,8 @@ def _brake_plan(pattern, state, params, signal_time, case, t_solve, brake, final
     w = pattern.w
     t0 = state.time
     solve_time = time.perf_counter() - t_solve
-    midpoint = 0.5 * (final_feet["left"] + final_feet["right"])
     x_traj, y_traj = (
-        lipm.LipmTrajectory.from_zmp(t0, brake.durations + [1.0], brake.coeffs[a] + [lipm.pad([midpoint[a]])],
+        lipm.LipmTrajectory.from_zmp(t0, brake.durations + [1.0], brake.coeffs[a] + [lipm.pad([brake.rest[a]])],
                                      state.com[a], state.com_vel[a], w, rest_tail=True)  # at rest: eq. 27-28
         for a in (0, 1))
     landing, transition, slowdown, halt = (t0 + e for e in brake.ends)

@@ -1,15 +1,16 @@
-"""The time objective: the shortest ZMP profile that brings the COG to rest at the feet's midpoint.
+"""The time objective: the shortest ZMP profile that brings the COG to rest between the feet.
 
 The paper's objectives (J_ss, eq. 24; J_ds, eq. 30) weigh the swing speed, the ZMP
 overshoot and the double-support time; they stop the COG behind the fore foot (slowdown,
 eq. 17) and then move it back to the midpoint between the feet (halt, eq. 27-28). With
 ``StopParameters(objective="time")`` the planner takes instead the stop that reaches rest
-at the midpoint soonest, within the same limits (swing speed and descent, fore and rear
-reach, step length, landing time, transition durations, ``zmp_margin``):
+soonest, within the same limits (swing speed and descent, fore and rear reach, step length,
+landing time, transition durations, ``zmp_margin``), resting the COG at the feet's midpoint
+or further on toward the fore ankle (:func:`rest_points`), never back against the walk:
 
 * the ZMP is a chain of quintic transitions between levels (eq. 1, 12-14: value, rate and
   acceleration continuous, zero rate and acceleration where two transitions meet), each
-  at least ``min_transition_time`` long, ending at the midpoint ``m`` with the COG at rest
+  at least ``min_transition_time`` long, ending at a rest point ``m`` with the COG at rest
   there (eq. 27-28, Harada's two-point boundary-value method, as the halt);
 * two levels of the chain are unknowns; the two end conditions of each axis fix them (a
   2x2 linear solve per axis). With the divergent and convergent components
@@ -18,15 +19,16 @@ reach, step length, landing time, transition durations, ``zmp_margin``):
 
       w int_0^T exp(-w s) q(s) ds = xi(0) - m,    w int_0^T exp(-w (T - s)) q(s) ds = -(zeta(0) - m) exp(-w T);
 
-* every other choice (durations on the servo grid, the landing time and step length) is
-  enumerated in numpy at once, and the shortest candidate whose ZMP keeps the margin inside
-  the support polygon is taken; first among those along which the COG never moves backwards
-  along the walk. A time-optimal LIPM stop holds the ZMP ahead of the COG until it rests on the
-  midpoint (orbital energy, :func:`forward_stop_possible`): a chain that carries the COG past
-  the midpoint and back loses time. The COG's velocity of the shortest candidates is checked
-  at the servo ticks (eq. 6-9), at most ``FORWARD_CHECKS`` of them, and only where such a stop
-  is possible at all; else (in double support the COG is at or past the midpoint) the
-  shortest. Transitions between levels run on straight segments when
+* every other choice (durations on the servo grid, the landing time and step length, the rest
+  point) is enumerated in numpy at once, and the shortest candidate whose ZMP keeps the margin
+  inside the support polygon is taken; first among those along which the COG never moves
+  backwards along the walk. A time-optimal LIPM stop holds the ZMP ahead of the COG until it
+  rests (orbital energy, :func:`forward_stop_possible`): a chain that carries the COG past its
+  rest point and back loses time. From double support and late in a swing the COG (0.4-0.55
+  m/s) cannot stop on the midpoint without passing it, so the rest points further on are what
+  keeps those stops monotone. The COG's velocity of the shortest candidates is checked at the
+  servo ticks (eq. 6-9), at most ``FORWARD_CHECKS`` of them, and only where such a stop is
+  possible at all; else the shortest. Transitions between levels run on straight segments when
   they start at rest, so in a convex polygon a level chain is inside iff its levels are;
   only a first transition that carries the walk's ZMP rate and acceleration (double
   support) curves, and it is checked at every servo tick.
@@ -38,7 +40,7 @@ The chains:
       ZMP --r1--> c (held h) --r2--> d --r3--> m
 
   ``c`` brakes the COG (the time-optimal LIPM stop holds the ZMP at the polygon's edge
-  ahead of the COG), ``d`` catches it over the midpoint;
+  ahead of the COG), ``d`` catches it over the rest point ``m``;
 
 * :func:`swing_brake`, single support: the landing time and step length are searched too
   (earliest touchdown the swing-speed and descent limits allow, for each step length on a
@@ -82,7 +84,7 @@ ONE, SIGMA, RATE, ACCEL = range(4)
 # durations of the transitions, in multiples of min_transition_time (the ones the stride's stops use)
 RAMP_FACTORS = (1.0, 1.5)  # the first transition (to c)
 CATCH_FACTORS = (1.0, 1.5, 2.0, 3.0)  # stop_brake: c to d
-RETURN_FACTORS = (1.0, 1.5)  # the last transition (to the midpoint)
+RETURN_FACTORS = (1.0, 1.5)  # the last transition (to the rest point)
 # the ZMP's transition on the support sole (swing_brake), in multiples of min_transition_time: the
 # double-support transition's floor would hold the braking ZMP back until after the touchdown, which
 # from late in the swing leaves no stop without backing up (at most 0.125 m on the sole: <= 4.7 m/s)
@@ -90,6 +92,9 @@ SOLE_RAMP_FACTOR = 0.5
 STOP_HOLD_MAX = 0.6  # [s] longest hold of c in stop_brake (the servo grid up to it)
 SWING_HOLD_MAX = 0.25  # [s] longest hold of c in swing_brake
 STEP_GRID = 0.02  # [m] step lengths searched by swing_brake
+# where the COG may come to rest: on the segment from the feet's midpoint to the fore ankle, at these
+# fractions of it (the segment is inside the support polygon: both ankles are inside their soles)
+REST_FRACTIONS = (0.0, 0.25, 0.5, 0.75, 1.0)
 SWING_FIRST = 0.05  # [s] swing_brake searches the step lengths whose touchdown is this close to the earliest first
 
 
@@ -101,7 +106,8 @@ class Brake:
     segments; ``ends`` [s]: the ends of the landing, transition, slowdown and halt phases from
     the plan start; ``landing_x`` [m]: the landing ankle's x (single support) or None;
     ``margin`` [m]: the smallest ZMP margin of the chain inside its polygons; ``peak`` [m]: the
-    largest x of its ZMP (:func:`stop_brake`, at the servo ticks; NaN where not computed)."""
+    largest x of its ZMP (:func:`stop_brake`, at the servo ticks; NaN where not computed); ``rest``
+    (2,) [m]: where the COG comes to rest (:func:`rest_points`)."""
 
     durations: list
     coeffs: list
@@ -109,6 +115,7 @@ class Brake:
     landing_x: float | None
     margin: float
     peak: float = math.nan
+    rest: np.ndarray | None = None
 
     @property
     def duration(self) -> float:
@@ -209,39 +216,41 @@ CHUNK = 1024  # candidates evaluated at once, shortest first
 LAZY = 64  # swing_brake: candidates whose polygon margin is evaluated at once, soonest first
 
 
-def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w: float,
+def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, rests, polygons, params, w: float,
                required: float) -> tuple | None:
     """The shortest chain ``ZMP -> c (held) -> d -> m`` from the COG state ``com, com_vel`` and the ZMP
     ``zmp`` (rate ``zmp_rate``, acceleration ``zmp_accel``), all (2,) [m, m/s, m/s^2], that ends at rest
-    at one of ``midpoints`` (k, 2) with its ZMP ``required`` [m] inside the matching one of
+    at one of the rest points ``rests`` (k, 2) with its ZMP ``required`` [m] inside the matching one of
     ``polygons``: the shortest along which the COG never moves backwards (:func:`_backs_up`) where the
     LIPM can stop that way (:func:`forward_stop_possible`, and one of the first ``FORWARD_CHECKS``
-    candidates), else the shortest. Returns ``(index of the midpoint, Brake)``, among equally short ones
+    candidates), else the shortest. Returns ``(index of the rest point, Brake)``, among equally short ones
     the one with the larger margin, or None."""
-    midpoints = np.atleast_2d(np.asarray(midpoints, float))
-    rows = len(midpoints)
+    rests = np.atleast_2d(np.asarray(rests, float))
+    rows = len(rests)
     com, com_vel = (np.broadcast_to(np.asarray(v, float)[:2], (rows, 2)) for v in (com, com_vel))
-    forward = np.array([forward_stop_possible(com[i], com_vel[i], midpoints[i], polygons[i], w) for i in range(rows)])
+    ramp = _ticks(params, RAMP_FACTORS)[0]  # the quickest first transition
+    forward = np.array([forward_stop_possible(com[i], com_vel[i], rests[i], polygons[i], w, zmp, ramp, zmp_rate,
+                                              zmp_accel, required) for i in range(rows)])
     levels = {}  # each chunk's levels and margins: the same for both passes
     if forward.any():
         try:
-            found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required,
+            found = _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, rests, polygons, params, w, required,
                                  _ForwardOnly(forward), levels)
         except _Spent:
             found = None
         if found is not None:
             return found
-    return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, None,
+    return _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, rests, polygons, params, w, required, None,
                         levels)
 
 
-def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, params, w, required, forward_only,
+def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, rests, polygons, params, w, required, forward_only,
                  levels):
     """:func:`stop_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only over its rows and
     the candidates along which the COG does not move backwards (:class:`_Spent` when its checks run out). ``levels``:
     a dict that keeps each chunk's levels ``c``, ``d`` and margins for a second pass (they do not depend on
     ``forward_only``)."""
-    rows = len(midpoints)
+    rows = len(rests)
     zmp = np.asarray(zmp, float)[:2]
     rate, accel = np.asarray(zmp_rate, float)[:2], np.asarray(zmp_accel, float)[:2]
     t = _stop_table(float(w), float(params.servo_period), _ticks(params, RAMP_FACTORS), _ticks(params, CATCH_FACTORS),
@@ -256,7 +265,7 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
             break
         k = slice(low, low + CHUNK)
         if low not in levels:
-            levels[low] = _stop_levels(t, k, com, com_vel, zmp, rate, accel, midpoints, polygons, planes,
+            levels[low] = _stop_levels(t, k, com, com_vel, zmp, rate, accel, rests, polygons, planes,
                                        start_margin, w, required)
         c, d, margin = levels[low]
         if forward_only is not None:
@@ -267,7 +276,7 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
             if best is not None and total[i, j] >= best[0] - 1e-9:
                 break
             durations = [float(t[key][low + j]) for key in ("r1", "h", "r2", "r3")]
-            chain = [zmp, c[i, j], c[i, j], d[i, j], midpoints[i]]
+            chain = [zmp, c[i, j], c[i, j], d[i, j], rests[i]]
             coeffs = [[_ramp(chain[n][a], chain[n + 1][a], durations[n],  # eq. 12-14
                              rate[a] if n == 0 else 0.0, accel[a] if n == 0 else 0.0)
                        for n in range(4)] for a in range(2)]
@@ -281,20 +290,20 @@ def _stop_search(com, com_vel, zmp, zmp_rate, zmp_accel, midpoints, polygons, pa
             if worst >= required:
                 r1, h, r2, r3 = durations
                 best = (float(total[i, j]), i, Brake(durations, coeffs, (0.0, r1, r1 + h + r2, r1 + h + r2 + r3),
-                                                     None, worst, float(peak)))
+                                                     None, worst, float(peak), rests[i].copy()))
                 break
     return None if best is None else best[1:]
 
 
-def _stop_levels(t, k, com, com_vel, zmp, rate, accel, midpoints, polygons, planes, start_margin, w, required):
+def _stop_levels(t, k, com, com_vel, zmp, rate, accel, rests, polygons, planes, start_margin, w, required):
     """:func:`_stop_search`'s chunk ``k`` of candidates: the levels ``c``, ``d`` (rows, candidates, 2) that bring
-    the COG to rest at each midpoint (two end conditions per axis, a 2x2 solve), and the ZMP margin of each
+    the COG to rest at each rest point (two end conditions per axis, a 2x2 solve), and the ZMP margin of each
     chain: ``c``'s and the start's, and ``d``'s where ``c`` keeps ``required``."""
     (fc, fd, fk), (bc, bd, bk) = ((c[k], d[k], known[:, k]) for c, d, known in (t["fwd"], t["bwd"]))
     levels = []
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for axis in range(2):
-            m = midpoints[:, axis][:, None]  # rows: midpoints, columns: candidates
+            m = rests[:, axis][:, None]  # rows: rests, columns: candidates
             start = (zmp[axis] - m, rate[axis], accel[axis])
             rhs_f = (com[:, axis] + com_vel[:, axis] / w)[:, None] - m - sum(s * c for s, c in zip(start, fk))
             rhs_b = (-((com[:, axis] - com_vel[:, axis] / w)[:, None] - m) * t["decay"][k]
@@ -317,7 +326,7 @@ FORWARD_CHECKS = 12
 
 
 class _ForwardOnly:
-    """The forward-only pass of a brake search: the rows (midpoints) it covers and its check budget."""
+    """The forward-only pass of a brake search: the rows (rests) it covers and its check budget."""
 
     def __init__(self, rows=None):
         self.rows = rows
@@ -331,35 +340,53 @@ class _ForwardOnly:
         return _backs_up(coeffs, durations, x0, v0, w, dt)
 
 
-def forward_stop_possible(com, com_vel, midpoint, polygon, w: float) -> bool:
-    """Whether the LIPM (eq. 4) could come to rest at ``midpoint`` without moving backwards along x:
-    moving forward (or at rest) from behind it, and stopped short of it by the ZMP held at the front of
-    ``polygon`` (the strongest braking). With the ZMP held at ``P`` the orbital energy
-    ``v^2 - w^2 (x - P)^2`` is constant, so the COG comes to rest at ``P - sqrt((P - x)^2 - v^2 / w^2)``;
-    a ZMP anywhere behind ``P`` brakes less (eq. 6-9: the COG's response to the ZMP is monotone). A
-    necessary condition only (the ZMP's transitions and the landing come on top)."""
-    x, v, m = float(com[0]), float(com_vel[0]), float(midpoint[0])
-    front = float(np.max(polygon.vertices[:, 0]))
-    return v >= 0.0 and x <= m + 1e-9 and (front - x) ** 2 - (v / w) ** 2 >= (front - m) ** 2 - 1e-12
+def forward_stop_possible(com, com_vel, rest, polygon, w: float, zmp=None, ramp: float = 0.0,
+                          zmp_rate=(0.0, 0.0), zmp_accel=(0.0, 0.0), required: float = 0.0) -> bool:
+    """Whether the LIPM (eq. 4) could come to rest at ``rest`` without moving
+    backwards along x: moving forward (or at rest) from behind it, and stopped short of it by the ZMP
+    held at the front of ``polygon``, ``required`` [m] inside (the strongest braking). With the ZMP
+    held at ``P`` the orbital energy ``v^2 - w^2 (x - P)^2`` is constant, so the COG comes to rest at
+    ``P - sqrt((P - x)^2 - v^2 / w^2)``; a ZMP anywhere behind ``P`` brakes less (eq. 6-9: the COG's
+    response to the ZMP is monotone). With ``zmp`` [m] (and its ``zmp_rate``, ``zmp_accel``) the ZMP
+    first gets there by the quickest transition, ``ramp`` [s] (eq. 12-14): any chain's first transition
+    is slower or goes less far. A necessary condition only (the later transitions and the landing come
+    on top)."""
+    x, v, m = float(com[0]), float(com_vel[0]), float(rest[0])
+    front = float(np.max(polygon.vertices[:, 0])) - required
+    if v < 0.0 or x > m + 1e-9:
+        return False
+    if zmp is not None and ramp > 0.0:
+        coeffs = _ramp(float(zmp[0]), front, ramp, float(zmp_rate[0]), float(zmp_accel[0]))
+        x, v, lowest = _segment_end(coeffs, ramp, x, v, w, ramp / 8.0)
+        if lowest <= 0.0:  # at rest during the transition already
+            return x <= m + 1e-9
+    return x <= m + 1e-9 and (front - x) ** 2 - (v / w) ** 2 >= (front - m) ** 2 - 1e-12
+
+
+def _segment_end(coeffs, duration, x, v, w, dt):
+    """The COG (along one axis, from ``x`` [m], ``v`` [m/s]) under one ZMP segment ``coeffs`` (eq. 1) of
+    ``duration`` [s] (eq. 6-9: the particular polynomial plus its cosh and sinh parts): its position and
+    velocity at the end, and its least velocity at the ticks ``dt`` apart."""
+    poly = lipm.cog_particular_coeffs(coeffs, w)
+    cosh_part, sinh_part = x - poly[0], (v - poly[1]) / w
+    tau = dt * np.arange(1, int(round(duration / dt)) + 1)
+    wt = w * tau
+    speed = (np.polynomial.polynomial.polyval(tau, poly[1:] * _POWERS[1:len(poly)])
+             + w * (cosh_part * np.sinh(wt) + sinh_part * np.cosh(wt)))
+    end = float(np.polynomial.polynomial.polyval(tau[-1], poly) + cosh_part * math.cosh(wt[-1])
+                + sinh_part * math.sinh(wt[-1]))
+    return end, float(speed[-1]), float(speed.min())
 
 
 def _backs_up(coeffs, durations, x0, v0, w, dt) -> bool:
     """Whether the COG (along x, from ``x0`` [m], ``v0`` [m/s]) under the ZMP chain ``coeffs`` (one
     axis's segments, eq. 1) of ``durations`` [s] moves backwards faster than ``BACKWARD_TOLERANCE`` at
-    a servo tick (eq. 6-9 per segment: the particular polynomial plus its cosh and sinh parts)."""
+    a servo tick (eq. 6-9 per segment, :func:`_segment_end`)."""
     x, v = float(x0), float(v0)
     for c, duration in zip(coeffs, durations):
-        poly = lipm.cog_particular_coeffs(c, w)
-        cosh_part, sinh_part = x - poly[0], (v - poly[1]) / w
-        tau = dt * np.arange(1, int(round(duration / dt)) + 1)
-        wt = w * tau
-        speed = (np.polynomial.polynomial.polyval(tau, poly[1:] * _POWERS[1:len(poly)])
-                 + w * (cosh_part * np.sinh(wt) + sinh_part * np.cosh(wt)))
-        if speed.min() < -BACKWARD_TOLERANCE:
+        x, v, lowest = _segment_end(c, duration, x, v, w, dt)
+        if lowest < -BACKWARD_TOLERANCE:
             return True
-        x = float(np.polynomial.polynomial.polyval(tau[-1], poly) + cosh_part * math.cosh(wt[-1])
-                  + sinh_part * math.sinh(wt[-1]))
-        v = float(speed[-1])
     return False
 
 
@@ -377,11 +404,40 @@ def _segment_points(coeffs, j, duration, dt):
     return (tau[:, None] ** _POWERS) @ np.stack([coeffs[0][j], coeffs[1][j]], axis=1)
 
 
+def rest_points(rear, fore, max_rear_reach: float) -> np.ndarray:
+    """Where the COG may come to rest between two feet, ``rear`` and ``fore`` (2,) their ankles [m]
+    (``fore`` ahead along the walk): on the segment from their midpoint to the fore ankle, at
+    ``REST_FRACTIONS`` of it and at the rear leg's reach, ``max_rear_reach`` ahead of the rear ankle,
+    if that comes first; the midpoint first, and alone where ``fore`` is not ahead or the midpoint
+    is already out of the rear leg's reach. (k, 2).
+
+    A time-optimal stop does not come back: from double support, and late in a swing, the COG
+    moving at 0.4-0.55 m/s cannot stop on the midpoint without passing it (its capture point
+    ``x + v / w`` is 0.1-0.18 m past it), so the objective rests it further on, between the feet."""
+    rear, fore = (np.asarray(v, float)[:2] for v in (rear, fore))
+    fractions, keep = _rest_fractions(np.array([fore[0] - rear[0]]), max_rear_reach)
+    return 0.5 * (rear + fore) + np.outer(fractions[0][keep[0]], 0.5 * (fore - rear))
+
+
+def _rest_fractions(spans, max_rear_reach):
+    """:func:`rest_points`'s fractions of the half segments for feet ``spans`` (n,) [m] apart along the walk:
+    ``(fractions (n, k), keep (n, k))``, the midpoint (0) first."""
+    spans = np.asarray(spans, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.where(spans > 1e-9, (max_rear_reach - 0.5 * spans) / (0.5 * spans), 0.0)
+    grid = np.broadcast_to(np.array(REST_FRACTIONS), (len(spans), len(REST_FRACTIONS)))
+    fractions = np.concatenate([grid, reach[:, None]], axis=1)
+    keep = np.concatenate([grid < reach[:, None] - 1e-9, ((reach > 0.0) & (reach < 1.0))[:, None]], axis=1)
+    keep[:, 0] = True  # the midpoint
+    return fractions, keep
+
+
 def _landings(ankle, swing_xy, landing_y, min_landing, params):
-    """Step lengths on the grid within the step-length and rear-reach limits (the COG rests at the
-    midpoint, half a step ahead of the support ``ankle``), their landing ankles and the earliest
-    touchdown on the servo grid each allows (``min_landing_time``, ``min_landing``, the mean swing
-    speed from ``swing_xy``), at most ``max_landing_time``."""
+    """Landing choices: step lengths on the grid within the step-length and rear-reach limits (the COG
+    rests at least at the midpoint, half a step ahead of the support ``ankle``), each with the rest
+    points :func:`rest_points` allows, their landing ankles, the earliest touchdown on the servo grid
+    each allows (``min_landing_time``, ``min_landing``, the mean swing speed from ``swing_xy``), at
+    most ``max_landing_time``: ``(landing (n, 2), t1 (n,), rest (n, 2))``, a row per landing and rest."""
     dt = params.servo_period
     steps = np.arange(params.min_step_length, params.max_step_length + 1e-9, STEP_GRID)
     steps = steps[0.5 * steps <= params.max_rear_reach]
@@ -389,26 +445,31 @@ def _landings(ankle, swing_xy, landing_y, min_landing, params):
     swing = np.hypot(*(landing - swing_xy).T) / params.max_swing_speed
     t1 = np.ceil(np.maximum(swing, max(params.min_landing_time, min_landing)) / dt - 1e-9) * dt
     keep = t1 <= params.max_landing_time + 1e-9
-    return steps[keep], landing[keep], t1[keep]
+    steps, landing, t1 = steps[keep], landing[keep], t1[keep]
+    fractions, kept = _rest_fractions(steps, params.max_rear_reach)
+    row, column = np.nonzero(kept)
+    half = 0.5 * (landing - ankle)
+    return landing[row], t1[row], ankle + half[row] * (1.0 + fractions[row, column])[:, None]
 
 
 def held_brake(com, com_vel, zmp, ankle, landing, touchdown, polygon, params, w: float,
                required: float) -> Brake | None:
     """Single support with a given landing (the paper's: ``landing`` (2,) the landing ankle [m] at
     ``touchdown`` [s] from the start): the ZMP held where it is, ``zmp``, until the touchdown
-    (eq. 19), then :func:`stop_brake` to rest at the midpoint between the support ``ankle`` and the
-    landing with the ZMP ``required`` [m] inside ``polygon`` (both soles'). ``com, com_vel`` (2,):
-    the COG at the start. None if no candidate fits."""
+    (eq. 19), then :func:`stop_brake` to rest between the support ``ankle`` and the landing
+    (:func:`rest_points`) with the ZMP ``required`` [m] inside ``polygon`` (both soles'). ``com, com_vel``
+    (2,): the COG at the start. None if no candidate fits."""
     com, com_vel, zmp, ankle, landing = (np.asarray(v, float)[:2] for v in (com, com_vel, zmp, ankle, landing))
     ch, sh = math.cosh(w * touchdown), math.sinh(w * touchdown)  # the COG at the touchdown (eq. 6, 9)
+    rests = rest_points(ankle, landing, params.max_rear_reach)
     found = stop_brake(zmp + (com - zmp) * ch + com_vel / w * sh, (com - zmp) * w * sh + com_vel * ch, zmp,
-                       np.zeros(2), np.zeros(2), [0.5 * (landing + ankle)], [polygon], params, w, required)
+                       np.zeros(2), np.zeros(2), rests, [polygon] * len(rests), params, w, required)
     if found is None:
         return None
     brake = found[1]
     coeffs = [[lipm.pad([zmp[a]])] + brake.coeffs[a] for a in range(2)]
     return Brake([float(touchdown)] + brake.durations, coeffs, tuple(touchdown + e for e in brake.ends),
-                 float(landing[0]), brake.margin)
+                 float(landing[0]), brake.margin, rest=brake.rest)
 
 
 @functools.lru_cache(maxsize=16)
@@ -444,7 +505,7 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     ``support_polygon``: the support sole's; ``polygon_for(landing_xy)``: both soles' with the swing
     foot landed there. Limits: ``min/max_step_length`` (from the support ankle),
     ``min/max_landing_time``, ``max_swing_speed``, ``max_fore_reach`` (landing ankle ahead of the COG
-    at touchdown), ``max_rear_reach`` (the COG at rest at the midpoint ahead of the support ankle),
+    at touchdown), ``max_rear_reach`` (the COG at rest at most this far ahead of the support ankle),
     ``min_transition_time`` (every transition after the touchdown). Returns None where no candidate keeps
     ``required`` [m]."""
     args = (com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
@@ -467,8 +528,8 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
         com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy))
     dt = params.servo_period
     ramp = _ticks(params, (SOLE_RAMP_FACTOR,))[0]  # the ZMP's transition on the support sole
-    steps, landing, t1 = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params)
-    if not len(steps):
+    landing, t1, rests = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params)
+    if not len(t1):
         return None
     t = _swing_table(float(w), float(dt), _ticks(params, RAMP_FACTORS), _ticks(params, RETURN_FACTORS[:1]),
                      float(params.min_slowdown_time), float(min(params.max_slowdown_time, SWING_HOLD_MAX)))
@@ -485,7 +546,7 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
     def candidates(rows):
         """The levels ``a``, ``c`` of every candidate of the step lengths ``rows``, and those that keep
         ``required`` on the support sole and the fore reach, soonest first."""
-        land, xy, mid = t1[rows], landing[rows], 0.5 * (landing[rows] + ankle)
+        land, xy, mid = t1[rows], landing[rows], rests[rows]
         # before the touchdown: the transition to a over `ramp`, a held for `hold` (moments of its shapes)
         hold = land - ramp
         grow, decay_hold, decay_t1 = np.exp(w * land), np.exp(-w * hold), np.exp(-w * land)
@@ -496,7 +557,7 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
         a11 = pre_a_fwd[:, None] + decay_t1[:, None] * fa[None, :]
         a12 = decay_t1[:, None] * fc[None, :]
         a21 = decay * pre_a_bwd[:, None] + ba[None, :]
-        # both axes at once: (axis, step length, candidate), relative to the midpoint
+        # both axes at once: (axis, step length, candidate), relative to the rest point
         m = mid.T[:, :, None]
         q0 = zmp[:, None, None] - m
         rhs_f = (com + com_vel / w - carried_fwd)[:, None, None] - m - q0 * (ramp_fwd[ONE] - ramp_fwd[SIGMA])
@@ -522,8 +583,16 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
         order = np.argsort(total, kind="stable")
         return land, xy, mid, hold, a, c, margin, i[order], k[order], total[order]
 
+    polygons = {}  # both soles' polygon by landing x: the rows of one step length share it
+
+    def polygon_of(landing_xy):
+        key = float(landing_xy[0])
+        if key not in polygons:
+            polygons[key] = polygon_for(landing_xy)
+        return polygons[key]
+
     def search(rows):
-        """The soonest candidate of the step lengths ``rows`` (a Brake) or None."""
+        """The soonest candidate of the landing rows ``rows`` (a Brake) or None."""
         key = rows.tobytes()
         if key not in levels:
             levels[key] = candidates(rows)
@@ -535,7 +604,7 @@ def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landi
                 break
             n = slice(low, low + LAZY)
             rows_n, index = np.unique(i[n], return_inverse=True)
-            normals, offsets = stack_halfplanes([polygon_for(xy[r]) for r in rows_n])
+            normals, offsets = stack_halfplanes([polygon_of(xy[r]) for r in rows_n])
             inside = np.min(offsets[index] - np.einsum("dn,ned->ne", c[:, i[n], k[n]], normals[index]), axis=1)
             both = np.minimum(margin[i[n], k[n]], inside)
             fits = np.nonzero(both >= required)[0]
@@ -584,4 +653,4 @@ def _swing_chain(t, ramp, i, k, land, hold, xy, mid, zmp, rate, accel, a, c, mar
     coeffs = _ramps(chain, np.array(durations), rate, accel)
     touchdown = float(land[i])
     return Brake(durations, coeffs, (touchdown, touchdown + r1, touchdown + r1 + h, touchdown + r1 + h + r3),
-                 float(xy[i, 0]), margin)
+                 float(xy[i, 0]), margin, rest=mid[i].copy())
