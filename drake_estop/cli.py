@@ -302,7 +302,7 @@ def _simulate(args) -> int:
     print(f"stop signal {plan.signal_time:.3f} s in {plan.support} support -> {plan.case}; "
           f"landing {times['landing_end']:.3f}, transition {times['transition_end']:.3f}, "
           f"slowdown {times['slowdown_end']:.3f}, halt {times['halt_end']:.3f} s; "
-          f"plan {plan.compute_time * 1e3:.2f} ms, {plan.newton_iterations} Newton iterations")
+          f"plan {plan.compute_time * 1e3:.2f} ms{_plan_time_note(args, summary)}, {plan.newton_iterations} Newton iterations")
     if "ik" in summary:
         ik = summary["ik"]
         print(f"whole-body IK: COG error max {ik['ik_com_err_max_m'] * 1e3:.3f} mm, foot error max "
@@ -407,8 +407,19 @@ def _run_diagram(args, gait, stop, estop_time):
         "ik": result.error_summary(),
         "realtime_factor": result.realtime_factor,
         "plan_wall_time_in_diagram_s": result.plan_wall_time,
+        "plan_compute_time_s": result.plan.compute_time,
     }
     return result.plan, result.columns(), summary
+
+
+def _plan_time_note(args, summary) -> str:
+    """Where the plan time was measured: a single cold plan (``--kinematic``), the diagram's plan made on
+    the walking tick before the latch and the latch's own time; in physics the controller's work per tick
+    is reported below."""
+    if args.kinematic:
+        return " (one plan, cold)"
+    latch = summary.get("plan_wall_time_in_diagram_s")
+    return "" if latch is None else f" (made while walking; the latch {latch * 1e3:.2f} ms)"
 
 
 def _add_sweep(sub, scenario: Scenario):

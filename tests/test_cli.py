@@ -358,3 +358,13 @@ def test_meshcat_port_and_button_only_reach_the_diagram(monkeypatch, capsys):
     assert seen["port"] is None and seen["estop_time"] == 3.2
     assert main(["simulate", "--meshcat", "--meshcat-host", "*", "--estop-time", "3.2"]) == 0
     assert seen["host"] == "*"
+
+
+@pytest.mark.parametrize("options, note", [(["--kinematic"], "(one plan, cold)"),
+                                           ([], "(made while walking; the latch ")])
+def test_simulate_says_where_its_plan_time_was_measured(options, note, capsys):
+    """A single plan right after the warm-up is cold; the diagram's stop is planned on the signal's walking
+    tick and the latch a tick later only takes it."""
+    assert main(["simulate", *options]) == 0
+    line = next(text for text in capsys.readouterr().out.splitlines() if text.startswith("stop signal"))
+    assert note in line, line

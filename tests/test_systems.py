@@ -143,8 +143,8 @@ def test_trigger_with_real_meshcat_adds_button():
 # -- StopPlannerSystem -------------------------------------------------------
 
 
-def _planner_context(pattern, params, t, stop):
-    planner = StopPlannerSystem(pattern=pattern, params=params)
+def _planner_context(pattern, params, t, stop, **options):
+    planner = StopPlannerSystem(pattern=pattern, params=params, **options)
     simulator = Simulator(planner)
     context = simulator.get_mutable_context()
     context.SetTime(t)
@@ -177,6 +177,44 @@ def test_planner_stores_plan_in_context_once(pattern, params):
     assert planner.plan(context) is plan
     # the plan lives in the Context: a fresh context has none
     assert planner.plan(planner.CreateDefaultContext()) is None
+
+
+def _same_bits(plan, other):
+    times = np.linspace(plan.start_time, plan.halt_end + 0.5, 97)
+    return plan.halt_end == other.halt_end and all(
+        np.array_equal(a, b) for a, b in zip(plan.com(times), other.com(times)))
+
+
+@pytest.mark.parametrize("signal", [3.2, 3.4, 3.5])
+def test_planner_plans_ahead_of_the_latch_and_the_latch_takes_that_plan(pattern, params, signal):
+    """Every tick before the latch plans the stop of a signal at that tick (``plan_ahead``); the latch,
+    which sees the signal a tick later, takes that very plan: the bits of planning on the latch's tick."""
+    planner, simulator, context = _planner_context(pattern, params, signal - 0.01, [0.0, np.nan])
+    simulator.AdvanceTo(signal + 0.002)  # the signal's tick ran unlatched
+    ahead = planner.ahead_plan(context)
+    assert ahead.signal_time == pytest.approx(signal, abs=1e-12) and ahead.plan is not None
+    assert _same_bits(ahead.plan, plan_stop(pattern, signal, params))
+    planner.stop_port.FixValue(context, [1.0, signal])
+    simulator.AdvanceTo(signal + 0.007)
+    assert planner.plan(context) is ahead.plan
+    # without it the latch plans on its own tick: a new plan, the same bits
+    other, simulator, context = _planner_context(pattern, params, signal - 0.01, [0.0, np.nan], plan_ahead=False)
+    simulator.AdvanceTo(signal + 0.002)
+    assert other.ahead_plan(context).plan is None
+    other.stop_port.FixValue(context, [1.0, signal])
+    simulator.AdvanceTo(signal + 0.007)
+    assert other.plan(context) is not ahead.plan and _same_bits(other.plan(context), ahead.plan)
+
+
+def test_a_latch_of_another_tick_plans_its_own_stop(pattern, params):
+    """The plan made ahead is for its own tick only: a latch of an earlier signal plans that one."""
+    planner, simulator, context = _planner_context(pattern, params, 3.39, [0.0, np.nan])
+    simulator.AdvanceTo(3.402)
+    planner.stop_port.FixValue(context, [1.0, 3.395])
+    simulator.AdvanceTo(3.407)
+    plan = planner.plan(context)
+    assert plan is not planner.ahead_plan(context).plan
+    assert plan.signal_time == pytest.approx(3.395) and _same_bits(plan, plan_stop(pattern, 3.395, params))
 
 
 @pytest.mark.parametrize("signal", [3.4, 3.5])

@@ -122,7 +122,7 @@ def _add_loggers(builder, planner, ik, period):
 
 
 def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshcat=None,
-                  button_name="Emergency stop", publish_period=1.0 / 64.0, robot=None):
+                  button_name="Emergency stop", publish_period=1.0 / 64.0, robot=None, plan_ahead=True):
     """Build the e-stop diagram; returns :class:`DiagramHandles`.
 
     ``estop_time`` schedules the stop (None: only the Meshcat button or the
@@ -133,6 +133,8 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     description file; default the ``default`` humanoid) is the robot; the
     gait and stop parameters default to its own
     (:func:`drake_estop.robots.parameters.gait_parameters`, ``stop_parameters``).
+    ``plan_ahead``: :class:`~drake_estop.systems.stop_controller.StopPlannerSystem`'s (every tick
+    plans the stop of a signal at it, so the latch takes it ready).
     """
     robot = as_robot(robot)
     gait_params = gait_params or gait_parameters(robot)
@@ -143,7 +145,7 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     plant, scene_graph = _add_plant(builder, robot)
     trigger, planner = add_stop_controller(
         builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-        meshcat=meshcat, button_name=button_name, layout=layout)
+        meshcat=meshcat, button_name=button_name, layout=layout, plan_ahead=plan_ahead)
     builder.ExportInput(trigger.stop_request_port, "stop_request")
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=plant, servo_period=stop_params.servo_period, robot=robot,
@@ -223,7 +225,7 @@ class DiagramResult:
     joint_limit_violations: np.ndarray  # (n,) joints outside their position limits
     plan: object
     wall_time: float  # seconds of Simulator.AdvanceTo
-    plan_wall_time: float  # seconds plan_stop took inside the planner's update
+    plan_wall_time: float  # seconds the latch took inside the planner's update (a look-up where planned ahead)
     html: object = None
     ik_failures: dict = field(default_factory=dict)
     logged_reference: dict = field(default_factory=dict)  # planner outputs as logged

@@ -54,6 +54,27 @@ class PlanHandle:
         return self
 
 
+class AheadPlan:
+    """Holder of the stop planned ahead of the latch (``StopController``'s ``plan_ahead``): the signal
+    time [s] it was planned for and the plan, or None (none planned, or no stop)."""
+
+    __slots__ = ("signal_time", "plan")
+
+    def __init__(self, signal_time=-math.inf, plan=None):
+        self.signal_time = signal_time
+        self.plan = plan
+
+    def plan_for(self, signal_time):
+        """The plan if it was made for a signal at ``signal_time`` (the same servo tick), else None."""
+        return self.plan if abs(self.signal_time - signal_time) < 1e-9 else None
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __copy__(self):
+        return self
+
+
 class PlanSequence:
     """A stop plan and its re-plans, evaluated as one plan: each in force from its start time.
 

@@ -136,7 +136,8 @@ def sweep_stride(*, robot=None, gait=None, stop=None, every: int = 1, step_index
     """
     if not (isinstance(every, int) and every >= 1):
         raise ValueError(f"every must be a whole number of servo ticks >= 1, got {every!r}")
-    handles = build_diagram(gait_params=gait, stop_params=stop, estop_time=None, robot=robot)
+    # a sweep measures the stops, not the latch's latency: no plan ahead of the latch on every walking tick
+    handles = build_diagram(gait_params=gait, stop_params=stop, estop_time=None, robot=robot, plan_ahead=False)
     rows = []
     for signal in stride_ticks(handles.pattern, handles.planner.params, step_index)[::every]:
         rows.append(StrideStop.of(run_signal(handles, float(signal), after_halt=after_halt)))

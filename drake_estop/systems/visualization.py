@@ -531,7 +531,7 @@ def describe(result):
     return (f"signal {plan.signal_time:.3f} s ({plan.support} support) -> {plan.case}; "
             f"landing {plan.landing_time:.3f}, transition {plan.transition_end:.3f}, "
             f"slowdown {plan.slowdown_end:.3f}, halt {plan.halt_end:.3f} s; "
-            f"plan {result.plan_wall_time * 1e3:.2f} ms in the diagram; "
+            f"latch {result.plan_wall_time * 1e3:.2f} ms in the diagram (plan {plan.compute_time * 1e3:.2f} ms); "
             f"IK max COG {errors['ik_com_err_max_m'] * 1e3:.3f} mm, foot "
             f"{errors['ik_foot_err_max_m'] * 1e3:.3f} mm / {errors['ik_foot_rot_err_max_rad']:.1e} rad, "
             f"ticks over bounds {errors['ik_ticks_over_bounds']}, velocity-limit violations "
