@@ -302,7 +302,8 @@ def _simulate(args) -> int:
     print(f"stop signal {plan.signal_time:.3f} s in {plan.support} support -> {plan.case}; "
           f"landing {times['landing_end']:.3f}, transition {times['transition_end']:.3f}, "
           f"slowdown {times['slowdown_end']:.3f}, halt {times['halt_end']:.3f} s; "
-          f"plan {plan.compute_time * 1e3:.2f} ms{_plan_time_note(args, summary)}, {plan.newton_iterations} Newton iterations")
+          f"plan {plan.compute_time * 1e3:.2f} ms{_plan_time_note(args, summary)}, "
+          f"{plan.newton_iterations} Newton iterations")
     if "ik" in summary:
         ik = summary["ik"]
         print(f"whole-body IK: COG error max {ik['ik_com_err_max_m'] * 1e3:.3f} mm, foot error max "
