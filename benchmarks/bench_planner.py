@@ -271,7 +271,7 @@ def monotone_one_step(plans) -> bool:
 TABLE_ROWS = (
     ("paper objective (J_ss, J_ds; slowdown ZMP 5 cm ahead of the landing ankle, the default)", {}),
     ("paper objective, slowdown ZMP at the landing ankle (eq. 20)", {"landing_zmp_offset": 0.0}),
-    ('`objective="time"` (soonest rest at the feet\'s midpoint)', {"objective": "time"}),
+    ('`objective="time"` (soonest rest between the feet)', {"objective": "time"}),
 )
 
 

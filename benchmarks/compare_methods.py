@@ -4,8 +4,8 @@ Same gait, same signal instants (every servo tick of one stride, single and
 double support):
 
 * this planner (Morisawa et al. 2005, as implemented here), with the paper's
-  objective (J_ss, J_ds) and with ``objective="time"`` (the soonest rest at the
-  feet's midpoint, drake_estop/planning/brake.py);
+  objective (J_ss, J_ds) and with ``objective="time"`` (the soonest rest between
+  the feet, drake_estop/planning/brake.py);
 * "finish the step": nominal landing, then a double-support stop with the ZMP
   anywhere in the fore sole (hrpsys-base / IHMC / lipm_walking_controller style);
 * Drake's ZmpPlanner re-plan that stops at the next footstep, with its default
@@ -172,10 +172,12 @@ def diagram_rtfs(estop_time=3.4):
     with warnings.catch_warnings():  # the plan's time in the diagram, mid and late single support, double support
         warnings.simplefilter("ignore", RuntimeWarning)
         for signal in DIAGRAM_SIGNALS:
-            latch[signal] = simulate_diagram(GaitParameters(), StopParameters(), signal).plan_wall_time
+            result = simulate_diagram(GaitParameters(), StopParameters(), signal)
+            latch[signal] = (result.plan.compute_time, result.plan_wall_time)
     return [
-        "Plan time in the kinematic diagram (the stop planner's latch on the signal's tick, after the warm-up at"
-        " build): " + ", ".join(f"{t:.3f} s {1e3 * v:.2f} ms" for t, v in latch.items()) + ".",
+        "Plan time in the kinematic diagram (the stop planner plans the stop of a signal at every walking tick, and"
+        " the latch a tick later takes it; the plan's time, then the latch's): "
+        + ", ".join(f"{t:.3f} s {1e3 * p:.2f} ms ({1e3 * v:.3f} ms)" for t, (p, v) in latch.items()) + ".",
         "",
         f"Diagram real-time factors (signal {estop_time} s, one run each): kinematic diagram (planner, whole-body IK,"
         f" posed humanoid) {kinematic.realtime_factor:.1f}x over {kinematic.sim_time:.1f} s simulated;"
@@ -323,7 +325,7 @@ def write_results(rows, summaries, ratio, path, figure_name, command, extra_line
     labels = {"planner": "this planner (paper objective; slowdown ZMP 5 cm ahead of the landing ankle, the default)",
               "planner_eq20": "this planner, paper objective, slowdown ZMP at the landing ankle (eq. 20)",
               "planner_toe": "this planner, single-support slowdown ZMP at the fore toe (offset 0.125 m)",
-              "planner_time": "this planner, `objective=\"time\"` (soonest rest at the feet's midpoint)",
+              "planner_time": "this planner, `objective=\"time\"` (soonest rest between the feet)",
               "finish_step": "finish the step (nominal landing)",
               "zmp_planner": "Drake ZmpPlanner, stop at next footstep (default Qy = I, R = 0.1 I)",
               "zmp_planner_tuned": f"Drake ZmpPlanner, stop at next footstep, tuned (Qy = I, R = {TUNED_R[0, 0]:g} I)"}
@@ -376,7 +378,8 @@ def main(argv=None):
     extra = ["The planner over the stride, both objectives (`bench_planner.planner_table`: plan time the least of"
              " 3 per tick after the warm-up; the LIPM bound is a time-optimal LP over the ZMP, held per servo tick,"
              f" {params.zmp_margin * 1e3:.0f} mm inside each plan's own footholds, |dZMP/dt| <="
-             f" {bench_planner.MAX_ZMP_RATE:g} m/s, at every 4th tick):", ""]
+             f" {bench_planner.MAX_ZMP_RATE:g} m/s, the COG at rest where the time objective may rest it: from the"
+             " feet's midpoint toward the fore ankle within the rear leg's reach; at every 4th tick):", ""]
     extra += bench_planner.planner_table(pattern, every=args.every) + [""]
     extra += comparison_lines(rows, summaries) + zmp_planner_tuning(times[:: args.tuning_every], pattern, params)
     extra += [""] + turning_lines(params, args.every)
