@@ -1,7 +1,7 @@
 """Picture of the robot mid-stop: run the diagram with a live Meshcat to a chosen
 time and screenshot the Meshcat page in headless Chromium.
 
-    python diagrams/snapshot.py [--estop-time 3.4] [--at 3.75] [--out docs/robot_mid_stop.png]
+    python diagrams/snapshot.py [--estop-time 3.4] [--at 3.75] [--robot g1] [--out docs/robot_mid_stop.png]
 
 Uses the public API of the installed ``drake_estop`` (``pip install -e .`` or
 ``pip install .``); no path set-up. The camera is the follow camera of the
@@ -17,19 +17,19 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from render_replay import find_chromium  # diagrams/render_replay.py (the script folder is on sys.path)
 
-from drake_estop import AddEmergencyStop, GaitParameters, StopParameters, make_meshcat
+from drake_estop import AddEmergencyStop, make_meshcat
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--estop-time", type=float, default=3.4)
     parser.add_argument("--at", type=float, default=3.75, help="simulation time of the picture [s]")
+    parser.add_argument("--robot", default="default", help="a built-in robot or a description file")
     parser.add_argument("--out", default="docs/robot_mid_stop.png")
     args = parser.parse_args()
     meshcat = make_meshcat()
     builder = DiagramBuilder()
-    AddEmergencyStop(builder, gait=GaitParameters(), stop=StopParameters(), estop_time=args.estop_time,
-                     meshcat=meshcat)
+    AddEmergencyStop(builder, robot=args.robot, estop_time=args.estop_time, meshcat=meshcat)  # the robot's gait
     simulator = Simulator(builder.Build())
     simulator.AdvanceTo(args.at)
     chromium = find_chromium()

@@ -408,7 +408,7 @@ def _run_diagram(args, gait, stop, estop_time):
         "ik": result.error_summary(),
         "realtime_factor": result.realtime_factor,
         "plan_wall_time_in_diagram_s": result.plan_wall_time,
-        "plan_compute_time_s": result.plan.compute_time,
+        "plan_compute_time_s": None if result.plan is None else result.plan.compute_time,
     }
     return result.plan, result.columns(), summary
 
