@@ -224,14 +224,6 @@ def _parameters(args):
     return gait, stop
 
 
-def _default_robot_only(args, what: str) -> None:
-    """Raise ValueError naming ``robot`` unless the run's robot is the default humanoid (the physics
-    simulation, its plant, servos, sensors and estimator, are the default's)."""
-    if args.robot_description.name != "default":
-        raise ValueError(f"robot: {what} runs the default robot only; robot {args.robot_description.name!r} "
-                         "runs the kinematic plan (--kinematic) and the Drake diagram (the default mode)")
-
-
 def _controller(args):
     """The scenario's controller section with the command line's ``--controller`` and ``--true-state``."""
     return replace(args.scenario.controller, kind=args.controller, true_state=args.true_state)
@@ -265,8 +257,6 @@ def _simulate(args) -> int:
         raise ValueError(f"estop_time {estop_time} s is outside the run [0, {pattern.end_time:.3f}] s")
     if args.physics and (args.kinematic or args.html or args.meshcat or estop_time is None):
         raise ValueError("physics runs take a scheduled --estop-time and no --kinematic/--html/--meshcat")
-    if args.physics:
-        _default_robot_only(args, "the physics simulation (--physics)")
     perturbations = perturbations_from_args(args)
     controller = _controller(args)
     online_only = _online_only_settings(controller, perturbations)
@@ -357,7 +347,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controlle
         stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing)
         result = run_online(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern,
                             perturbations=perturbations, physics=_physics_parameters(args.scenario),
-                            controller=controller)
+                            controller=controller, robot=args.robot_description)
         online = {key: result.online[key] for key in
                   ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "tick_compute_slowest", "replans",
                    "replan_failures", "latch_fallback",
@@ -370,7 +360,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controlle
         from drake_estop.physics.offline import run_physics
 
         result = run_physics(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern,
-                             physics=_physics_parameters(args.scenario))
+                             physics=_physics_parameters(args.scenario), robot=args.robot_description)
     columns.update({"cop_x": result.cop_x, "cop_y": result.cop_y, "pelvis_z": result.pelvis_z,
                     "com_meas_x": result.com_meas_x, "com_meas_y": result.com_meas_y,
                     "com_meas_z": result.com_meas_z, "torso_tilt": result.torso_tilt})
@@ -463,7 +453,6 @@ def _sweep(args) -> int:
 
     gait, stop = _parameters(args)
     controller = replace(args.scenario.controller, kind=args.controller)
-    _default_robot_only(args, "the physics sweep")
     if args.print_scenario:
         print(dump_scenario(replace(args.scenario, gait=gait, stop=stop, simulation="physics",
                                     controller=controller)), end="")
@@ -485,7 +474,7 @@ def _sweep(args) -> int:
     executor = functools.partial(map_tasks, workers=args.workers, scheduler=args.scheduler,
                                  progress=not args.no_progress, desc="physics sweep")
     table = sweep(gait, stop, every=args.every, start=start, duration=end - start,
-                  progress=not args.no_progress, run=run, executor=executor)
+                  progress=not args.no_progress, run=run, executor=executor, robot=args.robot_description)
     write_sweep(table, args.csv, args.png)
     wins = sum(bool(row.get("success")) for row in table)
     failed = [row for row in table if not row.get("success")]

@@ -183,7 +183,7 @@ def test_paper_scenario_meets_criterion(physics_runs, estop_time, criterion):
 def test_paper_scenario_numbers(physics_runs, estop_time):
     result = physics_runs[estop_time]
     numbers = result.numbers()
-    params = PhysicsParameters()
+    params = PhysicsParameters().for_robot()  # the default robot's criteria
     assert set(result.criteria) == set(CRITERIA)
     assert result.success
     # the raw numbers behind the criteria, checked directly
@@ -233,9 +233,10 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
     """A physics criterion shown failing: leg servos 100x too weak (300 N m/rad) let the
     standing robot collapse; ``no_fall`` turns False and ``simulate --physics`` exits 1."""
     from drake_estop.cli import main
+    from drake_estop.robots import load_robot
 
-    weak = PhysicsParameters(gains=tuple((key, 300.0 if key in ("hip", "knee", "ankle") else kp)
-                                         for key, kp in PhysicsParameters().gains))
+    weak = PhysicsParameters(gains=tuple((gain.key, 300.0 if gain.key in ("hip", "knee", "ankle") else gain.kp)
+                                         for gain in load_robot("default").servo_gains))
     from drake_estop.physics import online
     original = online.run_online  # the default controller of simulate --physics
     monkeypatch.setattr(online, "run_online", lambda *args, **kwargs: original(*args, **{**kwargs, "physics": weak}))
@@ -243,7 +244,7 @@ def test_weak_servos_fall_fail_no_fall_and_exit_1(monkeypatch, tmp_path):
     assert main(["simulate", "--physics", "--estop-time", "0", "--summary", str(summary)]) == 1
     result = json.load(open(summary))["physics"]
     assert result["success"] is False and result["criteria"]["no_fall"] is False
-    assert result["numbers"]["pelvis_z_min_m"] < PhysicsParameters().pelvis_height_bounds[0]
+    assert result["numbers"]["pelvis_z_min_m"] < PhysicsParameters().for_robot().pelvis_height_bounds[0]
 
 
 def test_physics_parameters_validate():

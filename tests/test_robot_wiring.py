@@ -275,13 +275,6 @@ def test_the_com_height_range_is_the_robot_s(capsys):
     assert main(["simulate", "--kinematic", "--robot", "talos", "--estop-time", "3.565"]) == 0  # 0.87 m
 
 
-@needs_robots
-@pytest.mark.parametrize("command", [["simulate", "--physics", "--estop-time", "3.4"], ["sweep", "--no-progress"]])
-def test_physics_refuses_another_robot_naming_it(command, capsys):
-    assert main([*command, "--robot", "g1"]) == 2
-    assert "robot: " in capsys.readouterr().err
-
-
 def _bad_robot(tmp_path, change):
     document = yaml.safe_load(built_in_path("default").read_text())
     document["model"] = str(load_robot("default").model)

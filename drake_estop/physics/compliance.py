@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from drake_estop.model import SOLE
+from drake_estop.robots.parameters import as_robot
 from drake_estop.timing import timed
 
 
@@ -55,25 +55,30 @@ class FootEdgeCompliance(LeafSystem):
     Parameters (keyword-only): ``plant`` (the humanoid's MultibodyPlant), ``servo_period`` [s],
     ``edge_margin`` [m] (the safe region's inset from the sole edges), ``damping`` [N m s/rad],
     ``return_time`` [s], ``max_offset`` [rad], ``min_normal_force`` [N] (a foot below it is off the
-    ground), ``timer`` (a :class:`drake_estop.timing.TickTimer`).
+    ground), ``timer`` (a :class:`drake_estop.timing.TickTimer`), ``robot`` (a
+    :class:`~drake_estop.robots.RobotDescription`, a name or None: the default humanoid; its ankle
+    joints and sole rectangles).
     """
 
     def __init__(self, *, plant, servo_period=0.005, edge_margin=0.02, damping=20.0, return_time=0.3,
-                 max_offset=0.15, min_normal_force=50.0, timer=None):
+                 max_offset=0.15, min_normal_force=50.0, timer=None, robot=None):
         super().__init__()
+        robot = as_robot(robot)
+        sole = robot.sole()  # the planner's rectangle: the smaller of the two feet's on each side
         for name, value in (("servo_period", servo_period), ("damping", damping), ("return_time", return_time),
                             ("max_offset", max_offset)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value!r}")
-        if not (np.isfinite(edge_margin) and 0 <= edge_margin < SOLE.inner):
-            raise ValueError(f"edge_margin must be in [0, {SOLE.inner}) m, got {edge_margin!r}")
+        if not (np.isfinite(edge_margin) and 0 <= edge_margin < sole.inner):
+            raise ValueError(f"edge_margin must be in [0, {sole.inner}) m, got {edge_margin!r}")
         self._dt, self._damping, self._return, self._max = servo_period, damping, return_time, max_offset
         self._min_fz = float(min_normal_force)
-        self._ankles = np.array([[plant.GetJointByName(f"{s}_ankle_roll").position_start(),
-                                  plant.GetJointByName(f"{s}_ankle_pitch").position_start()] for s in "lr"])
+        legs = [robot.leg(side) for side in ("left", "right")]
+        self._ankles = np.array([[plant.GetJointByName(leg.ankle_roll).position_start(),
+                                  plant.GetJointByName(leg.ankle_pitch).position_start()] for leg in legs])
         m = edge_margin  # safe region [x_low, x_high, y_low, y_high] per sole, left then right
-        self._safe = np.array([[-SOLE.heel + m, SOLE.toe - m, -right + m, left - m]
-                               for left, right in map(SOLE.lateral_edges, ("left", "right"))])
+        self._safe = np.array([[-sole.heel + m, sole.toe - m, -right + m, left - m]
+                               for left, right in map(sole.lateral_edges, ("left", "right"))])
         nq = plant.num_positions()
         self.q_in_port = self.DeclareVectorInputPort("q", nq)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
@@ -110,12 +115,12 @@ class FootEdgeCompliance(LeafSystem):
         output.SetFromVector(q)
 
 
-def add_foot_edge_compliance(builder, plant, sensors, ik, servo_period, *, timer=None, **settings):
+def add_foot_edge_compliance(builder, plant, sensors, ik, servo_period, *, timer=None, robot=None, **settings):
     """A :class:`FootEdgeCompliance` between ``ik.q_port`` and the servo targets, reading the feet's
     force/torque sensors from ``sensors`` (:class:`drake_estop.physics.sensors.RobotSensors`, e.g.
     ``estimator.sensors``). Returns the system (its ``q_port`` feeds the servo targets)."""
     compliance = builder.AddNamedSystem("foot_edge_compliance", FootEdgeCompliance(
-        plant=plant, servo_period=servo_period, timer=timer, **settings))
+        plant=plant, servo_period=servo_period, timer=timer, robot=robot, **settings))
     builder.Connect(ik.q_port, compliance.q_in_port)
     builder.Connect(sensors.foot_ft_port, compliance.foot_ft_port)
     return compliance

@@ -14,21 +14,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_estop.model import (
-    FLOATING_BASE,
-    TORSO,
-)
 from drake_estop.physics.plant import (
     SIDES,
     SOLE_CONTACT_INSET,
-    SOLE_FRAMES,
     PhysicsHandles,
     PhysicsParameters,
     actuated_indices,
+    sole_frames,
 )
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopPlan
+from drake_estop.robots.parameters import as_robot
 
 
 def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
@@ -166,8 +163,12 @@ def _intervals(mask):
 
 
 def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointReference,
-            physics: PhysicsParameters, wall_time: float) -> PhysicsResult:
-    """Per-tick arrays and success criteria from the loggers of a finished run."""
+            physics: PhysicsParameters, wall_time: float, robot=None) -> PhysicsResult:
+    """Per-tick arrays and success criteria from the loggers of a finished run of ``robot`` (a
+    description, a name or None: the default humanoid; its floating base is the "pelvis" of the height
+    bounds, its ``torso_body`` the tilted torso, its sole frames the feet)."""
+    robot = as_robot(robot)
+    physics = physics.for_robot(robot)
     plant = handles.plant
     logs = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
     times = logs["state"].sample_times()
@@ -177,9 +178,9 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
     foot_forces = dict(zip(SIDES, logs["foot_forces"].data()))
     n = len(times)
     scratch = plant.CreateDefaultContext()
-    torso = plant.GetBodyByName(TORSO)
-    pelvis = plant.GetBodyByName(FLOATING_BASE)
-    soles = {side: plant.GetFrameByName(SOLE_FRAMES[side]) for side in SIDES}
+    torso = plant.GetBodyByName(robot.torso_body)
+    pelvis = plant.GetBodyByName(robot.floating_base)
+    soles = dict(zip(SIDES, sole_frames(plant, robot)))
     com = np.empty((n, 3))
     com_vel = np.empty((n, 3))
     pelvis_z, tilt = np.empty(n), np.empty(n)

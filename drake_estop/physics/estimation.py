@@ -16,13 +16,13 @@ Blocks (sampled at the servo period through periodic discrete events)::
 Wiring (in the physics diagram; ``q0`` is the posture the simulation starts
 from, ``perturbations`` a :class:`drake_estop.physics.perturbations.Perturbations`)::
 
-    soles = [plant.GetBodyByName(LEFT_SOLE), plant.GetBodyByName(RIGHT_SOLE)]  # this order
+    soles = sole_bodies(plant, robot)  # the bodies of the left and right sole frames, this order
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(
         plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
     estimator = add_state_estimation(builder, plant, cop, servo_period=0.005,
                                      perturbations=perturbations, initial_q=q0,
-                                     true_state=False)
+                                     true_state=False, robot=robot)
     builder.Connect(estimator.com_port, controller_measured_com_input)
     builder.Connect(estimator.com_vel_port, controller_measured_com_vel_input)
     builder.Connect(estimator.sensors.cop_port, controller_measured_cop_input)  # same latency/noise path
@@ -49,14 +49,15 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
-from drake_estop.model import FLOATING_BASE, LEFT_SOLE, RIGHT_SOLE, WALKING_COM_HEIGHT
 from drake_estop.physics.estimator_math import cross, kf_step, quat_exp, quat_multiply, quat_to_matrix
+from drake_estop.physics.plant import sole_bodies, sole_frames
 from drake_estop.physics.sensors import (
     SIGNALS,
     FootForceTorqueSensors,
     RobotSensors,
     actuated_position_indices,
 )
+from drake_estop.robots.parameters import as_robot
 from drake_estop.timing import timed
 
 # discrete state layout of StateEstimator
@@ -161,8 +162,9 @@ class StateEstimator(LeafSystem):
          ``push_threshold`` (0.5 m/s^2): the force model while the two
          agree, the IMU's extra acceleration when something else pushes.
        * ``model="lipm"``: ``c'' = omega^2 (c - p_cop)``,
-         ``omega = sqrt(g / 0.814)`` (exact discretisation): the LIPM of the
-         issue, kept for comparison; it ignores the limbs' angular momentum.
+         ``omega = sqrt(g / z_c)`` with ``z_c`` the robot's walking COG height (0.814 m for the
+         default humanoid; the paper's eq. 1-2 LIPM, exact discretisation), kept for comparison; it
+         ignores the limbs' angular momentum.
 
        Vertical: a constant-velocity model (``vertical_accel_noise``).
 
@@ -187,6 +189,10 @@ class StateEstimator(LeafSystem):
     The initial pose (``initial_q``, nq) is the robot's known start pose
     (it sets the attitude, the stance anchor and the COG filter); the
     default is the plant's default positions.
+
+    ``robot`` (a :class:`~drake_estop.robots.RobotDescription`, a name or None: the default humanoid)
+    names the floating base (where the IMU sits) and the sole frames; ``com_height`` [m] (the LIPM
+    model's) defaults to its walking COG height.
     """
 
     def __init__(self, *, plant, servo_period: float, initial_q=None, true_state: bool = False, timer=None,
@@ -195,8 +201,10 @@ class StateEstimator(LeafSystem):
                  stance_hysteresis: float = 0.1, min_contact_force: float = 20.0, foot_window: int = 40,
                  push_threshold: float = 0.5, push_filter_time: float = 0.01,
                  com_noise: float = 2e-3, accel_noise: float = 1.0, vertical_accel_noise: float = 2.0,
-                 com_height: float = WALKING_COM_HEIGHT):
+                 com_height: float | None = None, robot=None):
         super().__init__()
+        robot = as_robot(robot)
+        com_height = robot.walking_com_height if com_height is None else com_height
         if model not in ("force", "lipm", "imu", "hybrid"):
             raise ValueError(f"model must be 'force', 'lipm', 'imu' or 'hybrid', got {model!r}")
         self._plant = plant
@@ -219,11 +227,13 @@ class StateEstimator(LeafSystem):
         self._nq = plant.num_positions()
         self._q_idx = actuated_position_indices(plant)
         na = len(self._q_idx)
-        base = plant.GetBodyByName(FLOATING_BASE)
+        base = plant.GetBodyByName(robot.floating_base)
         if not base.is_floating_base_body():
-            raise ValueError(f"{FLOATING_BASE} must be a floating body")
+            raise ValueError(f"{robot.floating_base} must be a floating body")
         self._base_q = base.floating_positions_start()
-        self._soles = [plant.GetBodyByName(LEFT_SOLE), plant.GetBodyByName(RIGHT_SOLE)]
+        # each sole as (its body, the sole frame's pose in the body or None where the frames are one)
+        self._soles = [(frame.body(), None if frame.index() == frame.body().body_frame().index()
+                        else frame.GetFixedPoseInBodyFrame()) for frame in sole_frames(plant, robot)]
 
         self.encoders_port = self.DeclareVectorInputPort("encoders", na)
         self.gyro_port = self.DeclareVectorInputPort("gyro", 3)
@@ -270,7 +280,7 @@ class StateEstimator(LeafSystem):
         if q.shape != (self._nq,):
             raise ValueError(f"initial_q must have {self._nq} entries, got shape {q.shape}")
         plant.SetPositions(context, q)
-        feet = [plant.EvalBodyPoseInWorld(context, s).translation() for s in self._soles]
+        feet = self._sole_positions(plant, context)
         stance = 0 if feet[0][2] <= feet[1][2] + 1e-9 else 1
         anchor = feet[stance].copy()
         anchor[2] = 0.0
@@ -293,6 +303,14 @@ class StateEstimator(LeafSystem):
         x[_HEADER:_HEADER + self._nq] = q_out
         x[_HEADER + self._nq:_HEADER + self._nq + 3] = com
         return x
+
+    def _sole_positions(self, plant, context) -> list:
+        """The sole frames' origins in the world of ``context`` (a context of ``plant``), left then right."""
+        out = []
+        for body, X_BS in self._soles:
+            X_WB = plant.EvalBodyPoseInWorld(context, body)
+            out.append(X_WB.translation() if X_BS is None else (X_WB @ X_BS).translation())
+        return out
 
     def _calc_feet(self, context, output):
         x = self._estimate.Eval(context)
@@ -341,7 +359,7 @@ class StateEstimator(LeafSystem):
         forces = self.foot_forces_port.Eval(context)
         y[_STANCE] = 0.0 if forces[0] >= forces[1] else 1.0
         # the footholds, from the true soles
-        soles = [plant.EvalBodyPoseInWorld(scratch, sole).translation() for sole in self._soles]
+        soles = self._sole_positions(plant, scratch)
         foot_avg, loaded = self._averaged_feet(x, soles, forces)
         y[_FOOT[0]], y[_FOOT[1]] = foot_avg
         y[_LOADED[0]], y[_LOADED[1]] = loaded
@@ -383,7 +401,7 @@ class StateEstimator(LeafSystem):
         q[self._q_idx] = encoders
         q[self._base_q:self._base_q + 4] = quat
         plant.SetPositions(scratch, q)
-        feet = [plant.EvalBodyPoseInWorld(scratch, s).translation() for s in self._soles]
+        feet = self._sole_positions(plant, scratch)
         com_rel = plant.CalcCenterOfMassPositionInWorld(scratch)
         stance = int(x[_STANCE])
         anchor = x[_ANCHOR].copy()
@@ -453,13 +471,15 @@ class StateEstimator(LeafSystem):
 
 def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, perturbations=None,
                          true_state: bool = False, initial_q=None, name_prefix: str = "", timer=None,
-                         **estimator_options) -> StateEstimator:
+                         robot=None, **estimator_options) -> StateEstimator:
     """Add the pelvis IMU, :class:`RobotSensors` and :class:`StateEstimator` and connect them.
 
     ``plant`` is the simulated (finalized) plant, ``cop_estimator`` a
     :class:`drake_estop.physics.plant.CopEstimator` already connected to the
     plant's contact results and built with ``bodies=`` the left and right
-    sole bodies (in that order). ``perturbations``
+    sole bodies (in that order: :func:`drake_estop.physics.plant.sole_bodies`).
+    ``robot`` (a description, a name or None: the default humanoid) is the
+    robot in ``plant``. ``perturbations``
     (:class:`drake_estop.physics.perturbations.Perturbations`, optional) sets the
     noise, the seed and the latency. ``initial_q``: the robot's start pose
     (the q the simulation starts from). Extra keyword arguments go to
@@ -467,14 +487,15 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     ``com_port``, ``com_vel_port`` and ``stance_port`` are the outputs to
     connect. The sensors system is ``estimator.sensors``.
     """
-    soles = [plant.GetBodyByName(LEFT_SOLE).index(), plant.GetBodyByName(RIGHT_SOLE).index()]
+    robot = as_robot(robot)
+    soles = [body.index() for body in sole_bodies(plant, robot)]
     bodies = getattr(cop_estimator, "_bodies", None)
     if bodies is not None and list(bodies) != [int(i) for i in soles]:
         raise ValueError("cop_estimator must be built with bodies=[left sole, right sole]")
     latency = perturbations.latency_ticks if perturbations is not None else 0
     noise = perturbations.sensor_noise if perturbations is not None else False
     seed = perturbations.seed if perturbations is not None else 0
-    pelvis = plant.GetBodyByName(FLOATING_BASE)
+    pelvis = plant.GetBodyByName(robot.floating_base)
     gyro = builder.AddNamedSystem(f"{name_prefix}pelvis_gyro", Gyroscope(pelvis, RigidTransform()))
     accel = builder.AddNamedSystem(f"{name_prefix}pelvis_accelerometer", Accelerometer(
         pelvis, RigidTransform(), plant.gravity_field().gravity_vector()))
@@ -491,13 +512,14 @@ def add_state_estimation(builder, plant, cop_estimator, *, servo_period: float, 
     builder.Connect(cop_estimator.body_normal_forces_port, sensors.foot_forces_in_port)
     builder.Connect(cop_estimator.cop_port, sensors.cop_in_port)
     builder.Connect(cop_estimator.wrench_port, sensors.wrench_in_port)
-    foot_ft = builder.AddNamedSystem(f"{name_prefix}foot_force_torque", FootForceTorqueSensors(plant=plant))
+    foot_ft = builder.AddNamedSystem(f"{name_prefix}foot_force_torque", FootForceTorqueSensors(plant=plant,
+                                                                                               robot=robot))
     builder.Connect(cop_estimator.body_wrenches_port, foot_ft.body_wrenches_port)
     builder.Connect(plant.get_body_poses_output_port(), foot_ft.body_poses_port)
     builder.Connect(foot_ft.foot_ft_port, sensors.foot_ft_in_port)
     estimator = builder.AddNamedSystem(f"{name_prefix}state_estimator", StateEstimator(
         plant=plant, servo_period=servo_period, initial_q=initial_q, true_state=true_state, timer=timer,
-        **estimator_options))
+        robot=robot, **estimator_options))
     for signal in SIGNALS:
         builder.Connect(sensors.GetOutputPort(signal), estimator.GetInputPort(signal))
     if true_state:

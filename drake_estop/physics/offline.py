@@ -40,22 +40,21 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 
-from drake_estop.model import (
-    UPPER_BODY_JOINTS,
-)
+from drake_estop.model import WALKING_COM_HEIGHT
 from drake_estop.physics.criteria import JointReference, PhysicsResult, analyse, multibody_zmp
 from drake_estop.physics.plant import (
     SIDES,
-    SOLE_FRAMES,
     CopEstimator,
     PhysicsHandles,
     PhysicsParameters,
     add_physics_plant,
+    sole_bodies,
 )
-from drake_estop.planning.gait import ARM_JOINTS, GaitParameters, NominalPattern
+from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.planning.rollout import Rollout, rollout
+from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import WholeBodyIkSolver, converged_posture, shared_ik
 from drake_estop.systems.reference import sole_pose
 
@@ -65,26 +64,34 @@ def _sole(ro: Rollout, side: str, i: int):
     return sole_pose(ro.feet[side][i], 0.0 if ro.feet_yaw is None else float(ro.feet_yaw[side][i]))
 
 
-def initial_configuration(plant, ro: Rollout, *, solver=None):
-    """Converged IK posture at the first tick of ``ro`` (feet ``step_width`` apart)."""
-    upper = dict.fromkeys(UPPER_BODY_JOINTS, 0.0)
-    upper.update(zip(ARM_JOINTS, ro.upper_body[0]))
+def _upper_body(robot, ro: Rollout, i: int) -> dict:
+    """The upper-body joint targets [rad] of tick ``i``: the robot's standing angles, the swinging arm
+    joints (``ro.arm_joints``) at the rollout's."""
+    upper = dict(zip(robot.upper_body_joints, robot.standing_angles()))
+    upper.update(zip(ro.arm_joints, ro.upper_body[i]))
+    return upper
+
+
+def initial_configuration(plant, ro: Rollout, *, solver=None, robot=None):
+    """Converged IK posture at the first tick of ``ro`` (feet ``step_width`` apart) of ``robot`` (the
+    solver's, else the default humanoid)."""
+    robot = solver.robot if solver is not None and robot is None else as_robot(robot)
     left, right = (_sole(ro, side, 0) for side in SIDES)
-    return converged_posture(plant, ro.com[0], left, right, upper, solver=solver)
+    return converged_posture(plant, ro.com[0], left, right, _upper_body(robot, ro, 0), solver=solver,
+                             robot=robot)
 
 
 def _solve_tick(solver, q, ro: Rollout, i):
-    upper = dict.fromkeys(UPPER_BODY_JOINTS, 0.0)
-    upper.update(zip(ARM_JOINTS, ro.upper_body[i]))
     feet = [_sole(ro, side, i) for side in SIDES]
-    return solver.solve(q, ro.com[i], feet[0], feet[1], None, upper)
+    return solver.solve(q, ro.com[i], feet[0], feet[1], None, _upper_body(solver.robot, ro, i))
 
 
 def joint_reference(plant, ro: Rollout, *, solver=None) -> JointReference:
-    """Solve the whole-body IK at every tick of ``ro``, warm-started tick to tick."""
+    """Solve the whole-body IK at every tick of ``ro``, warm-started tick to tick (``solver``'s robot,
+    default the default humanoid)."""
     start = time.perf_counter()
     solver = solver or WholeBodyIkSolver(plant)
-    q = initial_configuration(plant, ro)
+    q = initial_configuration(plant, ro, robot=solver.robot)
     n = len(ro.times)
     qs = np.empty((n, plant.num_positions()))
     com_err, foot_err = np.empty(n), np.empty(n)
@@ -105,7 +112,7 @@ def nominal_rollout(pattern: NominalPattern, end: float, servo_period: float) ->
     n = len(times)
     feet = {side: np.zeros((n, 3)) for side in SIDES}
     yaw = {side: np.zeros(n) for side in SIDES}
-    upper = np.zeros((n, len(ARM_JOINTS)))
+    upper = np.zeros((n, len(pattern.params.arms.joints)))
     for i, t in enumerate(times):
         for side, value in pattern.feet_at(float(t))[0].items():
             feet[side][i] = value
@@ -115,7 +122,8 @@ def nominal_rollout(pattern: NominalPattern, end: float, servo_period: float) ->
     z = np.full(n, pattern.params.com_height)
     zeros = np.zeros(n)
     return Rollout(times, np.column_stack([pos, z]), np.column_stack([vel, zeros]),
-                   np.column_stack([acc, zeros]), zmp, ["walking"] * n, feet, upper, yaw)
+                   np.column_stack([acc, zeros]), zmp, ["walking"] * n, feet, upper, yaw,
+                   arm_joints=tuple(pattern.params.arms.joints))
 
 
 class ZmpPreviewFilter:
@@ -130,7 +138,7 @@ class ZmpPreviewFilter:
     (causal): the stop is not anticipated.
     """
 
-    def __init__(self, *, servo_period=0.005, com_height=0.814, preview_time=1.6, q_error=1.0,
+    def __init__(self, *, servo_period=0.005, com_height=WALKING_COM_HEIGHT, preview_time=1.6, q_error=1.0,
                  r_jerk=1e-6):
         from scipy.linalg import solve_discrete_are
         dt = servo_period
@@ -186,8 +194,9 @@ class ZmpPreviewFilter:
 
 
 def build_physics_diagram(reference: JointReference | None = None, params: PhysicsParameters | None = None,
-                          *, desired_state_source=None) -> PhysicsHandles:
-    """Humanoid + ground + PD servos + CoP estimator + 5 ms loggers.
+                          *, desired_state_source=None, robot=None) -> PhysicsHandles:
+    """Humanoid (``robot``: a description, a name or None, the default humanoid) + ground + PD servos +
+    CoP estimator + 5 ms loggers.
 
     The desired joint state comes from ``reference`` (a TrajectorySource of its
     first-order hold) or, if given, from ``desired_state_source``, a function
@@ -195,7 +204,7 @@ def build_physics_diagram(reference: JointReference | None = None, params: Physi
     """
     params = params or PhysicsParameters()
     builder = DiagramBuilder()
-    plant, scene_graph, instance, ground_id = add_physics_plant(builder, params)
+    plant, scene_graph, instance, ground_id = add_physics_plant(builder, params, robot)
     source = None
     if desired_state_source is not None:
         port = desired_state_source(builder, plant)
@@ -204,7 +213,7 @@ def build_physics_diagram(reference: JointReference | None = None, params: Physi
             reference.desired_state_trajectory(plant)))
         port = source.get_output_port()
     builder.Connect(port, plant.get_desired_state_input_port(instance))
-    soles = [plant.GetBodyByName(SOLE_FRAMES[side]) for side in SIDES]
+    soles = sole_bodies(plant, robot)
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(
         plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
@@ -223,21 +232,28 @@ def build_physics_diagram(reference: JointReference | None = None, params: Physi
 
 def run_physics(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                 estop_time: float = 3.4, *, after_halt: float = 2.5,
-                physics: PhysicsParameters | None = None, pattern: NominalPattern | None = None) -> PhysicsResult:
+                physics: PhysicsParameters | None = None, pattern: NominalPattern | None = None,
+                robot=None) -> PhysicsResult:
     """Walk the nominal pattern on the simulated humanoid, stop at ``estop_time``, check the criteria.
 
     The run starts at t = 0 (standing, before the initial weight shift) from
     the IK posture of the first tick, and ends ``after_halt`` seconds after the
     planned halt end. ``pattern`` (built from ``gait_params`` if omitted) may
-    be shared between runs.
+    be shared between runs. ``robot`` (a description, a name or None: the
+    default humanoid) is the simulated robot and the IK's model; the gait and
+    stop parameters default to its own.
     """
-    physics = physics or PhysicsParameters()
-    stop_params = stop_params or StopParameters()
-    pattern = pattern or NominalPattern(gait_params or GaitParameters())
+    from drake_estop.robots.parameters import gait_parameters, stop_parameters
+
+    robot = as_robot(robot)
+    default = robot == as_robot(None)
+    physics = (physics or PhysicsParameters()).for_robot(robot)
+    stop_params = stop_params or (StopParameters() if default else stop_parameters(robot))
+    pattern = pattern or NominalPattern(gait_params or (GaitParameters() if default else gait_parameters(robot)))
     plan = plan_stop(pattern, estop_time, stop_params)
     ro = rollout(plan, after_halt=after_halt)
-    reference = reference_for(ro, plan, filter_iterations=physics.filter_iterations)
-    handles = build_physics_diagram(reference, physics)
+    reference = reference_for(ro, plan, filter_iterations=physics.filter_iterations, robot=robot)
+    handles = build_physics_diagram(reference, physics, robot=robot)
     simulator = Simulator(handles.diagram)
     context = simulator.get_mutable_context()
     handles.plant.SetPositions(handles.plant.GetMyMutableContextFromRoot(context), reference.q[0])
@@ -245,7 +261,7 @@ def run_physics(gait_params: GaitParameters | None = None, stop_params: StopPara
     start = time.perf_counter()
     simulator.AdvanceTo(float(ro.times[-1]))
     wall = time.perf_counter() - start
-    return analyse(handles, context, plan, reference, physics, wall)
+    return analyse(handles, context, plan, reference, physics, wall, robot)
 
 
 _NOMINAL = {}
@@ -257,53 +273,55 @@ def _shifted(ro: Rollout, offset) -> Rollout:
     return replace(ro, com=com)
 
 
-def _zmp_error(ro: Rollout, offset):
+def _zmp_error(ro: Rollout, offset, robot=None):
     """(JointReference, multibody - planned ZMP) of ``ro`` with the COG shifted by ``offset``."""
-    plant, solver, context = shared_ik()
+    plant, solver, context = shared_ik(robot)
     reference = joint_reference(plant, _shifted(ro, offset), solver=solver)
     return reference, multibody_zmp(plant, ro.times, reference.q, context=context) - ro.zmp
 
 
-def _nominal_errors(pattern: NominalPattern, dt: float, iterations: int, flt: ZmpPreviewFilter):
-    """Per-iteration multibody ZMP errors of the filtered nominal walk (cached per pattern)."""
-    key = (id(pattern), dt, iterations)
+def _nominal_errors(pattern: NominalPattern, dt: float, iterations: int, flt: ZmpPreviewFilter, robot=None):
+    """Per-iteration multibody ZMP errors of the filtered nominal walk (cached per pattern and robot)."""
+    key = (id(pattern), dt, iterations, as_robot(robot))
     if key not in _NOMINAL:
         ro = nominal_rollout(pattern, pattern.end_time + 1.0, dt)
         offset = np.zeros((len(ro.times), 2))
         errors = []
         for _ in range(iterations):
-            error = _zmp_error(ro, offset)[1]
+            error = _zmp_error(ro, offset, robot)[1]
             errors.append(error)
             offset = offset + flt.correct(error)
         _NOMINAL[key] = (pattern, errors)  # keep the pattern alive: its id stays unique
     return _NOMINAL[key][1]
 
 
-def reference_for(ro: Rollout, plan: StopPlan | None = None, *, filter_iterations: int = 0) -> JointReference:
+def reference_for(ro: Rollout, plan: StopPlan | None = None, *, filter_iterations: int = 0,
+                  robot=None) -> JointReference:
     """Joint reference of ``ro``; with ``filter_iterations`` > 0, dynamics-filtered (causal at the signal).
 
     The filter (:class:`ZmpPreviewFilter`) shifts the COG target so that the
     whole-body ZMP of the IK motion follows the plan's ZMP (the LIPM ignores
     the legs' and arms' angular momentum and the crouch). Before the stop
-    signal the preview reads only the nominal walk's errors.
+    signal the preview reads only the nominal walk's errors. ``robot``: the
+    IK's model (a description, a name or None: the default humanoid).
     """
     start = time.perf_counter()
-    plant, solver, context = shared_ik()
+    plant, solver, context = shared_ik(robot)
     if filter_iterations <= 0:
         return joint_reference(plant, ro, solver=solver)
     dt = float(ro.times[1] - ro.times[0])
     flt = ZmpPreviewFilter(servo_period=dt, com_height=plan.pattern.params.com_height)
-    nominal = _nominal_errors(plan.pattern, dt, filter_iterations, flt)
+    nominal = _nominal_errors(plan.pattern, dt, filter_iterations, flt, robot)
     switch = int(np.searchsorted(ro.times, plan.signal_time - 1e-9))
     n = len(ro.times)
     offset = np.zeros((n, 2))
     raw = None
     for before in nominal:
         before = before[:n] if len(before) >= n else np.vstack([before, np.zeros((n - len(before), 2))])
-        _, error = _zmp_error(ro, offset)
+        _, error = _zmp_error(ro, offset, robot)
         raw = error if raw is None else raw
         offset = offset + flt.correct(before, error, switch)
-    reference, error = _zmp_error(ro, offset)
+    reference, error = _zmp_error(ro, offset, robot)
     reference.com_offset, reference.zmp_error_raw, reference.zmp_error = offset, raw, error
     reference.wall_time = time.perf_counter() - start
     return reference

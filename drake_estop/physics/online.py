@@ -170,18 +170,18 @@ from drake_estop.physics.perturbations import (
     ground_friction,
 )
 from drake_estop.physics.plant import (
-    SIDES,
-    SOLE_FRAMES,
     CopEstimator,
     PhysicsParameters,
     add_online_loggers,
     add_physics_plant,
     add_servo_targets,
     run_through_stop,
+    sole_bodies,
 )
 from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
+from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller, connect_reference
 from drake_estop.timing import TickTimer
@@ -283,12 +283,13 @@ class OnlineHandles:
     initial_q: np.ndarray
     timer: TickTimer
     physics: PhysicsParameters
+    robot: object = None  # the RobotDescription
 
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
                          controller: ControllerOptions | None = None,
-                         planner_options: dict | None = None) -> OnlineHandles:
+                         planner_options: dict | None = None, robot=None) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes
@@ -316,6 +317,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         Time of the stop signal [s], latched at the next servo tick; None: no scheduled stop.
     physics, perturbations, controller, planner_options
         As described above.
+    robot : RobotDescription or str, optional
+        The robot (a description, a built-in name or a description file; default the default
+        humanoid): the simulated plant (its sole contact and servo gains), the sensors, estimator,
+        compliance and criteria read its bodies, sole frames and joints, and the controller's IK its
+        kinematic model. ``pattern`` and ``stop_params`` must be for it
+        (:func:`drake_estop.robots.gait_parameters`, :func:`drake_estop.robots.stop_parameters`).
 
     Returns
     -------
@@ -323,42 +330,44 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         The built diagram and its systems (plant, estimator, planner, IK, loggers, ...).
     """
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
+    from drake_estop.systems.diagram import robot_layout
 
+    robot = as_robot(robot)
     controller = ControllerOptions() if controller is None else controller
-    planner_settings = _planner_settings(controller, planner_options)
+    planner_settings = {"layout": robot_layout(robot, pattern), **_planner_settings(controller, planner_options)}
     perturbations = perturbations or Perturbations()
-    physics = ground_friction(perturbations, physics or PhysicsParameters())
+    physics = ground_friction(perturbations, physics or PhysicsParameters()).for_robot(robot)
     dt = stop_params.servo_period
     timer = TickTimer(dt)
     builder = DiagramBuilder()
-    plant, scene_graph, instance, _ = add_physics_plant(builder, physics)
-    push = add_pelvis_push(builder, plant, perturbations.pushes)
-    soles = [plant.GetBodyByName(SOLE_FRAMES[side]) for side in SIDES]
+    plant, scene_graph, instance, _ = add_physics_plant(builder, physics, robot)
+    push = add_pelvis_push(builder, plant, perturbations.pushes, robot=robot)
+    soles = sole_bodies(plant, robot)
     cop = builder.AddNamedSystem("cop_estimator", CopEstimator(plant=plant, scene_graph=scene_graph, bodies=soles))
     builder.Connect(plant.get_contact_results_output_port(), cop.contact_results_port)
 
-    kin_plant, _, _ = shared_ik()
-    q0 = pattern_initial_configuration(kin_plant, pattern)
+    kin_plant, _, _ = shared_ik(robot)
+    q0 = pattern_initial_configuration(kin_plant, pattern, robot=robot)
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
-                                     true_state=controller.true_state, initial_q=q0, timer=timer)
+                                     true_state=controller.true_state, initial_q=q0, timer=timer, robot=robot)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
                                            timer=timer, **planner_settings)
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
-    solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND)
+    solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
     swing_tilt_system = None
     if controller.swing_tilt:
         swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
                                                         estimator=estimator, servo_period=dt, timer=timer,
-                                                        **SWING_TILT_COMPENSATION)
+                                                        robot=robot, **SWING_TILT_COMPENSATION)
     connect_reference(builder, planner, ik, feet=swing_tilt_system)
     compliance = None
     if controller.foot_compliance:
         compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
-                                              **FOOT_EDGE_COMPLIANCE)
+                                              robot=robot, **FOOT_EDGE_COMPLIANCE)
     add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
@@ -376,7 +385,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         compliance, swing_tilt_system, push, q0, timer, physics)
+                         compliance, swing_tilt_system, push, q0, timer, physics, robot)
 
 
 def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None = None) -> Simulator:
@@ -386,7 +395,7 @@ def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None
     simulator = Simulator(handles.diagram)
     plant_context = handles.plant.GetMyMutableContextFromRoot(simulator.get_mutable_context())
     handles.plant.SetPositions(plant_context, handles.initial_q)
-    apply_model_errors(handles.plant, plant_context, perturbations or Perturbations())
+    apply_model_errors(handles.plant, plant_context, perturbations or Perturbations(), handles.robot)
     simulator.Initialize()
     return simulator
 
@@ -400,13 +409,32 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
     return out
 
 
-def _checked_pattern(gait_params, pattern) -> NominalPattern:
-    """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (the paper's by default)."""
+def _checked_pattern(gait_params, pattern, robot=None) -> NominalPattern:
+    """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (by default the
+    robot's: the paper's for the default humanoid)."""
     if pattern is None:
-        return NominalPattern(gait_params or GaitParameters())
+        return NominalPattern(gait_params or _robot_gait(robot))
     if gait_params is not None and gait_params != pattern.params:
         raise ValueError("gait_params and pattern disagree: give one of them (pattern is NominalPattern(gait_params))")
     return pattern
+
+
+def _robot_gait(robot) -> GaitParameters:
+    """The robot's nominal gait (:func:`drake_estop.robots.gait_parameters`; the paper's for the default)."""
+    from drake_estop.robots.parameters import gait_parameters
+
+    description = as_robot(robot)
+    return GaitParameters() if description == as_robot(None) else gait_parameters(description)
+
+
+def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopParameters:
+    """:func:`controller_stop_parameters` of the robot's own stop parameters
+    (:func:`drake_estop.robots.stop_parameters`: its leg reach and crouch; the paper's for the default)."""
+    from drake_estop.robots.parameters import stop_parameters
+
+    description = as_robot(robot)
+    base = None if description == as_robot(None) else stop_parameters(description)
+    return controller_stop_parameters(base, braked_landing=braked_landing)
 
 
 def _planner_settings(controller, planner_options) -> dict:
@@ -444,7 +472,7 @@ def _check_run_arguments(pattern, estop_time, after_halt, controller, planner_op
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               controller: ControllerOptions | None = None, planner_options: dict | None = None):
+               controller: ControllerOptions | None = None, planner_options: dict | None = None, robot=None):
     """Walk, stop at ``estop_time`` with the online controller on the simulated robot, and check the
     success criteria: ``drake-estop simulate --physics`` from Python.
 
@@ -455,10 +483,13 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     Parameters
     ----------
     gait_params : GaitParameters, optional
-        The walk (step length [m], step time [s], ...); default the paper's. Give this or ``pattern``.
+        The walk (step length [m], step time [s], ...); default the robot's
+        (:func:`drake_estop.robots.gait_parameters`; the paper's for the default humanoid). Give this or
+        ``pattern``.
     stop_params : StopParameters, optional
         Used as given (the CLI gives ``controller_stop_parameters(params, braked_landing=...)``); default
-        :func:`controller_stop_parameters` with ``controller.braked_landing`` (the controller's margins).
+        :func:`robot_stop_parameters` with ``controller.braked_landing`` (the robot's reach and crouch with
+        the controller's margins).
     estop_time : float, optional
         Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
     after_halt : float, optional
@@ -479,6 +510,10 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     planner_options : dict, optional
         Other keyword arguments of :class:`drake_estop.systems.stop_controller.StopPlannerSystem`
         (``replan_threshold`` [m], ``replan_interval`` [s], ...); its features are ``controller``'s.
+    robot : RobotDescription or str, optional
+        The humanoid (a description, ``"default"``, ``"g1"``, ``"talos"`` or a description file; default
+        the default humanoid): see :func:`build_online_diagram`. A push's impulse is the same whatever the
+        robot: scale it by the robot's mass for the same change of COG velocity.
 
     Returns
     -------
@@ -513,14 +548,15 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     """
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
-    pattern = _checked_pattern(gait_params, pattern)
+    robot = as_robot(robot)
+    pattern = _checked_pattern(gait_params, pattern, robot)
     controller = ControllerOptions() if controller is None else controller
     _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options)
     perturbations = perturbations or Perturbations()
-    stop_params = stop_params or controller_stop_parameters(braked_landing=controller.braked_landing)
+    stop_params = stop_params or robot_stop_parameters(robot, braked_landing=controller.braked_landing)
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, controller=controller,
-                                   planner_options=planner_options)
+                                   planner_options=planner_options, robot=robot)
     simulator = online_simulator(handles, perturbations)
     context = simulator.get_mutable_context()
     cpu = time.process_time()
@@ -533,7 +569,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
     reference = JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, 0.0)
     cpu = time.process_time() - cpu
-    result = analyse(handles, context, plan, reference, handles.physics, wall)
+    result = analyse(handles, context, plan, reference, handles.physics, wall, robot)
     states = handles.loggers["state"].FindLog(context).data().T
     replans, replan_failures = handles.planner.replans(planner_context)
     result.online = {

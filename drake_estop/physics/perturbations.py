@@ -43,11 +43,12 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.multibody.tree import BodyIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem
 
-from drake_estop.model import FLOATING_BASE, TORSO
+from drake_estop.robots.parameters import as_robot
+from drake_estop.robots.plant import SOLE_FRICTION
 
-#: Friction coefficients of the model's sole contact geometry (models/humanoid.urdf).
-SOLE_MU_STATIC = 1.0
-SOLE_MU_DYNAMIC = 0.8
+#: Friction coefficients of the soles' contact geometry: models/humanoid.urdf's, and the contact
+#: :func:`drake_estop.robots.add_robot` adds to the other robots' soles (the same numbers).
+SOLE_MU_STATIC, SOLE_MU_DYNAMIC = SOLE_FRICTION
 _TIME_TOLERANCE = 1e-9  # [s]
 #: Largest |--torso-com-offset| accepted [m].
 MAX_TORSO_COM_OFFSET = 0.1
@@ -216,11 +217,12 @@ def perturbations_from_args(args) -> Perturbations:
 # Model errors.
 
 
-def apply_model_errors(plant, plant_context, perturbations: Perturbations):
+def apply_model_errors(plant, plant_context, perturbations: Perturbations, robot=None):
     """Write the perturbed inertias into ``plant_context`` (the plant's defaults stay nominal).
 
     Every rigid body's mass and rotational inertia are multiplied by
-    ``mass_scale`` (COM unchanged); the torso (``model.TORSO``) additionally
+    ``mass_scale`` (COM unchanged); the torso (``robot``'s ``torso_body``, the
+    default humanoid's ``torso`` when ``robot`` is None) additionally
     by ``torso_mass_scale``, and its COM is moved by ``torso_com_offset``
     along the torso frame's x axis (central inertia kept). Call it on the
     simulated plant's context before ``Simulator.Initialize()``. Returns the
@@ -229,7 +231,7 @@ def apply_model_errors(plant, plant_context, perturbations: Perturbations):
     changed = []
     if not perturbations.model_error:
         return changed
-    torso = plant.GetBodyByName(TORSO)
+    torso = plant.GetBodyByName(as_robot(robot).torso_body)
     for index in range(1, plant.num_bodies()):  # 0 is the world body
         body = plant.get_body(BodyIndex(index))
         M = body.CalcSpatialInertiaInBodyFrame(plant_context)
@@ -298,7 +300,8 @@ class PelvisPush(LeafSystem):
     for every push active at the context time (``time <= t < time +
     duration``) a force ``[force_x, force_y, 0]`` N (world frame, no
     moment) applied at the COM of body ``body_name`` (default the floating
-    base, ``model.FLOATING_BASE``). Several active pushes give several
+    base of ``robot``, a description, a name or None: the default humanoid's
+    pelvis). Several active pushes give several
     entries (Drake sums them). Connect it to
     ``plant.get_applied_spatial_force_input_port()``.
 
@@ -313,8 +316,9 @@ class PelvisPush(LeafSystem):
     1e-4 on the humanoid in the air).
     """
 
-    def __init__(self, *, plant, pushes=(), body_name: str = FLOATING_BASE):
+    def __init__(self, *, plant, pushes=(), body_name: str | None = None, robot=None):
         super().__init__()
+        body_name = as_robot(robot).floating_base if body_name is None else body_name
         self.pushes = tuple(p if isinstance(p, Push) else Push(*p) for p in pushes)
         body = plant.GetBodyByName(body_name)
         self._body_index = body.index()
@@ -346,12 +350,13 @@ class PelvisPush(LeafSystem):
         output.set_value(forces)
 
 
-def add_pelvis_push(builder, plant, pushes, *, name: str = "pelvis_push") -> PelvisPush:
-    """Add a :class:`PelvisPush` and connect it to ``plant``'s applied-spatial-force input.
+def add_pelvis_push(builder, plant, pushes, *, name: str = "pelvis_push", robot=None) -> PelvisPush:
+    """Add a :class:`PelvisPush` (on ``robot``'s floating base) and connect it to ``plant``'s
+    applied-spatial-force input.
 
     Returns the system. With no pushes it is still added (its output is an
     empty list), so the diagram has the same structure in every run.
     """
-    system = builder.AddNamedSystem(name, PelvisPush(plant=plant, pushes=pushes))
+    system = builder.AddNamedSystem(name, PelvisPush(plant=plant, pushes=pushes, robot=robot))
     builder.Connect(system.applied_spatial_force_port, plant.get_applied_spatial_force_input_port())
     return system

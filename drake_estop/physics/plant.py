@@ -22,9 +22,10 @@ turns the IK's per-tick positions into the PD ``desired_state``;
 
 from __future__ import annotations
 
+import functools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -48,22 +49,24 @@ from pydrake.multibody.tree import PdControllerGains
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 
-from drake_estop.model import (
-    LEFT_SOLE,
-    RIGHT_SOLE,
-    load_humanoid,
-)
+from drake_estop.model import PELVIS_HEIGHT_AT_ZERO
 from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import snap_to_tick
+from drake_estop.robots.description import RobotDescription
+from drake_estop.robots.parameters import as_robot
+from drake_estop.robots.plant import CORNER_RADIUS, add_robot, robot_plant, sole_frame
+from drake_estop.robots.plant import set_servo_gains as set_description_gains
 from drake_estop.timing import frozen_heap
 
 SIDES = ("left", "right")
 
+#: The point-contact corner spheres sit 5 mm inside the sole rectangle (models/humanoid.urdf, and the
+#: contact :func:`drake_estop.robots.add_robot` adds to the other robots' soles).
+SOLE_CONTACT_INSET = CORNER_RADIUS
 
-SOLE_FRAMES = {"left": LEFT_SOLE, "right": RIGHT_SOLE}
-
-#: The point-contact corner spheres sit 5 mm inside the sole rectangle (models/humanoid.urdf).
-SOLE_CONTACT_INSET = 0.005
+#: The default humanoid's pelvis-origin heights above the floor that count as upright [m]; another robot's
+#: are these scaled by its floating base's height at the zero configuration (:func:`pelvis_height_bounds`).
+DEFAULT_PELVIS_HEIGHT_BOUNDS = (0.45, 0.80)
 
 
 @dataclass(frozen=True)
@@ -85,14 +88,16 @@ class PhysicsParameters:
         "point" (sole corner spheres) or "hydroelastic" (sole boxes).
     mu_static, mu_dynamic : float
         Foot-ground friction coefficients (dimensionless).
-    gains : tuple
-        (joint-name key, kp [N m/rad]) per joint group.
+    gains : tuple or None
+        (joint-name key, kp [N m/rad]) per joint group, in place of the robot description's
+        ``servo_gains``; None (default): the description's (kp and kd).
     damping_time : float
         kd = damping_time * kp [s].
     log_period : float
         Log period [s].
-    pelvis_height_bounds : tuple of float
-        Pelvis origin above the floor that counts as upright [m].
+    pelvis_height_bounds : tuple of float or None
+        Floating-base origin above the floor that counts as upright [m]; None (default): the robot's
+        (:func:`pelvis_height_bounds`: (0.45, 0.80) for the default humanoid).
     max_torso_tilt : float
         Torso z axis from the vertical [rad].
     max_slip : float
@@ -115,12 +120,11 @@ class PhysicsParameters:
     contact: str = "point"  # "point" (sole corner spheres) or "hydroelastic" (sole boxes)
     mu_static: float = 1.0
     mu_dynamic: float = 0.8
-    gains: tuple = (("hip", 3e4), ("knee", 3e4), ("ankle", 3e4), ("chest", 2e4), ("head", 200.0),
-                    ("shoulder", 2e3), ("elbow", 1e3), ("wrist", 100.0), ("hand", 50.0))
+    gains: tuple | None = None  # (key, kp) per joint group; None: the robot description's servo_gains
     damping_time: float = 0.03  # kd = damping_time * kp [s]
     log_period: float = 0.005  # per-tick logs (the servo period)
     # success criteria
-    pelvis_height_bounds: tuple = (0.45, 0.80)  # [m] pelvis origin above the floor
+    pelvis_height_bounds: tuple | None = None  # [m] pelvis origin above the floor; None: the robot's
     max_torso_tilt: float = 0.26  # [rad] (15 deg) torso z axis from the vertical
     max_slip: float = 0.01  # [m] sole travel while it stands on the ground
     rest_speed: float = 0.01  # [m/s] measured COG speed that counts as rest
@@ -138,11 +142,49 @@ class PhysicsParameters:
         if not 0 < self.mu_dynamic <= self.mu_static:
             raise ValueError("need 0 < mu_dynamic <= mu_static")
 
-    def gain(self, joint_name: str) -> float:
+    def gain(self, joint_name: str, robot=None) -> float:
+        """kp [N m/rad] of ``joint_name``: from ``gains``, else from ``robot``'s description (default: the
+        default humanoid's)."""
+        if self.gains is None:
+            gain = as_robot(robot).servo_gain(joint_name)
+            if gain is None:
+                raise ValueError(f"no servo gain for joint {joint_name!r}")
+            return float(gain.kp)
         for key, kp in self.gains:
             if key in joint_name:
                 return float(kp)
         raise ValueError(f"no servo gain for joint {joint_name!r}")
+
+    def for_robot(self, robot=None) -> PhysicsParameters:
+        """These parameters with the robot's criteria filled in where they are None
+        (``pelvis_height_bounds``: :func:`pelvis_height_bounds`)."""
+        if self.pelvis_height_bounds is not None:
+            return self
+        return replace(self, pelvis_height_bounds=pelvis_height_bounds(robot))
+
+
+def pelvis_height_bounds(robot=None) -> tuple:
+    """The floating-base heights above the floor [m] that count as upright for ``robot`` (a description, a
+    name or None: the default humanoid): :data:`DEFAULT_PELVIS_HEIGHT_BOUNDS` for the default humanoid, for
+    another robot those scaled by its floating base's height over the soles at the zero configuration
+    against the default's 0.705 m (to 1 mm)."""
+    description = as_robot(robot)
+    if description == as_robot(None):
+        return DEFAULT_PELVIS_HEIGHT_BOUNDS
+    scale = _base_height_at_zero(description) / PELVIS_HEIGHT_AT_ZERO
+    return tuple(float(round(bound * scale, 3)) for bound in DEFAULT_PELVIS_HEIGHT_BOUNDS)
+
+
+@functools.cache
+def _base_height_at_zero(description: RobotDescription) -> float:
+    """Height of the floating base's origin above the lower sole plane at the zero configuration [m]."""
+    plant, instance = robot_plant(description)
+    context = plant.CreateDefaultContext()  # every joint at zero
+    base = plant.GetBodyByName(description.floating_base, instance)
+    plant.SetFreeBodyPose(context, base, RigidTransform())
+    soles = [sole_frame(plant, description, side, instance=instance).CalcPoseInWorld(context).translation()[2]
+             for side in SIDES]
+    return -min(soles)
 
 
 class CopEstimator(LeafSystem):
@@ -305,8 +347,14 @@ def add_ground(plant, params: PhysicsParameters):
     return plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground", props)
 
 
-def set_servo_gains(plant, params: PhysicsParameters):
-    """PD gains on every joint actuator (before Finalize)."""
+def set_servo_gains(plant, params: PhysicsParameters, instance=None, robot=None):
+    """PD gains on every joint actuator (before Finalize): ``robot``'s description's
+    (:func:`drake_estop.robots.set_servo_gains`, kp and kd), or with ``params.gains`` those kp and
+    ``kd = params.damping_time * kp``. ``instance``: the robot's model instance (needed for the
+    description's gains)."""
+    if params.gains is None:
+        set_description_gains(plant, instance, as_robot(robot))
+        return
     for index in plant.GetJointActuatorIndices():
         actuator = plant.get_mutable_joint_actuator(index)
         kp = params.gain(actuator.joint().name())
@@ -370,17 +418,32 @@ def plant_config(params: PhysicsParameters) -> MultibodyPlantConfig:
         contact_model="point" if params.contact == "point" else "hydroelastic_with_fallback")
 
 
-def add_physics_plant(builder, params: PhysicsParameters):
-    """The humanoid on the ground: the plant from :func:`plant_config` (``AddMultibodyPlant``),
-    servo gains, sole contact filtered to the corner spheres.
+def add_physics_plant(builder, params: PhysicsParameters, robot=None):
+    """The robot on the ground: the plant from :func:`plant_config` (``AddMultibodyPlant``), the robot
+    (``robot``: a :class:`~drake_estop.robots.RobotDescription`, a name or a description file; default
+    the default humanoid) with its sole contact (:func:`drake_estop.robots.add_robot`), servo gains,
+    sole contact filtered to the corner spheres.
     Returns ``(plant, scene_graph, model_instance, ground_id)``."""
+    description = as_robot(robot)
     plant, scene_graph = AddMultibodyPlant(plant_config(params), builder)
-    instance = load_humanoid(plant)
+    instance = add_robot(plant, description)
     ground_id = add_ground(plant, params)
-    set_servo_gains(plant, params)
+    set_servo_gains(plant, params, instance, description)
     plant.Finalize()
     filter_sole_contact(plant, scene_graph, ground_id, params)
     return plant, scene_graph, instance, ground_id
+
+
+def sole_frames(plant, robot=None) -> list:
+    """The robot's sole frames in ``plant``, left then right (:func:`drake_estop.robots.sole_frame`)."""
+    description = as_robot(robot)
+    return [sole_frame(plant, description, side) for side in SIDES]
+
+
+def sole_bodies(plant, robot=None) -> list:
+    """The bodies that carry the robot's soles in ``plant``, left then right (the bodies a
+    :class:`CopEstimator` of the state estimator is built with)."""
+    return [frame.body() for frame in sole_frames(plant, robot)]
 
 
 def add_servo_targets(builder, plant, instance, ik, initial_q, servo_period, mode="interpolate",

@@ -37,8 +37,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
-from drake_estop.model import LEFT_SOLE, RIGHT_SOLE
 from drake_estop.physics.estimator_math import cross
+from drake_estop.physics.plant import sole_frames
 from drake_estop.timing import timed, untimed
 
 #: Noise standard deviations of ``--sensor-noise``.
@@ -90,11 +90,14 @@ class FootForceTorqueSensors(LeafSystem):
       - ``body_poses`` (abstract): the plant's body poses.
       - ``foot_ft`` (12): per sole (left, right) ``[n (3), f (3)]``: the moment about the sole frame's
         origin and the force, both in the sole frame [N m, N] (what a sensor in the foot measures).
+
+    ``robot`` (a :class:`~drake_estop.robots.RobotDescription`, a name or None: the default humanoid)
+    names the sole frames.
     """
 
-    def __init__(self, *, plant):
+    def __init__(self, *, plant, robot=None):
         super().__init__()
-        frames = [plant.GetFrameByName(name) for name in (LEFT_SOLE, RIGHT_SOLE)]
+        frames = sole_frames(plant, robot)  # the robot's (default: the default humanoid's), left then right
         self._bodies = [int(frame.body().index()) for frame in frames]
         self._sole_in_body = [frame.GetFixedPoseInBodyFrame() for frame in frames]
         self.body_wrenches_port = self.DeclareVectorInputPort("body_wrenches", 12)

@@ -43,7 +43,7 @@ def sweep_row(result: PhysicsResult) -> dict:
 def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None, *,
           every: float = 0.02, start: float | None = None, duration: float | None = None,
           progress: bool = True, physics: PhysicsParameters | None = None, after_halt: float = 2.5,
-          run=None, executor=None):
+          run=None, executor=None, robot=None):
     """:func:`run_physics` for stop signals every ``every`` s over one stride (default: the
     third step, :meth:`NominalPattern.stride`, single then double support).
 
@@ -55,8 +55,16 @@ def sweep(gait_params: GaitParameters | None = None, stop_params: StopParameters
     (e.g. :func:`drake_estop.physics.online.run_online`). ``executor(function, jobs)``
     (e.g. :func:`drake_estop.campaign.executor.map_tasks`, the campaign's Dask
     executor) maps :func:`sweep_job` over the jobs in order; without it the
-    runs are serial in this process.
+    runs are serial in this process. ``robot`` (a description, a name or None: the default humanoid) is
+    given to every run (``run(..., robot=robot)``), and the gait and stop parameters default to its own.
     """
+    if robot is not None:
+        from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parameters
+
+        robot = as_robot(robot)
+        gait_params = gait_params or gait_parameters(robot)
+        stop_params = stop_params or stop_parameters(robot)
+        run = functools.partial(run or run_physics, robot=robot)
     gait_params = gait_params or GaitParameters()
     stop_params = stop_params or StopParameters()
     pattern = _sweep_pattern(gait_params)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from drake_estop.model import FLOATING_BASE
+from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import matrix_to_quaternion, quaternion_to_matrix, rotation_exp, rotation_log
 from drake_estop.timing import timed
 
@@ -96,11 +96,12 @@ class SwingFootTiltCompensation(LeafSystem):
     sensor reads less than ``contact_force``; its correction is then the measured tilt
     (:func:`base_tilt` with ``deadband`` and ``max_tilt``). Otherwise the correction decays
     (``return_time``). Parameters are keyword-only; ``timer`` is a
-    :class:`drake_estop.timing.TickTimer`.
+    :class:`drake_estop.timing.TickTimer`; ``robot`` (a description, a name or None: the default
+    humanoid) names the floating base.
     """
 
     def __init__(self, *, plant, servo_period=0.005, deadband=0.01, max_tilt=0.17, return_time=0.3,
-                 contact_force=50.0, swing_height=1e-4, timer=None):
+                 contact_force=50.0, swing_height=1e-4, timer=None, robot=None):
         super().__init__()
         for name, value in (("servo_period", servo_period), ("max_tilt", max_tilt), ("return_time", return_time),
                             ("swing_height", swing_height)):
@@ -112,7 +113,7 @@ class SwingFootTiltCompensation(LeafSystem):
         self._deadband, self._max_tilt = deadband, max_tilt
         self._decay = max(0.0, 1.0 - servo_period / return_time)
         self._contact_force, self._swing_height = contact_force, swing_height
-        base = plant.GetBodyByName(FLOATING_BASE).floating_positions_start()
+        base = plant.GetBodyByName(as_robot(robot).floating_base).floating_positions_start()
         self._quat = slice(base, base + 4)
         nq = plant.num_positions()
         self.feet_in_ports = [self.DeclareVectorInputPort(f"{side}_foot", 7) for side in FEET]

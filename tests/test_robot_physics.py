@@ -1,0 +1,191 @@
+"""Any described humanoid through the physics path: the simulated plant, sensors, estimator, compliance,
+pushes and criteria read the robot's description (``robot=``), the command line's ``--physics --robot`` and
+``sweep --robot`` run it, and the G1 and TALOS stop in physics (slow)."""
+
+import math
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import DiagramBuilder
+from robot_helpers import needs_robots
+
+from drake_estop.cli import main
+from drake_estop.physics.compliance import FootEdgeCompliance
+from drake_estop.physics.criteria import CRITERIA
+from drake_estop.physics.estimation import StateEstimator
+from drake_estop.physics.online import build_online_diagram, robot_stop_parameters
+from drake_estop.physics.perturbations import PelvisPush
+from drake_estop.physics.plant import (
+    DEFAULT_PELVIS_HEIGHT_BOUNDS,
+    PhysicsParameters,
+    add_physics_plant,
+    pelvis_height_bounds,
+    sole_bodies,
+)
+from drake_estop.planning.gait import NominalPattern
+from drake_estop.robots import load_robot
+from drake_estop.robots.parameters import gait_parameters
+
+EXTERNAL = [pytest.param(name, marks=needs_robots) for name in ("g1", "talos")]
+
+
+def test_the_default_robot_keeps_its_criteria_and_gains():
+    """The default humanoid's pelvis bounds and servo gains are the ones its physics results were measured with."""
+    assert pelvis_height_bounds() == pelvis_height_bounds("default") == DEFAULT_PELVIS_HEIGHT_BOUNDS == (0.45, 0.80)
+    assert PhysicsParameters().for_robot().pelvis_height_bounds == (0.45, 0.80)
+    assert PhysicsParameters(pelvis_height_bounds=(0.1, 2.0)).for_robot("default").pelvis_height_bounds == (0.1, 2.0)
+    assert PhysicsParameters().gain("l_knee") == 3e4 and PhysicsParameters().gain("l_elbow") == 1e3
+
+
+@pytest.mark.parametrize("name", EXTERNAL)
+def test_the_physics_plant_is_the_robot_s(name):
+    """The simulated plant holds the described robot with its sole contact, its servo gains and its soles
+    as the CoP estimator's bodies; the pelvis bounds scale with its floating base's height."""
+    robot = load_robot(name)
+    plant, scene_graph, instance, _ = add_physics_plant(DiagramBuilder(), PhysicsParameters(), robot)
+    assert [body.name() for body in sole_bodies(plant, robot)] == [robot.left_foot.body, robot.right_foot.body]
+    knee = plant.GetJointByName(robot.left_leg.knee)
+    actuator = next(plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()
+                    if plant.get_joint_actuator(i).joint().index() == knee.index())
+    gains = actuator.get_controller_gains()
+    assert (gains.p, gains.d) == (robot.servo_gain(robot.left_leg.knee).kp, robot.servo_gain(robot.left_leg.knee).kd)
+    names = {scene_graph.model_inspector().GetName(g) for g in scene_graph.model_inspector().GetAllGeometryIds()}
+    assert any(n.endswith("left_sole_toe_outer") for n in names) and any(n.endswith("right_sole_box") for n in names)
+    low, high = pelvis_height_bounds(robot)
+    assert 0.0 < low < high and low != 0.45
+
+
+@pytest.mark.parametrize("name", EXTERNAL)
+def test_the_controller_blocks_read_the_robot(name):
+    """The online diagram of another robot builds, and its blocks name that robot's bodies and joints (each
+    raised on the default humanoid's names before)."""
+    robot = load_robot(name)
+    pattern = NominalPattern(gait_parameters(robot))
+    handles = build_online_diagram(pattern, robot_stop_parameters(robot), 3.3, robot=robot)
+    assert handles.robot == robot and handles.physics.pelvis_height_bounds == pelvis_height_bounds(robot)
+    plant = handles.plant
+    base = plant.GetBodyByName(robot.floating_base)
+    assert handles.push is not None and isinstance(handles.push, PelvisPush)
+    assert handles.push._body_index == base.index()
+    assert isinstance(handles.compliance, FootEdgeCompliance) and isinstance(handles.estimator, StateEstimator)
+    assert handles.estimator._omega == pytest.approx(math.sqrt(9.81 / robot.walking_com_height), rel=1e-3)
+    # the estimator starts from the robot's initial posture with its soles on the floor
+    x0 = handles.estimator.initial_state(handles.initial_q)
+    assert np.all(np.isfinite(x0))
+
+
+def _cli_physics_keywords(monkeypatch, args):
+    """The keyword arguments `simulate --physics ARGS` gives run_online (the run itself is cut short), and
+    the command's stderr is not a refusal."""
+    import drake_estop.physics.online as online
+
+    seen = {}
+
+    def fake_run_online(gait, stop, estop_time, **kwargs):
+        seen.update(kwargs, gait=gait)
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(online, "run_online", fake_run_online)
+    main(["simulate", "--physics", *args])
+    return seen
+
+
+@needs_robots
+def test_simulate_physics_takes_another_robot(monkeypatch, capsys):
+    """``simulate --physics --robot g1`` (and a scenario's ``robot: talos``) runs the online controller on that
+    robot with its gait, instead of exiting 2 naming ``robot``."""
+    seen = _cli_physics_keywords(monkeypatch, ["--estop-time", "3.3", "--robot", "g1"])
+    assert "robot: " not in capsys.readouterr().err
+    assert seen["robot"].name == "g1" and seen["gait"].com_height == load_robot("g1").walking_com_height
+    seen = _cli_physics_keywords(monkeypatch, ["--estop-time", "3.4", "--scenario-text", "{robot: talos}"])
+    assert seen["robot"].name == "talos"
+
+
+@needs_robots
+def test_sweep_takes_another_robot(monkeypatch, tmp_path, capsys):
+    """``sweep --robot g1`` gives every run the robot (it exited 2 naming ``robot`` before)."""
+    import drake_estop.physics.sweep as sweep_module
+
+    seen = {}
+
+    def fake_sweep(gait, stop, **kwargs):
+        seen.update(kwargs, gait=gait)
+        return [{"signal_time": 3.0, "success": True}]
+
+    monkeypatch.setattr(sweep_module, "sweep", fake_sweep)
+    code = main(["sweep", "--no-progress", "--robot", "g1", "--csv", str(tmp_path / "s.csv"), "--png",
+                 str(tmp_path / "s.png")])
+    assert "robot: " not in capsys.readouterr().err
+    assert code == 0 and seen["robot"].name == "g1" and seen["gait"].step_width == load_robot("g1").step_width
+
+
+def _criteria_report(result) -> str:
+    numbers = result.numbers()
+    return (f"{result.criteria}, pelvis {numbers['pelvis_z_min_m']:.3f}-{numbers['pelvis_z_max_m']:.3f} m, "
+            f"tilt {numbers['torso_tilt_max_rad']:.3f}, slip {max(result.slip.values()):.4f} m, rest after halt "
+            f"{numbers['rest_after_halt_s']:.2f} s, offset {numbers['final_cog_offset_m']:.4f} m, CoP margin "
+            f"{numbers['cop_margin_plan_min_m']:.4f} m, violations {result.online['joint_velocity_violations']}")
+
+
+def _assert_stops(result, support):
+    assert result.plan.support == support
+    assert set(result.criteria) == set(CRITERIA)
+    assert result.success, _criteria_report(result)
+    assert result.online["joint_velocity_violations"] == 0
+
+
+def _run(name, estop_time, push=None):
+    """run_online of robot ``name`` with its own gait and stop parameters; ``push`` (fx, fy sign) pushes the
+    floating base at the signal with 0.3 m/s times the robot's mass [N s] over 0.1 s."""
+    from drake_estop.physics.online import run_online
+    from drake_estop.physics.perturbations import Perturbations, Push
+    from drake_estop.robots.measure import robot_facts
+
+    robot = load_robot(name)
+    perturbations = None
+    if push is not None:
+        force = 0.3 * robot_facts(robot).mass / 0.1  # [N] over 0.1 s: a 0.3 m/s change of the COG velocity
+        perturbations = Perturbations(pushes=(Push(estop_time, push[0] * force, push[1] * force, 0.1),))
+    return run_online(estop_time=estop_time, robot=robot, perturbations=perturbations)
+
+
+@pytest.mark.slow
+@needs_robots
+@pytest.mark.parametrize("estop_time, support", [(3.4, "single"), (0.8, "double")])
+def test_talos_stops_in_physics(estop_time, support):
+    """TALOS walks its own gait on the contact plant (its description's servo gains) and stops from single
+    support of its third step and from double support while it shifts its weight before the first step,
+    meeting every criterion, no joint over its velocity limit. (The third step's double support, 3.67-3.83 s,
+    stops at 3.77 and 3.8 s with the CoP within 0.2 mm of the support's edge: too close to test.)"""
+    _assert_stops(_run("talos", estop_time), support)
+
+
+@pytest.mark.slow
+@needs_robots
+def test_talos_stops_after_a_forward_push_at_the_signal():
+    """A forward push of 0.3 m/s times TALOS's 90.3 kg (27.1 N s) on its base at a single-support signal: it
+    still stops meeting every criterion."""
+    _assert_stops(_run("talos", 3.4, push=(1.0, 0.0)), "single")
+
+
+@pytest.mark.slow
+@needs_robots
+def test_g1_stops_after_a_forward_push_in_the_weight_shift():
+    """A forward push of 0.3 m/s times the G1's 33.3 kg (10.0 N s) on its pelvis at a double-support signal."""
+    _assert_stops(_run("g1", 0.8, push=(1.0, 0.0)), "double")
+
+
+@pytest.mark.slow
+@needs_robots
+def test_g1_stops_in_physics_from_the_weight_shift():
+    """The G1 on the contact plant (its description's gains, its 0.17 x 0.05 m soles) stops from double
+    support while it shifts its weight before the first step, meeting every criterion."""
+    _assert_stops(_run("g1", 0.8), "double")
+
+
+@pytest.mark.slow
+@needs_robots
+@pytest.mark.xfail(strict=True, reason="known gap: the open-loop G1 walk rolls the stance foot onto its outer "
+                   "edge (the sole's corner spheres are 2 cm from the ankle) and falls after its first landing")
+def test_g1_stops_in_physics_from_single_support():
+    _assert_stops(_run("g1", 1.5), "single")
