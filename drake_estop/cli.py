@@ -509,19 +509,27 @@ def _add_campaign(sub):
     p.add_argument("--out", required=True, metavar="DIR", help="result folder (created; reused to resume)")
     p.add_argument("--config", metavar="FILE.yaml",
                    help="ranges overriding the shipped default (drake_estop/campaign/default.yaml) key by key")
+    p.add_argument("--robot", default="default", metavar="NAME|FILE.yaml",
+                   help="the robot of every run (default %(default)s); without --config the default ranges are "
+                        "scaled to it: the gait by its own, the pushes by its mass")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_executor_options(p)
     p.set_defaults(func=_campaign)
 
 
 def _campaign(args) -> int:
-    from drake_estop.campaign.config import load_config
+    from drake_estop.campaign.config import load_config, scaled_to_robot
     from drake_estop.campaign.runner import CampaignInterrupted, run_campaign
+    from drake_estop.robots import as_robot
 
+    robot = as_robot(args.robot)  # a bad name or file exits 2, naming robot
     config = load_config(args.config)
+    if args.config is None:
+        config = scaled_to_robot(config, args.robot)
     try:
         table = run_campaign(runs=args.runs, seed=args.seed, out=args.out, config=config, workers=args.workers,
-                             scheduler=args.scheduler, progress=not args.no_progress)
+                             scheduler=args.scheduler, progress=not args.no_progress,
+                             robot="default" if robot.name == "default" else args.robot)
     except CampaignInterrupted as stop:
         print(f"campaign {stop}; report {args.out}/report.html", file=sys.stderr)
         return 130

@@ -14,6 +14,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 from campaign_helpers import fake_run
+from robot_helpers import needs_robots
 
 from drake_estop.campaign.config import (
     ConfigError,
@@ -417,3 +418,48 @@ def test_a_campaign_runs_on_an_existing_scheduler_and_equals_a_local_one(tmp_pat
         assert len(cluster.workers) == 1  # and the cluster outlives the campaign (it is not the campaign's)
     local = run_campaign(runs=3, seed=5, out=tmp_path / "local", workers=1, runner=fake_run, progress=False)
     assert remote.num_rows == 3 and _deterministic(remote) == _deterministic(local)
+
+
+# -- another robot
+
+
+def test_a_robot_campaign_runs_that_robot_and_the_default_commands_stay_as_they_were():
+    """The robot reaches every run's command (``--robot``) and places the signal in its own stride; a default
+    campaign's commands do not name a robot."""
+    config = default_config()
+    default = sample_run(config, 7, 0)
+    assert "--robot" not in default.argv() and "robot" not in default.record()
+    talos = sample_run(config, 7, 0, robot="talos")
+    argv = talos.argv()
+    assert argv[argv.index("--robot") + 1] == "talos"
+    assert build_parser().parse_args(argv).robot == "talos"
+    assert {k: v for k, v in dataclasses.asdict(talos).items() if k not in ("robot", "estop_time", "push_time")} == \
+        {k: v for k, v in dataclasses.asdict(default).items() if k not in ("robot", "estop_time", "push_time")}
+
+
+@needs_robots
+def test_the_default_ranges_scale_to_the_robot():
+    """The same campaign for another robot: its gait's ratios and the same push speeds (impulse / mass)."""
+    from drake_estop.campaign.config import scaled_to_robot
+    from drake_estop.robots import as_robot, gait_parameters
+    from drake_estop.robots.measure import robot_facts
+
+    config = default_config()
+    assert scaled_to_robot(config, "default") == config
+    g1 = scaled_to_robot(config, "g1")
+    gait, base = gait_parameters(as_robot("g1")), gait_parameters(as_robot("default"))
+    assert g1.step_length == pytest.approx(tuple(v * gait.step_length / base.step_length for v in config.step_length),
+                                           abs=1e-4)
+    mass = robot_facts(as_robot("g1")).mass / robot_facts(as_robot("default")).mass
+    assert g1.push_impulse[1] == pytest.approx(config.push_impulse[1] * mass, abs=1e-4) and mass < 1.0
+    assert g1.push_direction == config.push_direction and g1.friction == config.friction
+
+
+def test_resuming_with_another_robot_exits_2_and_a_bad_robot_names_it(tmp_path, capsys):
+    out = tmp_path / "c"
+    run_campaign(runs=2, seed=1, out=out, workers=1, runner=fake_run, progress=False)
+    assert json.loads((out / "campaign.json").read_text())["robot"] == "default"
+    with pytest.raises(ConfigError, match="robot"):
+        run_campaign(runs=2, seed=1, out=out, workers=1, runner=fake_run, progress=False, robot="talos")
+    assert main(["campaign", "--runs", "1", "--out", str(tmp_path / "d"), "--robot", "no_such_robot"]) == 2
+    assert "robot" in capsys.readouterr().err and not (tmp_path / "d").exists()

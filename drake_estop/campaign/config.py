@@ -229,6 +229,7 @@ class RunParameters:
     friction: float
     latency: int  # [ticks]
     sensor_noise: bool
+    robot: str = "default"  # the campaign's robot (a built-in name or a description file)
 
     @property
     def push_impulse(self) -> float:
@@ -252,7 +253,8 @@ class RunParameters:
         (argparse takes ``-5e-05`` for an option, ``-0.00005`` for a number).
         """
         f = _number
-        argv = ["simulate", "--physics", "--estop-time", f(self.estop_time),
+        robot = [] if self.robot == "default" else ["--robot", self.robot]
+        argv = ["simulate", "--physics", *robot, "--estop-time", f(self.estop_time),
                 "--step-length", f(self.step_length), "--step-time", f(self.step_time),
                 "--step-width", f(self.step_width),
                 "--push", *(f(v) for v in (self.push_time, self.push_fx, self.push_fy, self.push_duration)),
@@ -266,8 +268,10 @@ class RunParameters:
         return shlex.join(["drake-estop", *self.argv()])
 
     def record(self) -> dict:
-        """The parameters as a flat dict, with the derived push impulse, direction and onset."""
-        return {**asdict(self), "push_impulse": self.push_impulse, "push_direction": self.push_direction,
+        """The parameters as a flat dict, with the derived push impulse, direction and onset (the robot is the
+        campaign's: its manifest and each run's command name it)."""
+        values = {name: value for name, value in asdict(self).items() if name != "robot"}
+        return {**values, "push_impulse": self.push_impulse, "push_direction": self.push_direction,
                 "push_onset": self.push_onset}
 
 
@@ -275,23 +279,33 @@ def _uniform(rng, bounds) -> float:
     return float(rng.uniform(bounds[0], bounds[1]))
 
 
-def _signal_time(gait_values: dict, phase: float) -> tuple:
-    """(signal time on the servo tick [s], its actual share of the stride) for the sampled ``phase``."""
+def _signal_time(gait_values: dict, phase: float, robot: str = "default") -> tuple:
+    """(signal time on the servo tick [s], its actual share of the stride) for the sampled ``phase``, on the
+    gait of ``robot`` with ``gait_values``."""
+    from dataclasses import replace
+
     from drake_estop.planning.gait import GaitParameters, NominalPattern
 
-    start, end = NominalPattern(GaitParameters(**gait_values)).stride()
+    if robot == "default":
+        gait = GaitParameters(**gait_values)
+    else:
+        from drake_estop.robots import as_robot, gait_parameters
+
+        gait = replace(gait_parameters(as_robot(robot)), **gait_values)
+    start, end = NominalPattern(gait).stride()
     t = _snap(start + phase * (end - start), SERVO_PERIOD)
     t = min(max(t, _snap(start, SERVO_PERIOD)), _snap(end, SERVO_PERIOD))
     return t, round(min(max((t - start) / (end - start), 0.0), 1.0), 6)
 
 
-def sample_run(config: CampaignConfig, seed: int, run: int = 0) -> RunParameters:
+def sample_run(config: CampaignConfig, seed: int, run: int = 0, robot: str = "default") -> RunParameters:
     """Draw run ``run``'s parameters from ``numpy.random.default_rng(seed)``, in a fixed order.
 
     Every range gets one draw even when low == high, so that changing one
     range does not shift the others. Times are snapped (the signal to the
     5 ms servo tick, the push to the 1 ms plant step) and every value is
     rounded to a short decimal, so that the command line carries it exactly.
+    ``robot``: the campaign's (its gait places the signal in the stride).
     """
     rng = np.random.default_rng(seed)
     phase = _uniform(rng, config.signal_phase)
@@ -306,7 +320,7 @@ def sample_run(config: CampaignConfig, seed: int, run: int = 0) -> RunParameters
                                                                       "torso_com_offset", "friction")}
     latency = int(rng.integers(config.latency[0], config.latency[1] + 1))
     noise = bool(rng.random() < config.noise_probability)
-    estop_time, phase = _signal_time(gait, phase)
+    estop_time, phase = _signal_time(gait, phase, robot)
     force = impulse / duration
     return RunParameters(
         run=int(run), seed=int(seed), signal_phase=round(phase, 6), estop_time=estop_time, **gait,
@@ -314,12 +328,33 @@ def sample_run(config: CampaignConfig, seed: int, run: int = 0) -> RunParameters
         push_fy=round(force * math.sin(direction), 2), push_duration=duration,
         mass_scale=round(model["mass_scale"], 4), torso_mass_scale=round(model["torso_mass_scale"], 4),
         torso_com_offset=round(model["torso_com_offset"], 5), friction=round(model["friction"], 4),
-        latency=latency, sensor_noise=noise)
+        latency=latency, sensor_noise=noise, robot=robot)
 
 
-def campaign_runs(config: CampaignConfig, campaign_seed: int, runs: int) -> list:
-    """:class:`RunParameters` of runs 0 .. ``runs`` - 1 of the campaign ``campaign_seed``."""
-    return [sample_run(config, run_seed(campaign_seed, i), i) for i in range(runs)]
+def campaign_runs(config: CampaignConfig, campaign_seed: int, runs: int, robot: str = "default") -> list:
+    """:class:`RunParameters` of runs 0 .. ``runs`` - 1 of the campaign ``campaign_seed`` on ``robot``."""
+    return [sample_run(config, run_seed(campaign_seed, i), i, robot) for i in range(runs)]
 
 
-PARAMETER_FIELDS = tuple(f.name for f in fields(RunParameters)) + ("push_impulse", "push_direction", "push_onset")
+def scaled_to_robot(config: CampaignConfig, robot: str) -> CampaignConfig:
+    """``config`` as the same campaign for ``robot`` (a built-in name or a description file): the step
+    length, time and width ranges scaled by the robot's own gait against the default robot's, and the push
+    impulses by its mass against the default robot's, so that the pushes give the same speeds [m/s]."""
+    from dataclasses import replace
+
+    from drake_estop.robots import as_robot, gait_parameters
+    from drake_estop.robots.measure import robot_facts
+
+    ours, theirs = as_robot("default"), as_robot(robot)
+    if theirs.name == ours.name:
+        return config
+    base, gait = gait_parameters(ours), gait_parameters(theirs)
+    scale = {"step_length": gait.step_length / base.step_length, "step_time": gait.step_time / base.step_time,
+             "step_width": gait.step_width / base.step_width,
+             "push_impulse": robot_facts(theirs).mass / robot_facts(ours).mass}
+    return replace(config, **{name: tuple(round(v * factor, 4) for v in getattr(config, name))
+                              for name, factor in scale.items()})
+
+
+PARAMETER_FIELDS = tuple(f.name for f in fields(RunParameters) if f.name != "robot") + (
+    "push_impulse", "push_direction", "push_onset")

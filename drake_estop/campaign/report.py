@@ -233,7 +233,8 @@ def write_report(table, folder, *, manifest: dict | None = None) -> Path:
         "<table><tr><th>run</th><th>seed</th><th>phase</th><th>impulse [N s]</th><th>direction [deg]</th>"
         "<th>case</th><th>missed</th><th>reproduce</th></tr>", _failure_rows(table), "</table>",
         "<h2>Campaign</h2>",
-        f"<p>seed {html.escape(str((manifest or {}).get('seed')))}; sessions (start, runs asked, code, workers): "
+        f"<p>robot {html.escape(str((manifest or {}).get('robot', 'default')))}; "
+        f"seed {html.escape(str((manifest or {}).get('seed')))}; sessions (start, runs asked, code, workers): "
         + "; ".join(html.escape(f"{s['started']} {s['runs']} {s['code']} {s['workers']}") for s in sessions)
         + "</p>",
         "<pre>" + html.escape(json.dumps((manifest or {}).get("config"), indent=1)) + "</pre>",

@@ -247,7 +247,7 @@ def _code_version() -> str:
 
 
 def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = None, workers: int | None = None,
-                 scheduler: str | None = None, runner=None, progress: bool = True):
+                 scheduler: str | None = None, runner=None, progress: bool = True, robot: str = "default"):
     """Run (or resume) the campaign of ``runs`` runs from ``seed`` into the folder ``out``.
 
     Parameters
@@ -268,6 +268,10 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
         It must be importable by the workers.
     progress : bool
         Show the progress bar.
+    robot : str
+        The robot of every run (a built-in name or a description file; the manifest records it). The ranges
+        are ``config``'s as given (:func:`~drake_estop.campaign.config.scaled_to_robot` makes the default ones
+        the robot's).
 
     Writes ``out/report.html`` and its PNGs at the end (:func:`~drake_estop.campaign.report.write_report`),
     also after Ctrl-C (then raises :class:`CampaignInterrupted`, once the finished runs are merged).
@@ -286,9 +290,9 @@ def run_campaign(*, runs: int, seed: int, out, config: CampaignConfig | None = N
     runner = runner or simulate_run
     config = config or default_config()
     store = ResultStore(out)
-    manifest = {"format": 1, "seed": seed, "config": config.as_yaml_dict()}
+    manifest = {"format": 1, "seed": seed, "config": config.as_yaml_dict(), "robot": robot}
     store.check(manifest)
-    plans = campaign_runs(config, seed, runs)
+    plans = campaign_runs(config, seed, runs, robot)
     with dask_client(workers, scheduler) as client:
         started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         store.open(manifest, {"started": started, "runs": runs, "code": _code_version(),

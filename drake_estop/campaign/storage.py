@@ -107,11 +107,11 @@ class ResultStore:
         if not self.manifest_path.exists():
             return
         stored = json.loads(self.manifest_path.read_text())
-        for key in ("seed", "config"):
-            if stored.get(key) != manifest[key]:
+        for key, default in (("seed", None), ("config", None), ("robot", "default")):
+            if stored.get(key, default) != manifest.get(key, default):
                 raise ConfigError(f"--out: {self.folder} holds a campaign with another {key} "
-                                  f"({stored.get(key)!r}); resume with the same --seed and --config or "
-                                  "use a new folder")
+                                  f"({stored.get(key, default)!r}); resume with the same --seed, --config and "
+                                  "--robot or use a new folder")
 
     # -- writing
 
