@@ -432,12 +432,13 @@ def _rest_fractions(spans, max_rear_reach):
     return fractions, keep
 
 
-def _landings(ankle, swing_xy, landing_y, min_landing, params):
+def _landings(ankle, swing_xy, landing_y, min_landing, params, centred=False):
     """Landing choices: step lengths on the grid within the step-length and rear-reach limits (the COG
     rests at least at the midpoint, half a step ahead of the support ``ankle``), each with the rest
     points :func:`rest_points` allows, their landing ankles, the earliest touchdown on the servo grid
     each allows (``min_landing_time``, ``min_landing``, the mean swing speed from ``swing_xy``), at
-    most ``max_landing_time``: ``(landing (n, 2), t1 (n,), rest (n, 2))``, a row per landing and rest."""
+    most ``max_landing_time``: ``(landing (n, 2), t1 (n,), rest (n, 2))``, a row per landing and rest
+    (``centred``: the midpoint only)."""
     dt = params.servo_period
     steps = np.arange(params.min_step_length, params.max_step_length + 1e-9, STEP_GRID)
     steps = steps[0.5 * steps <= params.max_rear_reach]
@@ -447,6 +448,8 @@ def _landings(ankle, swing_xy, landing_y, min_landing, params):
     keep = t1 <= params.max_landing_time + 1e-9
     steps, landing, t1 = steps[keep], landing[keep], t1[keep]
     fractions, kept = _rest_fractions(steps, params.max_rear_reach)
+    if centred:
+        kept[:, 1:] = False
     row, column = np.nonzero(kept)
     half = 0.5 * (landing - ankle)
     return landing[row], t1[row], ankle + half[row] * (1.0 + fractions[row, column])[:, None]
@@ -510,25 +513,28 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     ``required`` [m]."""
     args = (com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
             polygon_for, params, w, required)
-    levels = {}  # the candidates' levels and margins by step lengths: the same for both passes
+    levels = {}  # the candidates' levels and margins by landing rows: the same for both passes
     if float(np.asarray(com_vel, float)[0]) >= 0.0:
-        found = _swing_search(*args, _ForwardOnly(), levels)
+        # the feet's midpoint first (the centred stance), then the rest points further on
+        found = _swing_search(*args, _ForwardOnly(), {}, centred=True)
+        if found is None:
+            found = _swing_search(*args, _ForwardOnly(), levels)
         if found is not None:
             return found
     return _swing_search(*args, None, levels)
 
 
 def _swing_search(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing_y, min_landing, support_polygon,
-                  polygon_for, params, w, required, forward_only, levels):
+                  polygon_for, params, w, required, forward_only, levels, centred=False):
     """:func:`swing_brake`'s search; with ``forward_only`` (a :class:`_ForwardOnly`) only the candidates
     along which the COG does not move backwards (None when its checks run out). ``levels``: a dict that
     keeps each set of step lengths' candidate levels, margins and order for a second pass (they do not
-    depend on ``forward_only``)."""
+    depend on ``forward_only``). ``centred``: the COG rests at the feet's midpoint only."""
     com, com_vel, zmp, rate, accel, ankle, swing_xy = (np.asarray(v, float)[:2] for v in (
         com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy))
     dt = params.servo_period
     ramp = _ticks(params, (SOLE_RAMP_FACTOR,))[0]  # the ZMP's transition on the support sole
-    landing, t1, rests = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params)
+    landing, t1, rests = _landings(ankle, swing_xy, landing_y, max(min_landing, ramp + dt), params, centred)
     if not len(t1):
         return None
     t = _swing_table(float(w), float(dt), _ticks(params, RAMP_FACTORS), _ticks(params, RETURN_FACTORS[:1]),
