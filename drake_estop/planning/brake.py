@@ -500,7 +500,7 @@ def swing_brake(com, com_vel, zmp, zmp_rate, zmp_accel, ankle, swing_xy, landing
     touchdown each allows) with the ZMP chain ``ZMP -> a (held) -> touchdown -> c (held) -> m``: the
     soonest along which the COG never moves backwards (:func:`_backs_up`, among the first
     ``FORWARD_CHECKS`` candidates that fit), resting at the feet's midpoint if it can and else at
-    the first of :func:`rest_points` further on, if the COG moves forward; else the soonest.
+    the soonest over :func:`rest_points`, if the COG moves forward; else the soonest.
 
     ``com, com_vel, zmp, zmp_rate, zmp_accel`` (2,): the COG and the ZMP at the plan start (the ZMP
     on the support sole: at the ankle and at rest where the walk is interrupted, eq. 19);
