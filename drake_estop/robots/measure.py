@@ -15,7 +15,8 @@ by s. A description's own numbers win.
 
 **Leg reach** (:func:`measure_reach`), found with Drake's
 ``InverseKinematics`` (SNOPT) in a double-support stance: the floating base
-upright, the upper body at its nominal posture, the COG at the walking height
+upright, the upper body at its nominal posture (every joint but the legs held,
+named in the description or not, as the whole-body IK holds them), the COG at the walking height
 over (0, 0), the ankles at y = +-step_width / 2, both soles flat on the floor.
 
 * fore reach: the support (right) sole under the COG at x = 0, the landing
@@ -31,7 +32,7 @@ still converges, which near a straight knee may be a few millimetres short of
 the geometric limit. The default humanoid's planner numbers (fore 0.195 m,
 rear 0.26 m, measured by hand with the project's whole-body IK) stay in its
 description; this measurement gives it fore 0.198 m and rear 0.250 m, the G1
-0.184 / 0.225 m, TALOS 0.241 / 0.300 m.
+0.186 / 0.228 m, TALOS 0.241 / 0.300 m.
 
 **Standing posture** (:func:`nominal_standing_configuration`): the same IK
 with the soles at (0, +-hip_half_width) and the COG at the walking height over
@@ -78,7 +79,7 @@ REACH_RESOLUTION = 0.001
 STANCE_TOLERANCE = 1e-6
 #: Knee bend of the initial guess of a stance [rad].
 GUESS_KNEE = 0.6
-_REACH_CACHE_VERSION = 1
+_REACH_CACHE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -202,11 +203,14 @@ class _Stance:
         base = plant.GetBodyByName(description.floating_base, instance)
         self.quaternion = base.floating_positions_start()
         self.knees = {s: plant.GetJointByName(description.leg(s).knee, instance).position_start() for s in SIDES}
-        self.fixed = [plant.GetJointByName(j, instance).position_start() for j in description.upper_body_joints]
         # other models in the plant keep their positions; their mass shifts the plant's COG target
         count = plant.num_positions()
         own = plant.GetPositionsFromArray(instance, np.arange(count, dtype=float)).astype(int)
         self.others = np.setdiff1d(np.arange(count), own)
+        # the stance solves for the base and the legs; every other joint of the robot, named in the description
+        # or not, stays where the guess puts it (as in the whole-body IK, which moves the base and legs only)
+        legs = [plant.GetJointByName(j, instance).position_start() for j in description.leg_joints]
+        self.fixed = np.setdiff1d(own, np.concatenate([np.arange(self.quaternion, self.quaternion + 7), legs]))
         context = plant.CreateDefaultContext()
         self.mass, self.robot_mass = plant.CalcTotalMass(context), plant.CalcTotalMass(context, [instance])
 
