@@ -178,7 +178,7 @@ def test_g1_stops_after_a_forward_push_in_the_weight_shift():
 @pytest.mark.slow
 @needs_robots
 def test_g1_stops_in_physics_from_the_weight_shift():
-    """The G1 on the contact plant (its description's gains, its 0.17 x 0.05 m soles) stops from double
+    """The G1 on the contact plant (its description's gains, its 0.167 x 0.056 m soles) stops from double
     support while it shifts its weight before the first step, meeting every criterion."""
     _assert_stops(_run("g1", 0.8), "double")
 
