@@ -344,7 +344,8 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controlle
     if controller.kind == "online":
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
-        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing)
+        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing,
+                                          robot=args.robot_description)
         result = run_online(gait, stop, estop_time, after_halt=args.after_halt, pattern=pattern,
                             perturbations=perturbations, physics=_physics_parameters(args.scenario),
                             controller=controller, robot=args.robot_description)
@@ -469,7 +470,8 @@ def _sweep(args) -> int:
     if controller.kind == "online":
         from drake_estop.physics.online import controller_stop_parameters, run_online
 
-        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing)
+        stop = controller_stop_parameters(stop, braked_landing=controller.braked_landing,
+                                          robot=args.robot_description)
         run = functools.partial(run_online, controller=controller)
     executor = functools.partial(map_tasks, workers=args.workers, scheduler=args.scheduler,
                                  progress=not args.no_progress, desc="physics sweep")

@@ -225,7 +225,8 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
 
 
-def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True) -> StopParameters:
+def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True,
+                               robot=None) -> StopParameters:
     """The stop parameters the online controller plans with.
 
     ``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
@@ -241,12 +242,39 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
         Stop parameters to start from (lengths [m], times [s]); default the paper's.
     braked_landing : bool, optional
         Add the braked landing (15 m/s^2 swing braking, approach slope 0.6, dimensionless); default True.
+    robot : RobotDescription or str, optional
+        A robot whose description gives its own ``stop_zmp_margin`` [m]: that margin replaces the
+        controller's (a robot with smaller soles than the default humanoid's: :func:`controller_settings`).
+        Default None: the default humanoid, the controller's margin.
 
     Returns
     -------
     StopParameters
-        ZMP margin at least 0.03 [m], halt durations (1.0, 1.2, 1.5) [s], earliest landing 0.05 [s].
+        ZMP margin at least 0.03 [m] (or the robot's own), halt durations (1.0, 1.2, 1.5) [s], earliest
+        landing 0.05 [s].
     """
+    params = _controller_stop_parameters(params, braked_landing)
+    margin = controller_settings(robot)["zmp_margin"]
+    return params if margin is None else replace(params, zmp_margin=margin)
+
+
+def controller_settings(robot=None) -> dict:
+    """The robot's own settings of the physics controller, each None where it keeps the controller's:
+    ``zmp_margin`` (the stop plan's, [m]), ``swing_tilt_deadband`` ([rad]: :data:`SWING_TILT_COMPENSATION`)
+    and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its description's ``stop_zmp_margin``,
+    ``swing_tilt_deadband`` and ``foot_edge_margin``. The default humanoid gives none."""
+    description = as_robot(robot)
+    return {"zmp_margin": description.stop_zmp_margin, "swing_tilt_deadband": description.swing_tilt_deadband,
+            "edge_margin": description.foot_edge_margin}
+
+
+def _robot_setting(settings: dict, robot_settings: dict, key: str, name: str) -> dict:
+    """``settings`` with ``key`` set to the robot's ``name`` setting, where it has one."""
+    value = robot_settings[name]
+    return settings if value is None else {**settings, key: value}
+
+
+def _controller_stop_parameters(params, braked_landing):
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
     params = replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
@@ -333,6 +361,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     from drake_estop.systems.diagram import robot_layout
 
     robot = as_robot(robot)
+    robot_settings = controller_settings(robot)
     controller = ControllerOptions() if controller is None else controller
     planner_settings = {"layout": robot_layout(robot, pattern), **_planner_settings(controller, planner_options)}
     perturbations = perturbations or Perturbations()
@@ -362,12 +391,16 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     if controller.swing_tilt:
         swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
                                                         estimator=estimator, servo_period=dt, timer=timer,
-                                                        robot=robot, **SWING_TILT_COMPENSATION)
+                                                        robot=robot, **_robot_setting(
+                                                            SWING_TILT_COMPENSATION, robot_settings, "deadband",
+                                                            "swing_tilt_deadband"))
     connect_reference(builder, planner, ik, feet=swing_tilt_system)
     compliance = None
     if controller.foot_compliance:
         compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
-                                              robot=robot, **FOOT_EDGE_COMPLIANCE)
+                                              robot=robot, **_robot_setting(
+                                                  FOOT_EDGE_COMPLIANCE, robot_settings, "edge_margin",
+                                                  "edge_margin"))
     add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     period = physics.log_period
@@ -434,7 +467,7 @@ def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopPar
 
     description = as_robot(robot)
     base = None if description == as_robot(None) else stop_parameters(description)
-    return controller_stop_parameters(base, braked_landing=braked_landing)
+    return controller_stop_parameters(base, braked_landing=braked_landing, robot=description)
 
 
 def _planner_settings(controller, planner_options) -> dict:

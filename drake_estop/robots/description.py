@@ -322,6 +322,11 @@ class RobotDescription:
     keep_model_collisions : bool
         Keep the model's own collision geometry (primitives and OBJ/VTK/glTF meshes only);
         otherwise only the sole contact geometry collides.
+    stop_zmp_margin, swing_tilt_deadband, foot_edge_margin : float or None
+        The physics controller's settings for this robot: the stop plan's ZMP margin inside the
+        support [m], the swing-foot tilt compensation's dead band [rad] and the foot-edge
+        compliance's edge band [m]; None (default): the controller's own
+        (:mod:`drake_estop.physics.online`, measured on the default humanoid's 0.24 x 0.136 m soles).
     """
 
     name: str = ""
@@ -356,6 +361,9 @@ class RobotDescription:
     lowest_com_height: float | None = None
     height: float | None = None
     min_knee_bend: float = 0.0
+    stop_zmp_margin: float | None = None
+    swing_tilt_deadband: float | None = None
+    foot_edge_margin: float | None = None
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -366,7 +374,8 @@ class RobotDescription:
         _check_positive("walking_com_height", self.walking_com_height)
         _check_positive("sole_thickness", self.sole_thickness)
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
-                     "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height"):
+                     "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height",
+                     "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
         bend = self.min_knee_bend
