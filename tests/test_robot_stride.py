@@ -34,8 +34,8 @@ def test_the_sweep_refuses_a_bad_spacing():
 @needs_robots
 @pytest.mark.parametrize("name, least_one_step", [("g1", 0.85), ("talos", 0.85)])
 def test_every_4th_tick_of_a_stride_stops_with_the_ik_within_a_millimetre(name, least_one_step):
-    """Measured over every tick (benchmarks/bench_robots.py): G1 149/158 one-step (the first 50 ms of
-    single support take the next step: on its 5 cm wide soles no halt keeps the ZMP 10 mm inside the
+    """Measured over every tick (benchmarks/bench_robots.py): G1 151/158 one-step (7 of the first 45 ms of
+    single support take the next step: on its 5.6 cm wide soles no halt keeps the ZMP 10 mm inside the
     support), TALOS 161/172 (11 late double-support ticks take the next step); the IK within 0.01 mm
     of the COG at every tick of every stop, no joint over its speed or position limit."""
     rows = sweep_stride(robot=name, every=4)
