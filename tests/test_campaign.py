@@ -423,12 +423,17 @@ def test_a_campaign_runs_on_an_existing_scheduler_and_equals_a_local_one(tmp_pat
 # -- another robot
 
 
-def test_a_robot_campaign_runs_that_robot_and_the_default_commands_stay_as_they_were():
-    """The robot reaches every run's command (``--robot``) and places the signal in its own stride; a default
-    campaign's commands do not name a robot."""
+def test_a_default_campaign_s_commands_name_no_robot():
+    default = sample_run(default_config(), 7, 0)
+    assert default.robot == "default" and "--robot" not in default.argv() and "robot" not in default.record()
+
+
+@needs_robots
+def test_a_robot_campaign_runs_that_robot():
+    """The robot reaches every run's command (``--robot``) and places the signal in its own stride; the other
+    sampled values are the default campaign's."""
     config = default_config()
     default = sample_run(config, 7, 0)
-    assert "--robot" not in default.argv() and "robot" not in default.record()
     talos = sample_run(config, 7, 0, robot="talos")
     argv = talos.argv()
     assert argv[argv.index("--robot") + 1] == "talos"
