@@ -159,12 +159,15 @@ def _run(name, estop_time, push=None, **changes):
 
 @pytest.mark.slow
 @needs_robots
-@pytest.mark.parametrize("estop_time, support", [(3.4, "single"), (0.8, "double")])
+@pytest.mark.parametrize("estop_time, support", [(3.4, "single"), (0.8, "double"), (2.97, "single"),
+                                                 (3.67, "double")])
 def test_talos_stops_in_physics(estop_time, support):
-    """TALOS walks its own gait on the contact plant (its description's servo gains) and stops from single
-    support of its third step and from double support while it shifts its weight before the first step,
-    meeting every criterion, no joint over its velocity limit. (The third step's double support, 3.67-3.83 s,
-    stops at 3.77 and 3.8 s with the CoP within 0.2 mm of the support's edge: too close to test.)"""
+    """TALOS walks its own gait on the contact plant (its description's servo gains and foot force control)
+    and stops from single support of its third step (2.97 s, its first tick), from its double support (3.67 s,
+    its first tick) and from double support while it shifts its weight before the first step, meeting
+    every criterion, no joint over its velocity limit. Without the feet's force difference control 2.97 and
+    3.67 s fell, and the double support's other stops passed with 0.1-0.2 mm of CoP margin (5.8-6.8 mm with
+    it)."""
     _assert_stops(_run("talos", estop_time), support)
 
 
