@@ -65,3 +65,30 @@ def test_sole_lateral_edges_put_the_outer_edge_on_the_foots_own_side(side, outer
     assert corners[:, 1].max() == pytest.approx(left_edge) and corners[:, 1].min() == pytest.approx(-right_edge)
     assert (left_edge if outer_sign > 0 else right_edge) == sole.outer
     assert (right_edge if outer_sign > 0 else left_edge) == sole.inner
+
+
+def test_zmp_offset_moves_the_single_support_zmp_forward_in_the_sole():
+    """``zmp_offset`` puts every single support's ZMP that far ahead of its ankle (along a turned foot's
+    heading too), the pattern still satisfies eq. 4 and ends at rest between the feet; 0 is the
+    paper's pattern to the bit; an offset outside the sole is refused, naming the field."""
+    base = NominalPattern(GaitParameters())
+    same = NominalPattern(GaitParameters(zmp_offset=0.0))
+    t = np.arange(0.0, base.end_time + 0.5, 0.005)
+    for a, b in zip(base.com(t), same.com(t)):
+        assert np.array_equal(a, b)
+    for turn, offset in ((0.0, 0.04), (15.0, 0.04)):
+        pattern = NominalPattern(GaitParameters(zmp_offset=offset, turn=turn))
+        for step in pattern.steps[1:-1]:
+            mid = 0.5 * (step["liftoff"] + step["touchdown"])
+            state = pattern.state(mid)
+            side = state.support_foot
+            yaw = state.feet_yaw[side]
+            ahead = state.feet[side][:2] + offset * np.array([np.cos(yaw), np.sin(yaw)])
+            np.testing.assert_allclose(state.zmp, ahead, atol=1e-9)
+        pos, vel, _, zmp = pattern.com(t)
+        for axis in (0, 1):
+            assert lipm_tracking_error(t, pos[:, axis], vel[:, axis], zmp[:, axis], pattern.w) < 1e-3
+        assert np.abs(vel[-1]).max() < 1e-8
+    for bad in (0.135, -0.105, float("nan")):
+        with pytest.raises(ValueError, match="zmp_offset"):
+            GaitParameters(zmp_offset=bad)

@@ -2,6 +2,7 @@
 pushes and criteria read the robot's description (``robot=``), the command line's ``--physics --robot`` and
 ``sweep --robot`` run it, and the G1 and TALOS stop in physics (slow)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -134,14 +135,21 @@ def _assert_stops(result, support):
     assert result.online["joint_velocity_violations"] == 0
 
 
-def _run(name, estop_time, push=None):
-    """run_online of robot ``name`` with its own gait and stop parameters; ``push`` (fx, fy sign) pushes the
-    floating base at the signal with 0.3 m/s times the robot's mass [N s] over 0.1 s."""
+#: The G1 that walks its stride in physics: 1.0 s steps, the walk's ZMP 3 cm ahead of the ankle, the feet's
+#: force difference control at 8000 N s/m (its description's gait falls in its second step; g1.yaml says why
+#: these are not its own).
+G1_WALKING = {"step_time": 1.0, "walking_zmp_offset": 0.03, "foot_force_damping": 8000.0}
+
+
+def _run(name, estop_time, push=None, **changes):
+    """run_online of robot ``name`` (its description with ``changes``) with its own gait and stop parameters;
+    ``push`` (fx, fy sign) pushes the floating base at the signal with 0.3 m/s times the robot's mass [N s]
+    over 0.1 s."""
     from drake_estop.physics.online import run_online
     from drake_estop.physics.perturbations import Perturbations, Push
     from drake_estop.robots.measure import robot_facts
 
-    robot = load_robot(name)
+    robot = dataclasses.replace(load_robot(name), **changes)
     perturbations = None
     if push is not None:
         force = 0.3 * robot_facts(robot).mass / 0.1  # [N] over 0.1 s: a 0.3 m/s change of the COG velocity
@@ -151,12 +159,15 @@ def _run(name, estop_time, push=None):
 
 @pytest.mark.slow
 @needs_robots
-@pytest.mark.parametrize("estop_time, support", [(3.4, "single"), (0.8, "double")])
+@pytest.mark.parametrize("estop_time, support", [(3.4, "single"), (0.8, "double"), (2.97, "single"),
+                                                 (3.67, "double")])
 def test_talos_stops_in_physics(estop_time, support):
-    """TALOS walks its own gait on the contact plant (its description's servo gains) and stops from single
-    support of its third step and from double support while it shifts its weight before the first step,
-    meeting every criterion, no joint over its velocity limit. (The third step's double support, 3.67-3.83 s,
-    stops at 3.77 and 3.8 s with the CoP within 0.2 mm of the support's edge: too close to test.)"""
+    """TALOS walks its own gait on the contact plant (its description's servo gains and foot force control)
+    and stops from single support of its third step (2.97 s, its first tick), from its double support (3.67 s,
+    its first tick) and from double support while it shifts its weight before the first step, meeting
+    every criterion, no joint over its velocity limit. Without the feet's force difference control 2.97 and
+    3.67 s fell, and the double support's other stops passed with 0.1-0.2 mm of CoP margin (5.8-6.8 mm with
+    it)."""
     _assert_stops(_run("talos", estop_time), support)
 
 
@@ -194,12 +205,27 @@ def test_g1_stops_in_physics_from_single_support(estop_time):
     _assert_stops(_run("g1", estop_time), "single")
 
 
+@pytest.mark.slow
+@needs_robots
+@pytest.mark.parametrize("estop_time, support", [(3.6, "single"), (4.15, "double")])
+def test_g1_walks_and_stops_in_its_third_step(estop_time, support):
+    """The G1 with 1.0 s steps, its walk's ZMP 3 cm ahead of the ankle and the feet's force difference
+    control (:data:`G1_WALKING`) walks its stride in physics and stops from its third step's single support
+    (3.25-4.05 s) and double support (4.05-4.25 s) meeting every criterion, no joint over its velocity
+    limit. Without the force control it falls at both signals; its own 0.79 s walk falls in the second
+    step (the landed foot hovered over the floor through the double support, the robot then rolled out
+    over the new stance foot's outer edge)."""
+    _assert_stops(_run("g1", estop_time, **G1_WALKING), support)
+
+
 def test_the_default_robot_keeps_the_controller_s_settings():
     """The default humanoid gives no controller setting of its own: its stop parameters and the controller
-    blocks' settings are the controller's constants."""
+    blocks' settings are the controller's constants, no foot force control, its gait's ZMP at the ankle."""
     from drake_estop.physics.online import controller_settings, controller_stop_parameters
+    from drake_estop.robots.parameters import default_robot
 
     assert set(controller_settings().values()) == {None}
+    assert gait_parameters(default_robot()).zmp_offset == 0.0
     assert robot_stop_parameters() == controller_stop_parameters() == controller_stop_parameters(robot="default")
 
 
@@ -218,3 +244,24 @@ def test_the_g1_controller_settings_come_from_its_description():
     assert handles.swing_tilt._deadband == robot.swing_tilt_deadband != SWING_TILT_COMPENSATION["deadband"]
     assert robot.foot_edge_margin != FOOT_EDGE_COMPLIANCE["edge_margin"]
     assert handles.compliance._safe[0][0] == pytest.approx(-robot.sole().heel + robot.foot_edge_margin)
+    assert handles.foot_force is None and gait_parameters(robot).zmp_offset == 0.0
+    # a description's foot_force_damping puts the feet's force difference control between the swing-tilt
+    # compensation and the IK; its walking_zmp_offset is the gait's zmp_offset
+    walking = dataclasses.replace(robot, **G1_WALKING)
+    handles = build_online_diagram(NominalPattern(gait_parameters(walking)), robot_stop_parameters(walking), 1.5,
+                                   robot=walking)
+    assert handles.foot_force is not None and handles.foot_force._damping == walking.foot_force_damping
+    assert "foot_height_difference" in handles.loggers
+    assert gait_parameters(walking).zmp_offset == walking.walking_zmp_offset == 0.03
+
+
+@needs_robots
+@pytest.mark.parametrize("field", ["walking_zmp_offset", "foot_force_damping"])
+def test_the_walking_settings_are_checked(field):
+    """The description's walking ZMP offset and foot force damping must be positive; an offset beyond the
+    toe is refused by the gait, naming its field."""
+    robot = load_robot("g1")
+    with pytest.raises(ValueError, match=field):
+        dataclasses.replace(robot, **{field: -1.0})
+    with pytest.raises(ValueError, match="zmp_offset"):
+        gait_parameters(dataclasses.replace(robot, walking_zmp_offset=robot.sole().toe + 0.01))

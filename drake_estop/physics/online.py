@@ -162,6 +162,7 @@ from drake_estop.physics.compliance import add_foot_edge_compliance
 from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
 from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
 from drake_estop.physics.estimation import add_state_estimation
+from drake_estop.physics.foot_force import add_foot_force_control
 from drake_estop.physics.perturbations import (
     Perturbations,
     add_pelvis_push,
@@ -224,6 +225,10 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 #: 10 degree cap, a 0.3 s return after the touchdown, and 50 N of measured force for contact.
 SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
 
+#: Settings of the feet's force difference control (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`)
+#: for a robot whose description gives its ``foot_force_damping`` [N s/m] (none for the default humanoid: off).
+FOOT_FORCE_CONTROL = {"return_time": 0.5, "max_offset": 0.02}
+
 
 def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True,
                                robot=None) -> StopParameters:
@@ -262,10 +267,12 @@ def controller_settings(robot=None) -> dict:
     """The robot's own settings of the physics controller, each None where it keeps the controller's:
     ``zmp_margin`` (the stop plan's, [m]), ``swing_tilt_deadband`` ([rad]: :data:`SWING_TILT_COMPENSATION`)
     and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its description's ``stop_zmp_margin``,
-    ``swing_tilt_deadband`` and ``foot_edge_margin``. The default humanoid gives none."""
+    ``swing_tilt_deadband`` and ``foot_edge_margin``; ``foot_force_damping`` ([N s/m]: the feet's force
+    difference control, :data:`FOOT_FORCE_CONTROL`, only for a robot that gives it). The default humanoid
+    gives none."""
     description = as_robot(robot)
     return {"zmp_margin": description.stop_zmp_margin, "swing_tilt_deadband": description.swing_tilt_deadband,
-            "edge_margin": description.foot_edge_margin}
+            "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping}
 
 
 def _robot_setting(settings: dict, robot_settings: dict, key: str, name: str) -> dict:
@@ -312,6 +319,7 @@ class OnlineHandles:
     timer: TickTimer
     physics: PhysicsParameters
     robot: object = None  # the RobotDescription
+    foot_force: object = None  # FootForceDifferenceControl, or None (the robot gives no foot_force_damping)
 
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
@@ -394,7 +402,14 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                                                         robot=robot, **_robot_setting(
                                                             SWING_TILT_COMPENSATION, robot_settings, "deadband",
                                                             "swing_tilt_deadband"))
-    connect_reference(builder, planner, ik, feet=swing_tilt_system)
+    feet = swing_tilt_system
+    foot_force = None
+    if robot_settings["foot_force_damping"] is not None:
+        foot_force = add_foot_force_control(builder, feet=swing_tilt_system or planner, zmp_source=planner,
+                                            sensors=estimator.sensors, servo_period=dt, timer=timer,
+                                            damping=robot_settings["foot_force_damping"], **FOOT_FORCE_CONTROL)
+        feet = foot_force
+    connect_reference(builder, planner, ik, feet=feet)
     compliance = None
     if controller.foot_compliance:
         compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
@@ -415,10 +430,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         loggers["swing_tilt"] = LogVectorOutput(swing_tilt_system.tilt_port, builder, period)
     if compliance is not None:
         loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
+    if foot_force is not None:
+        loggers["foot_height_difference"] = LogVectorOutput(foot_force.height_difference_port, builder, period)
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         compliance, swing_tilt_system, push, q0, timer, physics, robot)
+                         compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force)
 
 
 def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None = None) -> Simulator:

@@ -1,9 +1,10 @@
 """Nominal walking pattern that the emergency stop interrupts.
 
 Pure numpy. The ZMP reference is piecewise polynomial (constant at the support
-ankle in single support, a quintic smoothstep between the feet in double
-support) and the COG is its analytic LIPM solution (eq. 6-9), so the pattern
-satisfies eq. 4 exactly, to rounding. Boundedness: the initial weight shift
+ankle in single support, or the gait's ``zmp_offset`` ahead of it; a quintic
+smoothstep between the feet in double support) and the COG is its analytic
+LIPM solution (eq. 6-9), so the pattern satisfies eq. 4 exactly, to rounding.
+Boundedness: the initial weight shift
 carries one bump in the ZMP chosen so that the divergent component of the COG
 matches the future ZMP (backward recursion); the final double support is
 Harada's two-point boundary-value segment (eq. 27-28) that ends the walk at
@@ -136,6 +137,11 @@ class GaitParameters:
         ``side_step`` and ``num_steps``): the robot starts at the standing
         stance (ankles at y = +-step_width / 2, heading 0) and lands these
         steps in order, alternating feet (:func:`load_footsteps` reads a CSV).
+    zmp_offset : float
+        The single-support ZMP's distance ahead of the support ankle along the
+        foot's heading [m] (default 0: at the ankle, the paper's pattern); for
+        a sole that reaches far ahead of its ankle. It must lie inside the sole
+        (``-heel < zmp_offset < toe``); the standing ZMP stays between the ankles.
 
     Raises
     ------
@@ -159,6 +165,7 @@ class GaitParameters:
     turn: float = 0.0  # heading change per step [deg], positive to the left
     side_step: float = 0.0  # each foot's sideways step [m], positive to the left (widen, then close)
     footsteps: tuple = ()  # explicit Footstep list (replaces step_length / turn / side_step / num_steps)
+    zmp_offset: float = 0.0  # single-support ZMP ahead of the support ankle [m]
 
     def __post_init__(self):
         for name in ("com_height", "step_time", "step_width", "initial_shift_time", "final_shift_time"):
@@ -180,6 +187,9 @@ class GaitParameters:
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
         if not isinstance(self.arms, ArmSwing):
             raise ValueError(f"arms must be an ArmSwing (joints, neutral, gains), got {self.arms!r}")
+        if not (math.isfinite(self.zmp_offset) and -self.sole.heel < self.zmp_offset < self.sole.toe):
+            raise ValueError(f"zmp_offset must lie inside the sole ({-self.sole.heel}, {self.sole.toe}) m, "
+                             f"got {self.zmp_offset!r}")
         if abs(self.turn) > MAX_TURN_DEG:
             raise ValueError(f"turn {self.turn} deg per step is beyond the limit of {MAX_TURN_DEG} deg")
         if self.footsteps:
@@ -306,15 +316,15 @@ class NominalPattern:
         for axis in (0, 1):
             durations, coeffs = [], []
             for i, step in enumerate(self.steps):
-                support_xy = self._support_xy(i)
+                zmp_xy = self._support_zmp(i)
                 durations.append(step["single"])
-                coeffs.append(np.array([support_xy[axis]]))
+                coeffs.append(np.array([zmp_xy[axis]]))
                 if i + 1 < len(self.steps):
-                    nxt = self._support_xy(i + 1)
+                    nxt = self._support_zmp(i + 1)
                     durations.append(step["double"])
-                    coeffs.append(lipm.transition_coeffs(support_xy[axis], nxt[axis], step["double"]))
-            first = self._support_xy(0)[axis]
-            dcm_needed = lipm.required_start_dcm(durations, coeffs, self._support_xy(len(self.steps) - 1)[axis], self.w)
+                    coeffs.append(lipm.transition_coeffs(zmp_xy[axis], nxt[axis], step["double"]))
+            first, last = self._support_zmp(0)[axis], self._support_zmp(len(self.steps) - 1)[axis]
+            dcm_needed = lipm.required_start_dcm(durations, coeffs, last, self.w)
             base = np.eye(6)[0] * mid0[axis] + (first - mid0[axis]) * lipm.SMOOTHSTEP
             init = lipm.solve_bump_coeffs(
                 base, [lipm.BUMP_A], p.initial_shift_time, mid0[axis], 0.0, self.w, [("dcm", dcm_needed)]
@@ -323,7 +333,6 @@ class NominalPattern:
                 0.0, [p.initial_shift_time] + durations, [init] + coeffs, mid0[axis], 0.0, self.w
             )
             x_end, v_end = (float(a[0]) for a in chain.evaluate(chain.end_time)[:2])
-            last = self._support_xy(len(self.steps) - 1)[axis]
             base = np.eye(6)[0] * last + (mid_end[axis] - last) * lipm.SMOOTHSTEP
             final = lipm.solve_bump_coeffs(
                 base, [lipm.BUMP_A, lipm.BUMP_B], p.final_shift_time, x_end, v_end, self.w,
@@ -337,6 +346,18 @@ class NominalPattern:
                 mid0[axis], 0.0, self.w, rest_tail=True,
             )
             self.trajectories.append(traj)
+
+    def _support_zmp(self, i) -> np.ndarray:
+        """The ZMP (x, y) of step ``i``'s single support: its support ankle, or ``zmp_offset`` ahead of it
+        along the support foot's heading."""
+        ankle = self._support_xy(i)
+        offset = self.params.zmp_offset
+        if offset == 0.0:
+            return ankle
+        side = self.steps[i]["support"]
+        yaw = next((self.steps[j]["end_yaw"] for j in range(i - 1, -1, -1) if self.steps[j]["swing"] == side),
+                   self.initial_yaw[side])
+        return ankle + offset * np.array([math.cos(yaw), math.sin(yaw)])
 
     def _support_xy(self, i) -> np.ndarray:
         """Ankle xy of the support foot of step ``i`` (0-based)."""

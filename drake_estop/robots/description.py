@@ -327,6 +327,12 @@ class RobotDescription:
         support [m], the swing-foot tilt compensation's dead band [rad] and the foot-edge
         compliance's edge band [m]; None (default): the controller's own
         (:mod:`drake_estop.physics.online`, measured on the default humanoid's 0.24 x 0.136 m soles).
+    foot_force_damping : float or None
+        The physics controller's foot force difference control for this robot, its damping [N s/m]
+        (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`); None (default): off.
+    walking_zmp_offset : float or None
+        The walk's single-support ZMP ahead of the support ankle [m] (the gait's ``zmp_offset``,
+        inside the sole); None (default): at the ankle.
     """
 
     name: str = ""
@@ -364,6 +370,8 @@ class RobotDescription:
     stop_zmp_margin: float | None = None
     swing_tilt_deadband: float | None = None
     foot_edge_margin: float | None = None
+    walking_zmp_offset: float | None = None
+    foot_force_damping: float | None = None
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -375,7 +383,8 @@ class RobotDescription:
         _check_positive("sole_thickness", self.sole_thickness)
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
                      "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height",
-                     "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin"):
+                     "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin", "walking_zmp_offset",
+                     "foot_force_damping"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
         bend = self.min_knee_bend

@@ -96,13 +96,15 @@ def arm_swing(description: RobotDescription) -> ArmSwing:
 
 
 def gait_parameters(description: RobotDescription, **changes) -> GaitParameters:
-    """The robot's nominal gait: COG height, gait defaults, lift height, sole and arm swing (lengths in m,
-    times in s); ``changes`` override any field."""
+    """The robot's nominal gait: COG height, gait defaults, lift height, sole, arm swing and the walk's ZMP
+    offset in the sole (lengths in m, times in s); ``changes`` override any field."""
     defaults = gait_defaults(description)
     gait = GaitParameters(com_height=description.walking_com_height, step_length=defaults.step_length,
                           step_width=defaults.step_width, step_time=defaults.step_time,
                           lift_height=_scaled(description, "lift_height", REFERENCE_LIFT_HEIGHT),
                           sole=description.sole(), arms=arm_swing(description))
+    if description.walking_zmp_offset is not None:
+        gait = replace(gait, zmp_offset=description.walking_zmp_offset)
     return replace(gait, **changes) if changes else gait
 
 

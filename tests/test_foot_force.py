@@ -1,0 +1,55 @@
+"""The feet's force difference control (physics/foot_force.py): the load split the plan's ZMP asks for, and
+the sign of the height correction (an underloaded foot is pressed down, the other raised)."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_estop.physics.foot_force import FootForceDifferenceControl, desired_force_difference
+
+LEFT = [0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 0.0]
+RIGHT = [0.3, -0.1, 0.0, 1.0, 0.0, 0.0, 0.0]
+
+
+def test_the_desired_split_follows_the_zmp_between_the_ankles():
+    assert desired_force_difference([LEFT, RIGHT], [0.0, 0.1], 300.0) == pytest.approx(300.0)
+    assert desired_force_difference([LEFT, RIGHT], [0.3, -0.1], 300.0) == pytest.approx(-300.0)
+    assert desired_force_difference([LEFT, RIGHT], [0.15, 0.0], 300.0) == pytest.approx(0.0)
+    assert desired_force_difference([LEFT, RIGHT], [0.5, -0.3], 300.0) == pytest.approx(-300.0)  # clipped
+    swinging = [0.3, -0.1, 0.02, 1.0, 0.0, 0.0, 0.0]
+    assert desired_force_difference([LEFT, swinging], [0.15, 0.0], 300.0) == pytest.approx(300.0)
+
+
+def _run(forces, zmp, ticks=20, **settings):
+    """The control after ``ticks`` servo ticks with the soles reading ``forces`` (left, right) [N]; its
+    feet outputs and height difference."""
+    control = FootForceDifferenceControl(**settings)
+    context = control.CreateDefaultContext()
+    control.feet_in_ports[0].FixValue(context, LEFT)
+    control.feet_in_ports[1].FixValue(context, RIGHT)
+    control.zmp_port.FixValue(context, zmp)
+    ft = np.zeros(12)
+    ft[5], ft[11] = forces
+    control.foot_ft_port.FixValue(context, ft)
+    Simulator(control, context).AdvanceTo((ticks - 0.5) * 0.005)  # the ticks at 0, 5, ... ms
+    feet = [port.Eval(context) for port in control.feet_out_ports]
+    return feet, float(control.height_difference_port.Eval(context)[0])
+
+
+def test_an_underloaded_foot_is_pressed_down():
+    """The plan's ZMP midway, all the load on the left foot: the right sole target goes down, the left up,
+    by half the height difference each; x, y and the orientation pass through."""
+    feet, dz = _run((300.0, 0.0), [0.15, 0.0], damping=8000.0)
+    assert dz > 0.0
+    assert feet[0][2] == pytest.approx(0.5 * dz) and feet[1][2] == pytest.approx(-0.5 * dz)
+    np.testing.assert_array_equal(feet[0][[0, 1, 3, 4, 5, 6]], np.array(LEFT)[[0, 1, 3, 4, 5, 6]])
+    # the split as asked: no correction; a bound on the difference
+    assert _run((150.0, 150.0), [0.15, 0.0])[1] == 0.0
+    assert _run((3000.0, 0.0), [0.15, 0.0], ticks=400, max_offset=0.004)[1] == pytest.approx(0.004)
+
+
+def test_the_settings_are_checked():
+    with pytest.raises(ValueError, match="damping"):
+        FootForceDifferenceControl(damping=0.0)
+    DiagramBuilder().AddSystem(FootForceDifferenceControl())
