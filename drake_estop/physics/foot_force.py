@@ -25,9 +25,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from drake_estop.physics.swing_tilt import FEET, declare_feet_outputs
 from drake_estop.timing import timed
-
-FEET = ("left", "right")
 
 
 def desired_force_difference(feet, zmp, total: float, swing_height: float = 1e-4) -> float:
@@ -82,10 +81,7 @@ class FootForceDifferenceControl(LeafSystem):
         self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
         self._dz = self.DeclareDiscreteState(1)
-        tickets = {port.ticket() for port in self.feet_in_ports} | {self.xd_ticket()}
-        self.feet_out_ports = [
-            self.DeclareVectorOutputPort(f"{side}_foot", 7, self._foot_calc(k), prerequisites_of_calc=tickets)
-            for k, side in enumerate(FEET)]
+        self.feet_out_ports = declare_feet_outputs(self, self.feet_in_ports, self._foot_calc)
         self.height_difference_port = self.DeclareStateOutputPort("height_difference", self._dz)
         self.DeclarePeriodicDiscreteUpdateEvent(servo_period, 0.0, timed(self._update, timer))
 

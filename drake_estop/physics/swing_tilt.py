@@ -37,6 +37,15 @@ from drake_estop.timing import timed
 FEET = ("left", "right")
 
 
+def declare_feet_outputs(system, feet_in_ports, calc_for) -> list:
+    """The ``left_foot`` / ``right_foot`` outputs (7: position, quaternion; ``FEET`` order) of a system that
+    adjusts the feet targets on their way to the IK: output ``k`` is ``calc_for(k)``, computed from
+    ``feet_in_ports`` and the system's discrete state."""
+    tickets = {port.ticket() for port in feet_in_ports} | {system.xd_ticket()}
+    return [system.DeclareVectorOutputPort(f"{side}_foot", 7, calc_for(k), prerequisites_of_calc=tickets)
+            for k, side in enumerate(FEET)]
+
+
 def base_tilt(measured_quat, commanded_quat, deadband: float = 0.0, max_tilt: float = np.inf) -> np.ndarray:
     """Rotation vector [rad] of the measured base orientation against the commanded one, world frame:
     its roll and pitch (the vertical component dropped), shrunk by ``deadband`` and capped at
@@ -121,10 +130,7 @@ class SwingFootTiltCompensation(LeafSystem):
         self.commanded_q_port = self.DeclareVectorInputPort("commanded_q", nq)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
         self._tilt = self.DeclareDiscreteState(6)
-        tickets = {port.ticket() for port in self.feet_in_ports} | {self.xd_ticket()}
-        self.feet_out_ports = [
-            self.DeclareVectorOutputPort(f"{side}_foot", 7, self._foot_calc(k), prerequisites_of_calc=tickets)
-            for k, side in enumerate(FEET)]
+        self.feet_out_ports = declare_feet_outputs(self, self.feet_in_ports, self._foot_calc)
         self.tilt_port = self.DeclareStateOutputPort("tilt", self._tilt)
         self.DeclarePeriodicDiscreteUpdateEvent(servo_period, 0.0, timed(self._update, timer))
 
