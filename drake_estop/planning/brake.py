@@ -229,8 +229,13 @@ def stop_brake(com, com_vel, zmp, zmp_rate, zmp_accel, rests, polygons, params, 
     rows = len(rests)
     com, com_vel = (np.broadcast_to(np.asarray(v, float)[:2], (rows, 2)) for v in (com, com_vel))
     ramp = _ticks(params, RAMP_FACTORS)[0]  # the quickest first transition
-    forward = np.array([forward_stop_possible(com[i], com_vel[i], rests[i], polygons[i], w, zmp, ramp, zmp_rate,
-                                              zmp_accel, required) for i in range(rows)])
+    braked = {}  # the strongest braking per start and polygon (the rest points of one landing share theirs)
+    keys = [(id(polygons[i]), com[i].tobytes(), com_vel[i].tobytes()) for i in range(rows)]
+    for i, key in enumerate(keys):
+        if key not in braked:
+            braked[key] = _strongest_brake(com[i], com_vel[i], polygons[i], w, zmp, ramp, zmp_rate, zmp_accel,
+                                           required)
+    forward = np.array([_rests_short_of(braked[key], com[i], com_vel[i], rests[i], w) for i, key in enumerate(keys)])
     levels = {}  # each chunk's levels and margins: the same for both passes
     if forward.any():
         try:
@@ -351,15 +356,33 @@ def forward_stop_possible(com, com_vel, rest, polygon, w: float, zmp=None, ramp:
     first gets there by the quickest transition, ``ramp`` [s] (eq. 12-14): any chain's first transition
     is slower or goes less far. A necessary condition only (the later transitions and the landing come
     on top)."""
-    x, v, m = float(com[0]), float(com_vel[0]), float(rest[0])
+    braked = _strongest_brake(com, com_vel, polygon, w, zmp, ramp, zmp_rate, zmp_accel, required)
+    return _rests_short_of(braked, com, com_vel, rest, w)
+
+
+def _strongest_brake(com, com_vel, polygon, w, zmp, ramp, zmp_rate, zmp_accel, required):
+    """:func:`forward_stop_possible`'s strongest braking from ``com, com_vel``: ``(x, v, front, at_rest)``, the
+    COG along x once the ZMP is at the front ``front`` [m] of ``polygon`` (after the quickest transition from
+    ``zmp``, if given) and whether it came to rest on the way. It does not depend on the rest point, so a
+    search over rest points in one polygon computes it once."""
+    x, v = float(com[0]), float(com_vel[0])
     front = float(np.max(polygon.vertices[:, 0])) - required
-    if v < 0.0 or x > m + 1e-9:
-        return False
-    if zmp is not None and ramp > 0.0:
+    if zmp is not None and ramp > 0.0 and v >= 0.0:
         coeffs = _ramp(float(zmp[0]), front, ramp, float(zmp_rate[0]), float(zmp_accel[0]))
         x, v, lowest = _segment_end(coeffs, ramp, x, v, w, ramp / 8.0)
-        if lowest <= 0.0:  # at rest during the transition already
-            return x <= m + 1e-9
+        return x, v, front, lowest <= 0.0
+    return x, v, front, False
+
+
+def _rests_short_of(braked, com, com_vel, rest, w) -> bool:
+    """:func:`forward_stop_possible` from the COG at the start (``com, com_vel``) and its strongest braking
+    ``braked`` (:func:`_strongest_brake`)."""
+    x, v, front, at_rest = braked
+    m = float(rest[0])
+    if float(com_vel[0]) < 0.0 or float(com[0]) > m + 1e-9:
+        return False
+    if at_rest:  # at rest during the transition already
+        return x <= m + 1e-9
     return x <= m + 1e-9 and (front - x) ** 2 - (v / w) ** 2 >= (front - m) ** 2 - 1e-12
 
 
