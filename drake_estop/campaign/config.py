@@ -11,6 +11,7 @@ A run's seed derives from the campaign seed and the run index
 
 from __future__ import annotations
 
+import functools
 import math
 import shlex
 from dataclasses import asdict, dataclass, fields
@@ -286,16 +287,19 @@ def _signal_time(gait_values: dict, phase: float, robot: str = "default") -> tup
 
     from drake_estop.planning.gait import GaitParameters, NominalPattern
 
-    if robot == "default":
-        gait = GaitParameters(**gait_values)
-    else:
-        from drake_estop.robots import as_robot, gait_parameters
-
-        gait = replace(gait_parameters(as_robot(robot)), **gait_values)
+    gait = GaitParameters(**gait_values) if robot == "default" else replace(_robot_gait(robot), **gait_values)
     start, end = NominalPattern(gait).stride()
     t = _snap(start + phase * (end - start), SERVO_PERIOD)
     t = min(max(t, _snap(start, SERVO_PERIOD)), _snap(end, SERVO_PERIOD))
     return t, round(min(max((t - start) / (end - start), 0.0), 1.0), 6)
+
+
+@functools.lru_cache(maxsize=8)
+def _robot_gait(robot: str):
+    """The own gait of ``robot`` (a built-in name or a description file), read once per campaign, not per run."""
+    from drake_estop.robots import as_robot, gait_parameters
+
+    return gait_parameters(as_robot(robot))
 
 
 def sample_run(config: CampaignConfig, seed: int, run: int = 0, robot: str = "default") -> RunParameters:
