@@ -55,7 +55,7 @@ class PlanHandle:
 
 
 class AheadPlan:
-    """Holder of the stop planned ahead of the latch (``StopController``'s ``plan_ahead``): the signal
+    """Holder of the stop planned ahead of the latch (``StopPlannerSystem``'s ``plan_ahead``): the signal
     time [s] it was planned for and the plan, or None (none planned, or no stop)."""
 
     __slots__ = ("signal_time", "plan")

@@ -306,7 +306,7 @@ class StopPlannerSystem(ReferenceSystem):
         self._replan_interval = float(replan_interval)
         self._landed_threshold = float(landed_replan_threshold)
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(PlanHandle()))
-        # before the latch: the stop of a signal at the next tick, planned from the reference (plan_ahead)
+        # before the latch: the stop of a signal at the last tick, planned from the reference (plan_ahead)
         self._plan_ahead = bool(plan_ahead)
         self._ahead_state = self.DeclareAbstractState(AbstractValue.Make(AheadPlan()))
         self.stop_port = self.DeclareVectorInputPort("stop", 2)
@@ -432,7 +432,7 @@ class StopPlannerSystem(ReferenceSystem):
         planned_time, measured = self._plan_request(signal_time, max(signal_time, context.get_time()), measured)
         start = time.perf_counter()
         plan = fallback = None
-        ahead = context.get_abstract_state(self._ahead_state).get_value().plan_for(signal_time)
+        ahead = self.ahead_plan(context).plan_for(signal_time)
         try:
             if measured is not None:  # from the state measured now (this tick, at or after the signal's)
                 try:
