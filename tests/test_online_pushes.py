@@ -262,3 +262,21 @@ def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_sta
     assert not on_the_plan.criteria["cop_in_support"]
     assert np.nanmin(on_the_plan.cop_margin_plan[1:]) > -0.002  # a near miss, not a fall
     assert stopped.online["replans"] > on_the_plan.online["replans"]
+
+
+@pytest.mark.slow
+def test_a_capture_landing_stops_a_half_metre_per_second_push_towards_the_swing_foot(monkeypatch):
+    """29 N s (0.5 m/s) to the right at 2.95 s, early in single support on the left foot: the capture
+    landing (planning/replan.py) brings the swing foot down at the widest step 0.2 s after the push instead
+    of at the plan's far landing point 0.44 s after it, and the stop meets every criterion. Without it
+    the DCM is 0.12 m past the landed sole at the touchdown and the robot falls."""
+    from drake_estop.planning import replan
+
+    push = Perturbations(pushes=(Push(2.95, 0.0, -290.0, 0.1),))
+    caught = run_online(estop_time=2.95, perturbations=push)
+    assert caught.success, [name for name, ok in caught.criteria.items() if not ok]
+    assert caught.plan.landing_foot == "right" and caught.plan.landing_time < 3.4
+    assert caught.plan.landing_position[1] == pytest.approx(0.095 - replan.MAX_STEP_WIDTH)
+    monkeypatch.setattr(replan, "capture_setup", lambda *args: None)
+    fell = run_online(estop_time=2.95, perturbations=push)
+    assert not fell.criteria["no_fall"]

@@ -2,6 +2,7 @@
 state, ``replan_stop``) and the plans as one sequence (``PlanSequence``)."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -388,7 +389,7 @@ def test_a_bounded_double_support_replan_takes_its_recovery_step_on_the_next_cal
 
 
 @pytest.mark.parametrize("kwargs, name", [({"max_solves": 0}, "max_solves"), ({"max_solves": True}, "max_solves"),
-                                          ({"max_solves": 1.5}, "max_solves"), ({"first_try": 4}, "first_try"),
+                                          ({"max_solves": 1.5}, "max_solves"), ({"first_try": 5}, "first_try"),
                                           ({"first_try": -1}, "first_try"), ({"first_try": 1.0}, "first_try")])
 def test_replan_rejects_bad_try_settings(kwargs, name):
     plan, t, com, vel = left_push_state()
@@ -426,3 +427,67 @@ def test_plan_sequence_summary_keeps_the_landing_and_counts_the_replans(pattern,
     assert summary["phase_times"]["landing_end"] == first.landing_time  # not the re-plan's start
     assert summary["phase_times"]["halt_end"] == second.halt_end
     assert summary["first_plan"]["step_length"] == first.step_length
+
+
+# -- the capture landing ----------------------------------------------------------------------------------
+
+def _right_push_state():
+    """The 2.95 s plan and the state the robot measured at 3.145 s after a 29 N s (0.5 m/s) push to the
+    right (a physics run): the left foot supports, the DCM runs towards the swing (right) foot's side."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.145, np.array([0.59922757, 0.01460026]), np.array([0.27166543, -0.26427723])
+
+
+def test_a_push_towards_the_swing_foot_lands_sooner_at_the_widest_step(monkeypatch):
+    from drake_estop.planning import replan
+
+    plan, t, com, vel = _right_push_state()
+    caught = replan_stop(plan, t, com, vel)
+    assert caught.landing_time < plan.landing_time - 0.1  # 3.345 s against 3.455 s
+    support_y, sole = 0.095, plan.pattern.params.sole
+    assert caught.landing_position[1] == pytest.approx(support_y - replan.MAX_STEP_WIDTH)
+    # the LIPM's DCM at the touchdown (eq. 6-9) lies within 5 cm of the landed ankle and inside its sole's
+    # outer edge less the margin: in the support polygon the landing makes
+    pos, speed, _, _ = caught.com([caught.landing_time])
+    dcm = pos[0] + speed[0] / plan.pattern.w
+    landed_y = caught.landing_position[1]
+    assert landed_y - sole.outer + caught.params.zmp_margin < dcm[1] < landed_y + 0.05
+    assert caught.min_zmp_margin >= caught.params.zmp_margin - 1e-9
+    _, end_speed, _, _ = caught.com([caught.halt_end + 0.5])
+    assert np.max(np.abs(end_speed)) < 1e-6  # at rest
+    # the swing brakes onto the landing within the capture landing's acceleration
+    start = caught.swing_start
+    soonest = replan.swing_braking_time(start["pos"], start["vel"], start["acc"], caught.landing_position,
+                                        replace(caught.params, min_landing_time=DT,
+                                                max_swing_acceleration=replan.CAPTURE_SWING_ACCELERATION))
+    assert soonest <= caught.landing_time - t + 1e-9
+    monkeypatch.setattr(replan, "capture_setup", lambda *args: None)
+    with pytest.raises(InfeasibleStop):
+        replan_stop(plan, t, com, vel)
+
+
+def test_the_capture_landing_is_not_tried_for_a_push_towards_the_support_foot(monkeypatch):
+    from drake_estop.planning import replan
+
+    tried = []
+    monkeypatch.setattr(replan, "capture_landing", lambda *args: tried.append(args))
+    capture = replan.REPLAN_TRIES["single"].index("capture")
+    for plan, t, com, vel in (_hopeless_left_push(), left_push_state()):  # 29 N s at 3.05 s, 17 N s at 3.175 s
+        with pytest.raises(InfeasibleStop):
+            replan_stop(plan, t, com, vel, first_try=capture)
+    assert tried == []
+
+
+def test_swing_reach_grows_with_the_time_to_land():
+    from drake_estop.planning.replan import swing_reach
+
+    rest = np.zeros(2)
+    near = swing_reach(rest, rest, rest, 0.0, 0.2, 15.0)
+    far = swing_reach(rest, rest, rest, 0.0, 0.4, 15.0)
+    assert near[0] == pytest.approx(-near[1], abs=5e-3) and far[1] > 2 * near[1]
+    # quintic from rest: peak acceleration 5.77 D / T^2 (10 / sqrt(3))
+    assert near[1] == pytest.approx(15.0 * 0.2**2 / (10 / math.sqrt(3)), abs=5e-3)
+    # a foot at 2 m/s cannot stop within 5 cm of anywhere in 0.1 s
+    assert swing_reach(rest, np.array([2.0, 0.0]), rest, 0.0, 0.1, 15.0) is None

@@ -19,14 +19,17 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.assembly import plan_from, with_compute_time
-from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH
+from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH, capture_time
 from drake_estop.planning.gait import SIDES, rotation
-from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan
+from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan, snap_to_tick
+from drake_estop.planning.problems import descent_time
 
 #: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
-#: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone; double support
+#: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone, then the capture
+#: landing (:func:`capture_landing`: sooner and nearer, by the lateral DCM's deadline); double support
 #: (III.B) holds the plan's ZMP, then takes the recovery step. ``replan_stop(first_try=k)`` starts at the k-th.
-REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal"), "double": ("held", "recovery step")}
+REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal", "capture"),
+                "double": ("held", "recovery step")}
 
 
 class ReplanPending(InfeasibleStop):
@@ -62,10 +65,23 @@ def replan_support(plan: StopPlan, t: float) -> str | None:
     the landing, before the halt), or None (nothing left to re-plan)."""
     if plan.x is None or t < plan.start_time:
         return None
-    if (plan.landing_foot is not None and t < plan.landing_time - plan.params.min_landing_time
+    if (plan.landing_foot is not None and t < plan.landing_time - shortest_replanned_landing(plan)
             and not plan.recovery_step):  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
         return "single"
     return "double" if plan.landing_time <= t < plan.slowdown_end else None
+
+
+def shortest_replanned_landing(plan: StopPlan) -> float:
+    """The shortest landing [s] a single-support re-plan of ``plan`` may still make: the plan's
+    ``min_landing_time`` (which a braked landing raised to its own braking time) or, for the capture
+    landing (:func:`capture_landing`), the planner's shortest landing, whichever is shorter."""
+    return min(plan.params.min_landing_time, _SHORTEST_LANDING)
+
+
+def _capture_only(plan: StopPlan, t: float) -> bool:
+    """A single-support re-plan past the plan's own ``min_landing_time``: only the capture landing,
+    which lands sooner, is left to try."""
+    return t >= plan.landing_time - plan.params.min_landing_time
 
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
@@ -140,6 +156,8 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     if isinstance(first_try, bool) or not isinstance(first_try, int) or not 0 <= first_try < len(tries):
         raise ValueError(f"first_try must be an index into REPLAN_TRIES[{support!r}] (0-{len(tries) - 1}), "
                          f"got {first_try!r}")
+    if support == "single" and _capture_only(plan, t):
+        first_try = max(first_try, tries.index("capture"))
     # a push may need the early step, and a landing moved further than a low foot could on its own
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     double = support == "double"
@@ -156,10 +174,12 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             if ankle is None:
                 ankle = _ankle_tries(plan, t, com_xy, com_vel_xy, start.zmp)
             if not ankle:
-                break
+                continue
             stance_zmp = ankle[name]
             if np.max(np.abs(stance_zmp - start.zmp)) < 1e-3:  # the plan's ZMP at t: nothing new to try
                 continue
+        if name == "capture" and capture_setup(start, com_xy, com_vel_xy) is None:
+            continue  # the capture landing does not apply here: no solve
         if max_solves is not None and solves >= max_solves:
             raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
                                 f"from {name!r}", support, index)
@@ -167,10 +187,158 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
         try:
             if name == "recovery step":
                 return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
+            if name == "capture":
+                return capture_landing(start, com_xy, com_vel_xy, failure)
             return start.solve(stance_zmp=stance_zmp)
         except InfeasibleStop as error:
             failure = error
     raise failure
+
+
+#: How far [m] past the landing ankle (outwards) the lateral DCM may lie at the touchdown of a capture landing
+#: (:func:`capture_landing`): 0 lands the ankle on the DCM, which leaves the landed sole's outer half, less the
+#: ZMP margin, for the ZMP transition that follows.
+CAPTURE_DCM_PAST_ANKLE = -0.03
+_SHORTEST_LANDING = StopParameters().min_landing_time
+#: How far [m] behind the nearest landing point the support ZMP sends the sagittal DCM by a capture landing's
+#: touchdown (:func:`capture_landing`).
+CAPTURE_DCM_BEHIND_LANDING = 0.05
+#: The least sagittal span [m] of landing points the capture landing's swing must reach by its touchdown.
+CAPTURE_LANDING_SPAN = 0.03
+#: The fastest descent [m/s] of a capture landing's swing foot (the planner's ``max_swing_descent_speed``, 0.3 m/s,
+#: takes 0.29 s down from the 5 cm apex: by then a 0.5 m/s sideways push has the DCM past the widest landing).
+CAPTURE_DESCENT_SPEED = 0.6
+#: The largest horizontal acceleration [m/s^2] of a capture landing's swing foot.
+CAPTURE_SWING_ACCELERATION = 20.0
+
+
+def capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: InfeasibleStop) -> StopPlan:
+    """The single-support re-plan's last try: land sooner and nearer, by the lateral DCM's deadline.
+
+    After a sideways push towards the swing foot's side, the lateral DCM diverges from the support ZMP
+    (eq. 6-9) and runs past the widest landing (:data:`~drake_estop.planning.capture.MAX_STEP_WIDTH`)
+    unless the foot comes down in time. The other tries keep the plan's landing point, whose sagittal
+    distance the braked swing needs long to cover, and its ``min_landing_time`` (the braking time from
+    that re-plan's start). Measured, 29 N s to the right at 2.95 s: the plan landed at 3.49 s, 0.44 s
+    after the push, when the DCM was 0.12 m past the landed sole; this try, at 3.145 s, lands at 3.34 s
+    and the robot stops (:func:`capture_setup` says how the landing is chosen).
+
+    The stop is solved (III.A, eq. 21-26) with the landing time in that tick and the step within the
+    reachable landings. Re-raises ``failure`` where the try does not apply (:func:`capture_setup` gives
+    None); raises :class:`InfeasibleStop` where the solve finds no stop.
+    """
+    setup = capture_setup(start, com_xy, com_vel_xy)
+    if setup is None:
+        raise failure
+    state, limits, params = setup
+    wall = time.perf_counter()
+    plan = start.plan
+    try:
+        new = plan_from(plan.pattern, state, limits, plan.signal_time, plan.case)
+    except InfeasibleStop as error:
+        raise InfeasibleStop(f"{failure}; capture landing: {error}") from error
+    new.braked_swing = True
+    new.params = params  # the re-plan's own limits, with the capture landing's margin (as a recovery step's)
+    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    return with_compute_time(new, wall)
+
+
+def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
+    """The capture landing's start, its solve's limits and the plan's own ``(state, limits, params)``,
+    or None where it does not apply.
+
+    * the support ZMP held at the support sole's edge towards the swing side, less the ZMP margin
+      (at most :data:`RECOVERY_ZMP_MARGIN`): the ankle strategy slows the lateral DCM;
+    * the touchdown: the latest at which the lateral DCM has not come nearer than
+      :data:`CAPTURE_DCM_PAST_ANKLE` to the outer side of the widest landing ankle
+      (:func:`~drake_estop.planning.capture.capture_time`, eq. 6-9), on the servo grid, no sooner than
+      the swing's descent at :data:`CAPTURE_DESCENT_SPEED`, and later (up to the plan's landing) where
+      the swing cannot brake onto any landing point by then at :data:`CAPTURE_SWING_ACCELERATION`
+      (:func:`swing_reach`);
+    * sagittally the support ZMP (on the sole, less the margin) sends the DCM
+      :data:`CAPTURE_DCM_BEHIND_LANDING` behind the reachable landing nearest the DCM with the ZMP held,
+      and the step length is bounded to the reachable landings; laterally the landing is the capture
+      rule's (:func:`~drake_estop.planning.capture.capture_landing_y`).
+
+    None where the plan has no landing ahead, the lateral DCM does not head outwards past the support
+    ZMP towards the swing side (a push towards the support foot: that needs a crossover step, which
+    this does not plan), or no landing sooner than the plan's reaches 1 mm of landing points.
+    """
+    plan, changes = start.plan, start.changes
+    params = replace(start.params, zmp_margin=min(start.params.zmp_margin, RECOVERY_ZMP_MARGIN),
+                     max_swing_descent_speed=max(start.params.max_swing_descent_speed, CAPTURE_DESCENT_SPEED))
+    swing = plan.landing_foot
+    if swing is None or start.double:
+        return None
+    support = next(side for side in SIDES if side != swing)
+    ankle = np.asarray(changes["feet"][support][:2], float)
+    turn = rotation(float(changes["feet_yaw"][support]))
+    w, sole, margin, dt = plan.pattern.w, plan.pattern.params.sole, params.zmp_margin, params.servo_period
+    swing_local = turn.T @ (changes["feet"][swing][:2] - ankle)
+    toward = 1.0 if swing_local[1] > 0 else -1.0  # the swing foot's side
+    dcm = turn.T @ (np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w - ankle)
+    held = turn.T @ (np.asarray(changes["zmp"], float)[:2] - ankle)
+    zmp_local = np.array([held[0], toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)])
+    widest = toward * MAX_STEP_WIDTH
+    if toward * (dcm[1] - zmp_local[1]) <= 0:
+        return None  # the DCM heads for the support foot's outer side, or rests
+    remaining = plan.landing_time - float(changes["time"])
+    if toward * (zmp_local[1] + (dcm[1] - zmp_local[1]) * math.exp(w * remaining) - widest) <= 0:
+        return None  # the plan's own touchdown comes before the DCM passes the widest landing ankle
+    deadline = capture_time(dcm=float(dcm[1]), zmp=float(zmp_local[1]),
+                            edge=widest + toward * CAPTURE_DCM_PAST_ANKLE, omega=w)
+    # no sooner than the swing's descent and the planner's shortest landing (the braked landing's own
+    # bound, to the plan's far landing point, is what this try replaces)
+    soonest = max(min(params.min_landing_time, _SHORTEST_LANDING),
+                  descent_time(float(changes["feet"][swing][2]), params, float(changes["feet_vel"][swing][2]),
+                               float(changes["feet_acc"][swing][2])))
+    landing = max(math.floor(min(deadline, 10.0) / dt + 1e-9) * dt, snap_to_tick(soonest, dt))
+    latest = plan.landing_time - float(changes["time"]) - dt
+    swing_vel, swing_acc = (turn.T @ changes[key][swing][:2] for key in ("feet_vel", "feet_acc"))
+    acceleration = max(params.max_swing_acceleration, CAPTURE_SWING_ACCELERATION)
+    reach = None
+    while landing <= latest + 1e-9:  # later where the swing cannot brake onto enough landings by then
+        reach = swing_reach(swing_local, swing_vel, swing_acc, widest, landing, acceleration)
+        if reach is not None and reach[1] - reach[0] >= CAPTURE_LANDING_SPAN - 1e-9:
+            break
+        landing, reach = landing + dt, None
+    if reach is None:
+        return None
+    grow = math.exp(w * landing)
+    held_dcm = zmp_local[0] + (float(dcm[0]) - zmp_local[0]) * grow  # at the touchdown, the ZMP held (eq. 6-9)
+    aim = float(np.clip(held_dcm + CAPTURE_DCM_BEHIND_LANDING, *reach)) - CAPTURE_DCM_BEHIND_LANDING
+    zmp_local[0] = float(np.clip(_zmp_to_reach(float(dcm[0]), aim, grow), -sole.heel + margin, sole.toe - margin))
+    low = max(reach[0] - zmp_local[0], params.min_step_length)  # step lengths from the support ZMP
+    high = min(reach[1] - zmp_local[0], params.max_step_length)
+    if low >= high - 1e-3:
+        return None
+    # the mean swing speed the reachable landings need (the braking limit checked them already)
+    speed = max(math.hypot(x - swing_local[0], widest - swing_local[1]) for x in reach) / landing + 1e-6
+    limits = replace(params, min_landing_time=max(landing - dt, dt), max_landing_time=landing + 1e-9,
+                     min_step_length=low, max_step_length=high, max_swing_speed=max(params.max_swing_speed, speed),
+                     max_swing_acceleration=acceleration)
+    landing_xy = ankle + turn @ np.array([float(np.clip(swing_local[0], reach[0], reach[1])), widest])
+    state = replace(plan.start_state, **dict(changes, zmp=ankle + turn @ zmp_local, zmp_rate=np.zeros(2),
+                                             zmp_accel=np.zeros(2), next_landing=landing_xy))
+    return state, limits, params
+
+
+def swing_reach(pos, vel, acc, lateral: float, duration: float, max_acceleration: float):
+    """The sagittal interval ``(low, high)`` [m] of landing points ``(x, lateral)`` the landing swing
+    (quintic Hermite from the ankle's ``pos``, ``vel``, ``acc`` to rest: as :func:`swing_braking_time`)
+    reaches in ``duration`` [s] keeping its horizontal acceleration within ``max_acceleration`` [m/s^2];
+    None where none does. Checked on a 5 mm grid from 1 m behind to 1 m ahead of ``pos``."""
+    pos, vel, acc = (np.asarray(v, float)[:2] for v in (pos, vel, acc))
+    xs = pos[0] + np.arange(-1.0, 1.0 + 1e-9, 0.005)
+    distance = np.stack([xs - pos[0], np.full_like(xs, lateral - pos[1])], axis=1)  # (n, 2)
+    T = float(duration)
+    terms = _BRAKING_TERMS
+    swing = (terms[0][None, :, None] * distance[:, None, :] + terms[1][None, :, None] * vel * T
+             + terms[2][None, :, None] * acc * T**2) / T**2
+    within = np.flatnonzero(np.max(np.linalg.norm(swing, axis=2), axis=1) <= max_acceleration + 1e-9)
+    if len(within) == 0:
+        return None
+    return float(xs[within[0]]), float(xs[within[-1]])
 
 
 def _ankle_tries(plan: StopPlan, t: float, com_xy, com_vel_xy, current) -> dict:

@@ -36,7 +36,14 @@ from drake_estop.planning.planner import (
     snap_to_tick,
     warm_up,
 )
-from drake_estop.planning.replan import MAX_REPLAN_SOLVES, ReplanPending, check_solve_bound, replan_stop, replan_support
+from drake_estop.planning.replan import (
+    MAX_REPLAN_SOLVES,
+    ReplanPending,
+    check_solve_bound,
+    replan_stop,
+    replan_support,
+    shortest_replanned_landing,
+)
 from drake_estop.systems.plan_sequence import AheadPlan, PlanHandle, PlanSequence, last_landing
 from drake_estop.systems.reference import (
     REFERENCE_SLICES,
@@ -550,7 +557,7 @@ class StopPlannerSystem(ReferenceSystem):
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
-        landed = plan.landing_foot is None or t >= plan.landing_time - plan.params.min_landing_time
+        landed = plan.landing_foot is None or t >= plan.landing_time - shortest_replanned_landing(plan)
         # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
         # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
         relanded = relanded if landed else None
