@@ -294,6 +294,7 @@ def _simulate(args) -> int:
           f"slowdown {times['slowdown_end']:.3f}, halt {times['halt_end']:.3f} s; "
           f"plan {plan.compute_time * 1e3:.2f} ms{_plan_time_note(args, summary)}, "
           f"{plan.newton_iterations} Newton iterations")
+    print(_steps_line(summary["steps"]))
     if "ik" in summary:
         ik = summary["ik"]
         print(f"whole-body IK: COG error max {ik['ik_com_err_max_m'] * 1e3:.3f} mm, foot error max "
@@ -323,6 +324,12 @@ def _simulate(args) -> int:
                   + _block_times(worst["blocks"], 3))
         return 0 if not failed else 1
     return 0
+
+
+def _steps_line(steps: list) -> str:
+    """``"steps after the signal: 2 (3.510 s right foot: walk; ...)"``: each landing and why."""
+    listed = "; ".join(f"{step['time']:.3f} s {step['foot']} foot: {step['kind']}" for step in steps)
+    return f"steps after the signal: {len(steps)}" + (f" ({listed})" if steps else "")
 
 
 def _block_times(blocks: dict, count: int) -> str:

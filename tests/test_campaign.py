@@ -320,10 +320,11 @@ def test_the_row_keeps_the_cop_margin_the_criterion_checks():
     criteria = {name: name != "cop_in_support" for name in CRITERIA}
     summary = {"physics": {"numbers": numbers}, "success": False, "case": "one-step", "support": "single",
                "criteria": criteria, "replans": 0, "replan_failures": 0, "joint_velocity_violations": 0,
-               "tick_compute": {"p99": 0.002}}
+               "tick_compute": {"p99": 0.002}, "steps_after_signal": 2, "capture_landings": 1, "recovery_steps": 0}
     row = outcome_from_reply({"returncode": 1, "summary": summary, "stderr": "", "exception": None})
     assert row["outcome"] == "failure" and row["cop_in_support"] is False
     assert row["cop_margin_min"] == -0.0124
+    assert (row["steps"], row["capture_landings"], row["recovery_steps"]) == (2, 1, 0)
 
 
 @pytest.mark.slow
@@ -468,3 +469,17 @@ def test_resuming_with_another_robot_exits_2_and_a_bad_robot_names_it(tmp_path, 
         run_campaign(runs=2, seed=1, out=out, workers=1, runner=fake_run, progress=False, robot="talos")
     assert main(["campaign", "--runs", "1", "--out", str(tmp_path / "d"), "--robot", "no_such_robot"]) == 2
     assert "robot" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_the_report_counts_the_runs_that_took_a_capture_landing_or_a_recovery_step(tmp_path):
+    from drake_estop.campaign.report import write_report
+
+    store = ResultStore(tmp_path / "c")
+    rows = [guarded_run((fake_run, sample_run(default_config(), run_seed(5, i), i), 1.0)) for i in range(4)]
+    store.parts.mkdir(parents=True)
+    for i, row in enumerate(rows):  # runs 0 and 1 take a capture landing, run 0 alone succeeds; none steps out
+        store.write({**row, "error": None, "outcome": "success" if i == 0 else "failure", "success": i == 0,
+                     "capture_landings": int(i < 2), "recovery_steps": 0, "steps": 1})
+    text = write_report(store.read(), store.folder, manifest={"seed": 5, "config": {}, "sessions": []}).read_text()
+    assert "runs with a capture landing: 2, of which 1 met every criterion" in text
+    assert "recovery step" not in text

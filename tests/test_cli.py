@@ -23,6 +23,8 @@ def test_simulate_writes_log_and_summary(tmp_path):
                 "final_feet", "sole", "newton_iterations", "plan_compute_time_s"):
         assert key in data
     assert data["support"] == "single" and data["case"] == "one-step"
+    assert data["steps"] == [{"time": pytest.approx(data["phase_times"]["landing_end"]), "foot": "right",
+                              "kind": "stop landing"}]
     halt_end = data["phase_times"]["halt_end"]
     assert float(rows[-1]["t"]) >= halt_end + 1.0 - 1e-9
     dt = float(rows[1]["t"]) - float(rows[0]["t"])

@@ -491,3 +491,12 @@ def test_swing_reach_grows_with_the_time_to_land():
     assert near[1] == pytest.approx(15.0 * 0.2**2 / (10 / math.sqrt(3)), abs=5e-3)
     # a foot at 2 m/s cannot stop within 5 cm of anywhere in 0.1 s
     assert swing_reach(rest, np.array([2.0, 0.0]), rest, 0.0, 0.1, 15.0) is None
+
+
+def test_the_summary_says_which_landing_a_capture_landing_made():
+    plan, t, com, vel = _right_push_state()
+    caught = replan_stop(plan, t, com, vel)
+    summary = PlanSequence([plan, caught]).summary()
+    assert summary["steps"] == [{"time": caught.landing_time, "foot": "right", "kind": "capture landing"}]
+    assert summary["capture_landings"] == 1 and summary["recovery_steps"] == 0 and summary["steps_after_signal"] == 1
+    assert PlanSequence([plan]).summary()["steps"][0]["kind"] == "stop landing"

@@ -193,6 +193,11 @@ def _summary_lines(data: dict) -> list:
         k, m = int(data["success"][mask].sum()), int(mask.sum())
         if m:
             lines.append(f"push {push[0]:g}-{push[1]:g} N s: {k}/{m} ({100 * k / m:.0f} %)")
+    for column, label in (("capture_landings", "a capture landing"), ("recovery_steps", "a recovery step")):
+        took = np.nan_to_num(data.get(column, np.zeros(n))) > 0  # (tables written before these columns lack them)
+        if took.any():
+            lines.append(f"runs with {label}: {int(took.sum())}, of which {int(data['success'][took].sum())} "
+                         "met every criterion")
     wall = data["wall_time"][np.isfinite(data["wall_time"])]
     if len(wall):
         lines.append(f"wall time per run: median {np.median(wall):.1f} s, max {np.max(wall):.1f} s")

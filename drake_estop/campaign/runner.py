@@ -176,6 +176,9 @@ def outcome_from_reply(reply: dict) -> dict:
         "case": summary["case"], "support": summary["support"],
         **{name: bool(summary["criteria"][name]) for name in CRITERIA}, **values,
         "replans": summary["replans"], "replan_failures": summary["replan_failures"],
+        # landings after the signal, and those a sideways push hurried or a double-support stop added
+        "steps": summary["steps_after_signal"], "capture_landings": summary.get("capture_landings", 0),
+        "recovery_steps": summary.get("recovery_steps", 0),
         "joint_velocity_violations": summary["joint_velocity_violations"],
         "tick_p99": summary["tick_compute"]["p99"], "realtime_factor": numbers["realtime_factor"],
     }

@@ -47,7 +47,8 @@ NUMBERS = ("time_to_rest", "rest_after_halt", "final_cog_offset", "cog_travel", 
 _OUTCOME = [
     ("outcome", pa.string()), ("error", pa.string()), ("success", pa.bool_()), ("case", pa.string()),
     ("support", pa.string()), *((name, pa.bool_()) for name in CRITERIA), *((n, pa.float64()) for n in NUMBERS),
-    ("replans", pa.int64()), ("replan_failures", pa.int64()), ("joint_velocity_violations", pa.int64()),
+    ("replans", pa.int64()), ("replan_failures", pa.int64()), ("steps", pa.int64()), ("capture_landings", pa.int64()),
+    ("recovery_steps", pa.int64()), ("joint_velocity_violations", pa.int64()),
     ("tick_p99", pa.float64()), ("realtime_factor", pa.float64()), ("wall_time", pa.float64()),
     ("command", pa.string()),
 ]

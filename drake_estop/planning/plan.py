@@ -286,6 +286,9 @@ class StopPlan:
     recovery_step : bool
         A re-plan's step of the rear foot out of a double-support stop
         (:func:`drake_estop.planning.replan.replan_stop`).
+    capture_landing : bool
+        A re-plan's landing made sooner, at the widest step, for a lateral DCM that would pass it before
+        the touchdown (:func:`drake_estop.planning.replan.capture_landing`).
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -329,6 +332,7 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
+    capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.capture_landing)
     braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -339,6 +343,14 @@ class StopPlan:
         nominal = sum(1 for step in self.pattern.steps
                       if self.signal_time < step["touchdown"] <= self.start_time + 1e-9)
         return nominal + (1 if self.landing_foot is not None else 0)
+
+    @property
+    def step_kind(self) -> str | None:
+        """Why this plan's landing is made (None without one): ``"recovery step"``, ``"capture landing"``
+        or ``"stop landing"`` (the paper's)."""
+        if self.landing_foot is None:
+            return None
+        return "recovery step" if self.recovery_step else "capture landing" if self.capture_landing else "stop landing"
 
     # -- evaluation -----------------------------------------------------
     def phase(self, t: float) -> str:
@@ -492,6 +504,12 @@ class StopPlan:
             "support": self.support,
             "case": self.case,
             "steps_after_signal": self.steps_after_signal,
+            # each landing after the signal and why: the walk's own before the stop starts, then the stop's
+            "steps": [{"time": float(step["touchdown"]), "foot": step["swing"], "kind": "walk"}
+                      for step in self.pattern.steps
+                      if self.signal_time < step["touchdown"] <= self.start_time + 1e-9]
+            + ([{"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}]
+               if self.landing_foot is not None else []),
             "plan_start_time": self.start_time,
             "phase_times": {
                 "landing_end": self.landing_time,

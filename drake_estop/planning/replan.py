@@ -237,7 +237,7 @@ def capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: Infeasible
         new = plan_from(plan.pattern, state, limits, plan.signal_time, plan.case)
     except InfeasibleStop as error:
         raise InfeasibleStop(f"{failure}; capture landing: {error}") from error
-    new.braked_swing = True
+    new.braked_swing = new.capture_landing = True
     new.params = params  # the re-plan's own limits, with the capture landing's margin (as a recovery step's)
     new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
     return with_compute_time(new, wall)
@@ -278,21 +278,19 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     toward = 1.0 if swing_local[1] > 0 else -1.0  # the swing foot's side
     dcm = turn.T @ (np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w - ankle)
     held = turn.T @ (np.asarray(changes["zmp"], float)[:2] - ankle)
+    # the support ZMP at the sole's edge towards the swing side slows a DCM heading there
     zmp_local = np.array([held[0], toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)])
     widest = toward * MAX_STEP_WIDTH
-    if toward * (dcm[1] - zmp_local[1]) <= 0:
-        return None  # the DCM heads for the support foot's outer side, or rests
-    remaining = plan.landing_time - float(changes["time"])
-    if toward * (zmp_local[1] + (dcm[1] - zmp_local[1]) * math.exp(w * remaining) - widest) <= 0:
-        return None  # the plan's own touchdown comes before the DCM passes the widest landing ankle
-    deadline = capture_time(dcm=float(dcm[1]), zmp=float(zmp_local[1]),
-                            edge=widest + toward * CAPTURE_DCM_PAST_ANKLE, omega=w)
+    deadline = _capture_deadline(float(dcm[1]), float(zmp_local[1]), widest + toward * CAPTURE_DCM_PAST_ANKLE,
+                                 widest, plan.landing_time - float(changes["time"]), w)
+    if deadline is None:
+        return None  # the DCM does not head past the widest landing before the plan's own touchdown
     # no sooner than the swing's descent and the planner's shortest landing (the braked landing's own
     # bound, to the plan's far landing point, is what this try replaces)
     soonest = max(min(params.min_landing_time, _SHORTEST_LANDING),
                   descent_time(float(changes["feet"][swing][2]), params, float(changes["feet_vel"][swing][2]),
                                float(changes["feet_acc"][swing][2])))
-    landing = max(math.floor(min(deadline, 10.0) / dt + 1e-9) * dt, snap_to_tick(soonest, dt))
+    landing = max(math.floor(deadline / dt + 1e-9) * dt, snap_to_tick(soonest, dt))
     latest = plan.landing_time - float(changes["time"]) - dt
     swing_vel, swing_acc = (turn.T @ changes[key][swing][:2] for key in ("feet_vel", "feet_acc"))
     acceleration = max(params.max_swing_acceleration, CAPTURE_SWING_ACCELERATION)
@@ -321,6 +319,16 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     state = replace(plan.start_state, **dict(changes, zmp=ankle + turn @ zmp_local, zmp_rate=np.zeros(2),
                                              zmp_accel=np.zeros(2), next_landing=landing_xy))
     return state, limits, params
+
+
+def _capture_deadline(dcm: float, zmp: float, edge: float, beyond: float, remaining: float, omega: float):
+    """The latest time [s] at which a DCM ``dcm`` [m] diverging from ``zmp`` [m] (eq. 6-9) has not passed
+    ``edge`` [m] (:func:`~drake_estop.planning.capture.capture_time`), where it passes ``beyond`` [m] (on the
+    same side) before the plan's touchdown ``remaining`` [s] from now; else None (no hurry on this axis)."""
+    side = math.copysign(1.0, edge - zmp)
+    if side * (dcm - zmp) <= 0 or side * (zmp + (dcm - zmp) * math.exp(omega * remaining) - beyond) <= 0:
+        return None
+    return capture_time(dcm=dcm, zmp=zmp, edge=edge, omega=omega)
 
 
 def swing_reach(pos, vel, acc, lateral: float, duration: float, max_acceleration: float):
