@@ -15,8 +15,9 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
   run in every direction and phase.
 * **Ablation** (``--ablation``): the matrix (44 runs) with the defaults, then with each feature of the
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
-  braked landing, re-landed footholds, recovery step and reference fallback off; the foothold re-plan on;
-  the re-plan's solves a tick unbounded) and with the plant at a 2 ms step: 484 runs, about 5 s of CPU
+  braked landing, re-landed footholds, recovery step, capture landing and reference fallback off; the
+  foothold re-plan on; the re-plan's solves a tick unbounded) and with the plant at a 2 ms step: 528 runs,
+  about 5 s of CPU
   each (about 20 min on 2 workers). Each row: the matrix's passes, its falls and the cells that fail.
   ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
 
@@ -71,6 +72,7 @@ ABLATION = (
     {"controller": {"braked_landing": False}},
     {"controller": {"relanded_footholds": False}},
     {"controller": {"recovery_step": False}},
+    {"controller": {"capture_landing": False}},
     {"controller": {"reference_fallback": False}},
     {"controller": {"foothold_replan": True}},
     {"controller": {"max_replan_solves": None}},

@@ -472,7 +472,7 @@ def test_the_capture_landing_is_not_tried_for_a_push_towards_the_support_foot(mo
     from drake_estop.planning import replan
 
     tried = []
-    monkeypatch.setattr(replan, "capture_landing", lambda *args: tried.append(args))
+    monkeypatch.setattr(replan, "_capture_landing", lambda *args: tried.append(args))
     capture = replan.REPLAN_TRIES["single"].index("capture")
     for plan, t, com, vel in (_hopeless_left_push(), left_push_state()):  # 29 N s at 3.05 s, 17 N s at 3.175 s
         with pytest.raises(InfeasibleStop):

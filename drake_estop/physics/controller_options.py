@@ -17,8 +17,8 @@ from drake_estop.planning.replan import MAX_REPLAN_SOLVES, check_solve_bound
 CONTROLLER_KINDS = ("online", "offline-filter")
 
 #: The fields that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` options.
-PLANNER_FEATURES = ("measured_footholds", "relanded_footholds", "recovery_step", "reference_fallback",
-                    "foothold_replan", "max_replan_solves")
+PLANNER_FEATURES = ("measured_footholds", "relanded_footholds", "recovery_step", "capture_landing",
+                    "reference_fallback", "foothold_replan", "max_replan_solves")
 
 
 @dataclass
@@ -55,6 +55,10 @@ class ControllerOptions:
     recovery_step : bool
         A re-plan after the landing that finds no double-support stop steps the rear foot forward (default
         on; off keeps the plan, for comparison).
+    capture_landing : bool
+        A single-support re-plan whose other tries find no stop lands sooner, at the widest step, where a
+        sideways push sends the lateral DCM past it before the plan's touchdown
+        (:func:`drake_estop.planning.replan.replan_stop`; default on; off for comparison).
     braked_landing : bool
         The controller's braked landing (:data:`drake_estop.physics.online.BRAKED_LANDING`): a
         single-support re-plan lands no sooner than the swing can brake to its point at 15 m/s^2, and then
@@ -80,6 +84,7 @@ class ControllerOptions:
     measured_footholds: bool = True
     relanded_footholds: bool = True
     recovery_step: bool = True
+    capture_landing: bool = True
     braked_landing: bool = True
     reference_fallback: bool = True
     foothold_replan: bool = False

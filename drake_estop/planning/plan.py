@@ -288,7 +288,7 @@ class StopPlan:
         (:func:`drake_estop.planning.replan.replan_stop`).
     capture_landing : bool
         A re-plan's landing made sooner, at the widest step, for a lateral DCM that would pass it before
-        the touchdown (:func:`drake_estop.planning.replan.capture_landing`).
+        the touchdown (:func:`drake_estop.planning.replan.replan_stop`).
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -332,7 +332,7 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
-    capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.capture_landing)
+    capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.replan_stop)
     braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)

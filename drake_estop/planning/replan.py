@@ -26,7 +26,7 @@ from drake_estop.planning.problems import descent_time
 
 #: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
 #: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone, then the capture
-#: landing (:func:`capture_landing`: sooner and nearer, by the lateral DCM's deadline); double support
+#: landing (:func:`_capture_landing`: sooner and nearer, by the lateral DCM's deadline); double support
 #: (III.B) holds the plan's ZMP, then takes the recovery step. ``replan_stop(first_try=k)`` starts at the k-th.
 REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal", "capture"),
                 "double": ("held", "recovery step")}
@@ -74,7 +74,7 @@ def replan_support(plan: StopPlan, t: float) -> str | None:
 def shortest_replanned_landing(plan: StopPlan) -> float:
     """The shortest landing [s] a single-support re-plan of ``plan`` may still make: the plan's
     ``min_landing_time`` (which a braked landing raised to its own braking time) or, for the capture
-    landing (:func:`capture_landing`), the planner's shortest landing, whichever is shorter."""
+    landing (:func:`_capture_landing`), the planner's shortest landing, whichever is shorter."""
     return min(plan.params.min_landing_time, _SHORTEST_LANDING)
 
 
@@ -85,7 +85,7 @@ def _capture_only(plan: StopPlan, t: float) -> bool:
 
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
-                first_try: int = 0, max_solves: int | None = None) -> StopPlan | None:
+                capture_landing: bool = True, first_try: int = 0, max_solves: int | None = None) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
@@ -133,6 +133,11 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     behind is not caught (sideways no step without a crossover would:
     :func:`drake_estop.planning.capture.step_out_gain`).
 
+    **Capture landing** (``capture_landing=True``, the default; before the landing only). Where a
+    sideways push sends the lateral DCM past the widest landing before the plan's touchdown, the last
+    single-support try lands sooner, at the widest step, where the swing can still brake
+    (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for comparison.
+
     **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to four solves in
     single support, two in double support) run in order until one gives a
     stop. ``max_solves`` (None: no bound) caps the solves of this call: when
@@ -178,7 +183,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             stance_zmp = ankle[name]
             if np.max(np.abs(stance_zmp - start.zmp)) < 1e-3:  # the plan's ZMP at t: nothing new to try
                 continue
-        if name == "capture" and capture_setup(start, com_xy, com_vel_xy) is None:
+        if name == "capture" and (not capture_landing or capture_setup(start, com_xy, com_vel_xy) is None):
             continue  # the capture landing does not apply here: no solve
         if max_solves is not None and solves >= max_solves:
             raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
@@ -188,7 +193,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             if name == "recovery step":
                 return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
             if name == "capture":
-                return capture_landing(start, com_xy, com_vel_xy, failure)
+                return _capture_landing(start, com_xy, com_vel_xy, failure)
             return start.solve(stance_zmp=stance_zmp)
         except InfeasibleStop as error:
             failure = error
@@ -196,12 +201,12 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
 
 
 #: How far [m] past the landing ankle (outwards) the lateral DCM may lie at the touchdown of a capture landing
-#: (:func:`capture_landing`): 0 lands the ankle on the DCM, which leaves the landed sole's outer half, less the
+#: (:func:`_capture_landing`): 0 lands the ankle on the DCM, which leaves the landed sole's outer half, less the
 #: ZMP margin, for the ZMP transition that follows.
 CAPTURE_DCM_PAST_ANKLE = -0.03
 _SHORTEST_LANDING = StopParameters().min_landing_time
 #: How far [m] behind the nearest landing point the support ZMP sends the sagittal DCM by a capture landing's
-#: touchdown (:func:`capture_landing`).
+#: touchdown (:func:`_capture_landing`).
 CAPTURE_DCM_BEHIND_LANDING = 0.05
 #: The least sagittal span [m] of landing points the capture landing's swing must reach by its touchdown.
 CAPTURE_LANDING_SPAN = 0.03
@@ -212,7 +217,7 @@ CAPTURE_DESCENT_SPEED = 0.6
 CAPTURE_SWING_ACCELERATION = 20.0
 
 
-def capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: InfeasibleStop) -> StopPlan:
+def _capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: InfeasibleStop) -> StopPlan:
     """The single-support re-plan's last try: land sooner and nearer, by the lateral DCM's deadline.
 
     After a sideways push towards the swing foot's side, the lateral DCM diverges from the support ZMP

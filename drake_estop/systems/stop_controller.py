@@ -223,6 +223,10 @@ class StopPlannerSystem(ReferenceSystem):
         stop steps the rear foot forward instead (``replan_stop``'s
         ``recovery_step``; default True, False keeps the plan, for
         comparison).
+    capture_landing : bool, optional
+        Whether a single-support re-plan whose other tries find no stop lands sooner at the widest step
+        where a sideways push sends the lateral DCM past it before the touchdown (``replan_stop``'s
+        ``capture_landing``; default True, False for comparison).
     relanded_footholds : bool, optional
         Whether a sole that lost contact after the landing and landed again
         more than ``foothold_tolerance`` from the plan's foothold re-plans the
@@ -284,6 +288,7 @@ class StopPlannerSystem(ReferenceSystem):
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
+                 capture_landing: bool = True,
                  relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
                  max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True,
                  plan_ahead: bool = True, timer=None, layout: ReferenceLayout | None = None):
@@ -305,6 +310,7 @@ class StopPlannerSystem(ReferenceSystem):
         self._relanded_tolerance = float(foothold_tolerance) if relanded_footholds else None
         self._measured_footholds = bool(measured_footholds)
         self._recovery_step = bool(recovery_step)
+        self._capture_landing = bool(capture_landing)
         self._reference_fallback = bool(reference_fallback)
         self._pattern = pattern
         self._params = params
@@ -582,6 +588,7 @@ class StopPlannerSystem(ReferenceSystem):
         start = time.perf_counter()
         try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
             new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated,
+                              capture_landing=self._capture_landing,
                               first_try=pending[1] if pending else 0, max_solves=self._max_replan_solves)
         except ReplanPending as error:
             new, failures, left = None, handle.replan_failures, (error.support, error.next_try)
