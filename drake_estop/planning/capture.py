@@ -27,13 +27,12 @@ unperturbed plan is the paper's.
 **Landing in time** (:func:`capture_time`). A landing clamped at
 :data:`MAX_STEP_WIDTH` catches the DCM only if the foot is down before the DCM
 passes the landed sole's outer edge. Measured, 29 N s to the right at 2.95 s
-(the left foot supporting): just after the push the DCM was 4.7 cm right of the
-midline and 0.295 s from the edge of a landing 0.30 m out (less the 3 cm margin);
-the re-plan, made from an estimate 6 cm behind (the estimated velocity -0.08 m/s
-against -0.26), landed 0.44 s later and the DCM was then 7 cm beyond the landed sole's outer edge. A
-landing within 0.295 s is also what the braked swing (15 m/s^2) can just reach
-(0.23-0.25 s to a point 5 cm ahead of the support foot, from 3.05-3.08 s), so the
-robot's own limits leave no room for the estimate's lag.
+(the left foot supporting): the plan's landing point lay 0.41 m ahead of the
+swing foot, which the braked swing (15 m/s^2) reached 0.44 s after the push,
+when the DCM was 0.12 m past the landed sole. The re-plan's capture landing
+(:func:`drake_estop.planning.replan.capture_setup`) lands sooner and nearer
+instead: by the time the DCM reaches the widest landing ankle, at a landing
+point the swing can still brake onto; that stop meets every criterion.
 
 **No second lateral step** (:func:`step_out_gain`). After the landing the foot on
 the push side carries the robot: a DCM beyond its outer edge could only be caught
@@ -45,7 +44,10 @@ shortest ZMP transition and landing are 0.1 s each, so a second lateral step
 catches nothing one landing does not. A push towards the support foot is the
 same: the swing foot lands on the inner side, then the support foot would have
 to step out. What catches those is a crossover step or the upper body's
-angular momentum, neither of which the stop plans.
+angular momentum, neither of which the stop plans. Measured, 29 N s to the left
+at 2.95 s: the CoP reaches the support sole's outer edge within 50 ms and stays
+there while the body rolls over that edge (0.1 rad by 3.3 s), which the LIPM's
+DCM (0.12 m, inside the 0.176 m edge, at 3.05 s) does not show.
 """
 
 import math

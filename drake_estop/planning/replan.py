@@ -138,7 +138,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     single-support try lands sooner, at the widest step, where the swing can still brake
     (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for comparison.
 
-    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to four solves in
+    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to five solves in
     single support, two in double support) run in order until one gives a
     stop. ``max_solves`` (None: no bound) caps the solves of this call: when
     it runs out with tries left, :class:`ReplanPending` says where to go on
@@ -183,8 +183,10 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             stance_zmp = ankle[name]
             if np.max(np.abs(stance_zmp - start.zmp)) < 1e-3:  # the plan's ZMP at t: nothing new to try
                 continue
-        if name == "capture" and (not capture_landing or capture_setup(start, com_xy, com_vel_xy) is None):
-            continue  # the capture landing does not apply here: no solve
+        if name == "capture":
+            capture = capture_setup(start, com_xy, com_vel_xy) if capture_landing else None
+            if capture is None:
+                continue  # the capture landing does not apply here: no solve
         if max_solves is not None and solves >= max_solves:
             raise ReplanPending(f"{failure}; {len(tries) - index} of the {support}-support tries left "
                                 f"from {name!r}", support, index)
@@ -193,16 +195,17 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             if name == "recovery step":
                 return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
             if name == "capture":
-                return _capture_landing(start, com_xy, com_vel_xy, failure)
+                return _capture_landing(start, capture, failure)
             return start.solve(stance_zmp=stance_zmp)
         except InfeasibleStop as error:
             failure = error
     raise failure
 
 
-#: How far [m] past the landing ankle (outwards) the lateral DCM may lie at the touchdown of a capture landing
-#: (:func:`_capture_landing`): 0 lands the ankle on the DCM, which leaves the landed sole's outer half, less the
-#: ZMP margin, for the ZMP transition that follows.
+#: How far [m] past the widest landing ankle (outwards) the lateral DCM may lie at a capture landing's
+#: touchdown (:func:`_capture_landing`): negative, inside it. Measured on the 29 N s push to the right at
+#: 2.95 s: with 0 the plan lands 35 ms later and the robot, whose real lateral DCM runs 2-3 cm ahead of the
+#: LIPM's (its body rolls), falls; with -0.03 it stops.
 CAPTURE_DCM_PAST_ANKLE = -0.03
 _SHORTEST_LANDING = StopParameters().min_landing_time
 #: How far [m] behind the nearest landing point the support ZMP sends the sagittal DCM by a capture landing's
@@ -213,11 +216,12 @@ CAPTURE_LANDING_SPAN = 0.03
 #: The fastest descent [m/s] of a capture landing's swing foot (the planner's ``max_swing_descent_speed``, 0.3 m/s,
 #: takes 0.29 s down from the 5 cm apex: by then a 0.5 m/s sideways push has the DCM past the widest landing).
 CAPTURE_DESCENT_SPEED = 0.6
-#: The largest horizontal acceleration [m/s^2] of a capture landing's swing foot.
+#: The largest horizontal acceleration [m/s^2] of a capture landing's swing foot (the braked landing's is 15:
+#: with 15 the 29 N s push's capture landing reached 1 cm of landing points by its deadline and found no stop).
 CAPTURE_SWING_ACCELERATION = 20.0
 
 
-def _capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: InfeasibleStop) -> StopPlan:
+def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop) -> StopPlan:
     """The single-support re-plan's last try: land sooner and nearer, by the lateral DCM's deadline.
 
     After a sideways push towards the swing foot's side, the lateral DCM diverges from the support ZMP
@@ -228,13 +232,10 @@ def _capture_landing(start: _ReplanStart, com_xy, com_vel_xy, failure: Infeasibl
     after the push, when the DCM was 0.12 m past the landed sole; this try, at 3.145 s, lands at 3.34 s
     and the robot stops (:func:`capture_setup` says how the landing is chosen).
 
-    The stop is solved (III.A, eq. 21-26) with the landing time in that tick and the step within the
-    reachable landings. Re-raises ``failure`` where the try does not apply (:func:`capture_setup` gives
-    None); raises :class:`InfeasibleStop` where the solve finds no stop.
+    The stop is solved (III.A, eq. 21-26) from ``setup`` (:func:`capture_setup`'s) with the landing time
+    in that tick and the step within the reachable landings; :class:`InfeasibleStop` (after ``failure``'s
+    message) where it finds none.
     """
-    setup = capture_setup(start, com_xy, com_vel_xy)
-    if setup is None:
-        raise failure
     state, limits, params = setup
     wall = time.perf_counter()
     plan = start.plan
@@ -265,9 +266,10 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
       and the step length is bounded to the reachable landings; laterally the landing is the capture
       rule's (:func:`~drake_estop.planning.capture.capture_landing_y`).
 
-    None where the plan has no landing ahead, the lateral DCM does not head outwards past the support
-    ZMP towards the swing side (a push towards the support foot: that needs a crossover step, which
-    this does not plan), or no landing sooner than the plan's reaches 1 mm of landing points.
+    None where the plan has no landing ahead, the lateral DCM does not pass the widest landing ankle
+    before the plan's touchdown (a push towards the support foot: that needs a crossover step, which
+    this does not plan), or no landing sooner than the plan's reaches :data:`CAPTURE_LANDING_SPAN` of
+    landing points.
     """
     plan, changes = start.plan, start.changes
     params = replace(start.params, zmp_margin=min(start.params.zmp_margin, RECOVERY_ZMP_MARGIN),

@@ -150,7 +150,7 @@ class StopPlannerSystem(ReferenceSystem):
     ``max_replan_solves`` (default 2) bounds a tick's re-plan work: a
     re-plan solves at most that many stops a tick (``replan_stop``'s
     ``max_solves``); tries left (the ankle strategy's third and fourth
-    stance ZMPs) go on at the next tick, from its measurement, while the
+    stance ZMPs, the capture landing) go on at the next tick, from its measurement, while the
     measured DCM still leaves the plan. A failing single-support re-plan
     (four solves, each failing at the halt) took 7 ms of the tick at this
     machine's slow hours; two solves are the held ZMP and the ankle ZMP, or
