@@ -11,6 +11,7 @@ from planner_helpers import DT, count_solves, left_push_state, moved_feet, repla
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.replan import replan_support
 from drake_estop.systems.plan_sequence import PlanSequence
 
 
@@ -537,3 +538,24 @@ def test_every_capture_landing_lands_sooner_at_the_widest_step_and_stops_within_
             _, rest, _, _ = caught.com([caught.halt_end + 0.5])
             assert np.max(np.abs(rest)) < 1e-6
     assert captured >= 8
+
+
+def test_past_a_braked_plans_own_landing_bound_only_the_capture_landing_is_tried(pattern, params, monkeypatch):
+    """A braked re-plan raises its ``min_landing_time`` to its braking time (here 0.3 s): its window for
+    re-planning the landing still reaches to the planner's shortest landing (0.1 s) before the touchdown,
+    but past its own bound only the capture landing, which lands sooner, is tried."""
+    from drake_estop.planning import replan
+
+    plan = plan_stop(pattern, 3.15, params)
+    plan.params = replace(plan.params, min_landing_time=0.3)
+    late = plan.landing_time - 0.2
+    assert replan_support(plan, late) == "single"
+    assert replan_support(plan, plan.landing_time - 0.1 + DT) is None
+    solves = count_solves(monkeypatch)
+    pos, vel, _ = state_at(plan, late)
+    with pytest.raises(InfeasibleStop, match="tries before 'capture'"):  # the capture landing does not apply
+        replan_stop(plan, late, pos, vel + np.array([0.2, 0.0]))
+    assert solves == []
+    early = plan.landing_time - 0.3 - DT
+    assert replan_stop(plan, early, *state_at(plan, early)[:2]) is not None and len(solves) == 1  # the held ZMP
+    assert replan.shortest_replanned_landing(plan) == pytest.approx(0.1)
