@@ -559,3 +559,31 @@ def test_past_a_braked_plans_own_landing_bound_only_the_capture_landing_is_tried
     early = plan.landing_time - 0.3 - DT
     assert replan_stop(plan, early, *state_at(plan, early)[:2]) is not None and len(solves) == 1  # the held ZMP
     assert replan.shortest_replanned_landing(plan) == pytest.approx(0.1)
+
+
+def test_swing_reach_is_the_grid_search_of_the_braking_limit():
+    """The closed-form reach equals checking every landing point of its 5 mm grid with the landing swing's
+    acceleration on its check grid (the definition), over random swings, durations and limits."""
+    from drake_estop.planning import lipm
+    from drake_estop.planning.plan import SWING_GRID
+    from drake_estop.planning.replan import swing_reach
+
+    terms = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
+
+    def grid_search(pos, vel, acc, lateral, duration, limit):
+        xs = pos[0] + np.arange(-1.0, 1.0 + 1e-9, 0.005)
+        distance = np.stack([xs - pos[0], np.full_like(xs, lateral - pos[1])], axis=1)
+        swing = (terms[0][None, :, None] * distance[:, None, :] + terms[1][None, :, None] * vel * duration
+                 + terms[2][None, :, None] * acc * duration**2) / duration**2
+        within = np.flatnonzero(np.max(np.linalg.norm(swing, axis=2), axis=1) <= limit + 1e-9)
+        return None if len(within) == 0 else (float(xs[within[0]]), float(xs[within[-1]]))
+
+    rng = np.random.default_rng(7)
+    found = 0
+    for _ in range(2000):
+        args = (rng.uniform(-1, 1, 2), rng.uniform(-2.5, 2.5, 2), rng.uniform(-20, 20, 2), rng.uniform(-0.5, 0.5),
+                float(rng.choice(np.arange(0.05, 0.8, 0.005))), float(rng.choice([15.0, 20.0, 30.0])))
+        reach = swing_reach(*args)
+        assert reach == grid_search(*args)
+        found += reach is not None
+    assert 500 < found < 1500  # both outcomes are exercised
