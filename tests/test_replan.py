@@ -62,6 +62,10 @@ def test_a_next_step_fallback_carries_the_measured_deviation(pattern, params):
     start_pos, start_vel, _ = state_at(plan, plan.start_time)
     np.testing.assert_allclose(start_pos[0] - nominal_pos[0][0], 0.05 / w * np.sinh(w * s), atol=1e-9)
     np.testing.assert_allclose(start_vel[0] - nominal_vel[0][0], 0.05 * np.cosh(w * s), atol=1e-9)
+    # the summary lists the walk's own landing, which finishes the step before the double-support stop
+    steps = plan.summary()["steps"]
+    assert plan.landing_foot is None and [step["kind"] for step in steps] == ["walk"]
+    assert t < steps[0]["time"] <= plan.start_time and plan.summary()["steps_after_signal"] == 1
 
 
 @pytest.mark.parametrize("value", [(np.nan, 0.0), (np.inf, 1.0)])

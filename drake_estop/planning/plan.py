@@ -338,11 +338,15 @@ class StopPlan:
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
+    def walk_landings(self) -> list:
+        """The walk's own landings between the signal and the plan's start: ``{"time", "foot", "kind": "walk"}``."""
+        return [{"time": float(step["touchdown"]), "foot": step["swing"], "kind": "walk"}
+                for step in self.pattern.steps if self.signal_time < step["touchdown"] <= self.start_time + 1e-9]
+
+    @property
     def steps_after_signal(self) -> int:
         """Foot landings between the signal and rest (nominal ones included)."""
-        nominal = sum(1 for step in self.pattern.steps
-                      if self.signal_time < step["touchdown"] <= self.start_time + 1e-9)
-        return nominal + (1 if self.landing_foot is not None else 0)
+        return len(self.walk_landings) + (1 if self.landing_foot is not None else 0)
 
     @property
     def step_kind(self) -> str | None:
@@ -505,9 +509,7 @@ class StopPlan:
             "case": self.case,
             "steps_after_signal": self.steps_after_signal,
             # each landing after the signal and why: the walk's own before the stop starts, then the stop's
-            "steps": [{"time": float(step["touchdown"]), "foot": step["swing"], "kind": "walk"}
-                      for step in self.pattern.steps
-                      if self.signal_time < step["touchdown"] <= self.start_time + 1e-9]
+            "steps": self.walk_landings
             + ([{"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}]
                if self.landing_foot is not None else []),
             "plan_start_time": self.start_time,

@@ -147,9 +147,8 @@ class PlanSequence:
         summary["steps_after_signal"] = self.plans[0].steps_after_signal - (self.plans[0].landing_foot is not None) \
             + len(made)
         # every landing after the signal and why: the walk's own before the stop, then the landings made
-        walk = [step for step in self.plans[0].summary()["steps"] if step["kind"] == "walk"]
-        summary["steps"] = walk + [{"time": float(p.landing_time), "foot": p.landing_foot, "kind": p.step_kind}
-                                   for p in made]
+        summary["steps"] = self.plans[0].walk_landings + [
+            {"time": float(p.landing_time), "foot": p.landing_foot, "kind": p.step_kind} for p in made]
         summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
                        recovery_steps=sum(p.recovery_step for p in made),
                        capture_landings=sum(p.capture_landing for p in made),
