@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import math
 import shlex
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from importlib import resources
 
 import numpy as np
@@ -283,8 +283,6 @@ def _uniform(rng, bounds) -> float:
 def _signal_time(gait_values: dict, phase: float, robot: str = "default") -> tuple:
     """(signal time on the servo tick [s], its actual share of the stride) for the sampled ``phase``, on the
     gait of ``robot`` with ``gait_values``."""
-    from dataclasses import replace
-
     from drake_estop.planning.gait import GaitParameters, NominalPattern
 
     gait = GaitParameters(**gait_values) if robot == "default" else replace(_robot_gait(robot), **gait_values)
@@ -344,8 +342,6 @@ def scaled_to_robot(config: CampaignConfig, robot: str) -> CampaignConfig:
     """``config`` as the same campaign for ``robot`` (a built-in name or a description file): the step
     length, time and width ranges scaled by the robot's own gait against the default robot's, and the push
     impulses by its mass against the default robot's, so that the pushes give the same speeds [m/s]."""
-    from dataclasses import replace
-
     from drake_estop.robots import as_robot, gait_parameters
     from drake_estop.robots.measure import robot_facts
 
