@@ -15,10 +15,9 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
   run in every direction and phase.
 * **Ablation** (``--ablation``): the matrix (44 runs) with the defaults, then with each feature of the
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
-  braked landing, re-landed footholds, recovery step, capture landing and reference fallback off; the
-  foothold re-plan on; the re-plan's solves a tick unbounded) and with the plant at a 2 ms step: 528 runs,
-  about 5 s of CPU
-  each (about 20 min on 2 workers). Each row: the matrix's passes, its falls and the cells that fail.
+  braked landing, re-landed footholds, recovery step, capture landing, reference fallback and the feet's
+  force control off; the foothold re-plan on; the re-plan's solves a tick unbounded) and with the plant at a
+  2 ms step: 572 runs, about 5 s of CPU each (about 25 min on 2 workers). Each row: the matrix's passes, its falls and the cells that fail.
   ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
 
 ROBUSTNESS.md holds the main report and, under its own heading between the :data:`ABLATION_BEGIN` and
@@ -75,6 +74,7 @@ ABLATION = (
     {"controller": {"capture_landing": False}},
     {"controller": {"reference_fallback": False}},
     {"controller": {"foothold_replan": True}},
+    {"controller": {"foot_force_control": False}},
     {"controller": {"max_replan_solves": None}},
     {"plant": {"time_step": 0.002}},
 )

@@ -49,7 +49,56 @@ def test_an_underloaded_foot_is_pressed_down():
     assert _run((3000.0, 0.0), [0.15, 0.0], ticks=400, max_offset=0.004)[1] == pytest.approx(0.004)
 
 
+def test_with_an_engage_time_the_control_waits_for_both_soles_to_stand_that_long():
+    """0.2 s to engage: after 20 ticks (0.1 s) on both feet the overloaded left foot is not yet corrected;
+    after 60 ticks it is, by the control's own rate from the 40th tick on (0.2 s of standing counted at
+    it). A swinging foot holds it off."""
+    assert _run((300.0, 0.0), [0.15, 0.0], ticks=20, damping=8000.0, engage_time=0.2)[1] == 0.0
+    engaged = _run((300.0, 0.0), [0.15, 0.0], ticks=60, damping=8000.0, engage_time=0.2)[1]
+    always = _run((300.0, 0.0), [0.15, 0.0], ticks=21, damping=8000.0)[1]
+    assert engaged == pytest.approx(always, rel=1e-12)  # 21 engaged ticks either way
+    global LEFT
+    lifted, LEFT = LEFT, [0.0, 0.1, 0.02, 1.0, 0.0, 0.0, 0.0]
+    try:
+        # the left foot swings and carries nothing, as the plan asks: nothing to correct, never engaged
+        assert _run((0.0, 300.0), [0.3, -0.1], ticks=60, damping=8000.0, engage_time=0.2)[1] == 0.0
+        # a swinging foot loaded against the plan: without an engage time the control acts at once
+        assert _run((300.0, 0.0), [0.3, -0.1], ticks=20, damping=8000.0)[1] != 0.0
+        assert _run((300.0, 0.0), [0.3, -0.1], ticks=60, damping=8000.0, engage_time=0.2)[1] == 0.0
+    finally:
+        LEFT = lifted
+
+
 def test_the_settings_are_checked():
     with pytest.raises(ValueError, match="damping"):
         FootForceDifferenceControl(damping=0.0)
+    with pytest.raises(ValueError, match="engage_time"):
+        FootForceDifferenceControl(engage_time=-0.1)
+    import dataclasses
+
+    from drake_estop.robots import load_robot
+
+    with pytest.raises(ValueError, match="foot_force_engage_time"):
+        dataclasses.replace(load_robot("default"), foot_force_engage_time=-0.2)
     DiagramBuilder().AddSystem(FootForceDifferenceControl())
+
+
+def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
+    """The default humanoid's description gives a damping: the online diagram puts the control between the
+    swing-tilt compensation and the IK, logs its height difference, and ``foot_force_control=False``
+    leaves it out."""
+    from drake_estop.physics.controller_options import ControllerOptions
+    from drake_estop.physics.online import build_online_diagram, controller_stop_parameters
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.robots import load_robot
+
+    robot = load_robot("default")
+    damping, engage = robot.foot_force_damping, robot.foot_force_engage_time
+    assert damping is not None and damping > 0 and engage is not None and engage > 0
+    pattern, params = NominalPattern(), controller_stop_parameters()
+    handles = build_online_diagram(pattern, params, 3.4)
+    assert handles.foot_force is not None and handles.foot_force._damping == damping
+    assert handles.foot_force._engage == engage
+    assert "foot_height_difference" in handles.loggers
+    handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions(foot_force_control=False))
+    assert handles.foot_force is None and "foot_height_difference" not in handles.loggers

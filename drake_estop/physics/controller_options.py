@@ -72,6 +72,12 @@ class ControllerOptions:
         A sole measured more than 5 mm off the plan's foot after the landing re-plans the stop on the
         measured feet (default off: net neutral on the campaign, 10 runs gained and 11 lost of 500; on
         for comparison).
+    foot_force_control : bool
+        The feet's force difference control in double support (Kajita et al. 2010,
+        :class:`drake_estop.physics.foot_force.FootForceDifferenceControl`) at the robot's
+        ``foot_force_damping``: the soles' heights share the load as the plan's ZMP asks, so a pushed robot
+        does not rock from one sole edge to the other after its landing (default on; acts only where the
+        robot's description gives a damping; off for comparison).
     max_replan_solves : int or None
         Stop solves a re-plan may do in one servo tick, dimensionless (default 2: the tries left go on at
         the next tick, which bounds a tick's work); None puts every try on one tick (for comparison).
@@ -88,6 +94,7 @@ class ControllerOptions:
     braked_landing: bool = True
     reference_fallback: bool = True
     foothold_replan: bool = False
+    foot_force_control: bool = True
     max_replan_solves: int | None = MAX_REPLAN_SOLVES
 
     def __post_init__(self):

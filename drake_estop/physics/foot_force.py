@@ -29,7 +29,11 @@ from drake_estop.physics.swing_tilt import FEET, declare_feet_outputs
 from drake_estop.timing import timed
 
 
-def desired_force_difference(feet, zmp, total: float, swing_height: float = 1e-4) -> float:
+#: A sole target higher than this above the floor [m] is a swinging foot.
+SWING_HEIGHT = 1e-4
+
+
+def desired_force_difference(feet, zmp, total: float, swing_height: float = SWING_HEIGHT) -> float:
     """``f_L^d - f_R^d`` [N]: the measured ``total`` normal force [N] split by where ``zmp`` (x, y) lies
     between the ankles of ``feet`` (left then right sole targets, xyz first); all of it on the foot on
     the floor while the other's target is above ``swing_height`` [m]."""
@@ -67,16 +71,24 @@ class FootForceDifferenceControl(LeafSystem):
       - ``height_difference`` (1): ``dz`` [m].
 
     Parameters (keyword-only): ``servo_period`` [s], ``damping`` [N s/m], ``return_time`` [s],
-    ``max_offset`` [m] (the bound on ``|dz|``), ``timer`` (a :class:`drake_estop.timing.TickTimer`).
+    ``max_offset`` [m] (the bound on ``|dz|``), ``engage_time`` [s] (the control acts once both sole
+    targets have been on the floor this long; before that ``dz`` decays; default 0: always, single
+    support included), ``timer`` (a :class:`drake_estop.timing.TickTimer`).
     """
 
-    def __init__(self, *, servo_period=0.005, damping=5000.0, return_time=0.5, max_offset=0.02, timer=None):
+    def __init__(self, *, servo_period=0.005, damping=5000.0, return_time=0.5, max_offset=0.02, engage_time=0.0,
+                 timer=None):
         super().__init__()
         for name, value in (("servo_period", servo_period), ("damping", damping), ("return_time", return_time),
                             ("max_offset", max_offset)):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value!r}")
+        if not (np.isfinite(engage_time) and engage_time >= 0):
+            raise ValueError(f"engage_time must be non-negative, got {engage_time!r}")
         self._dt, self._damping, self._return, self._max = servo_period, damping, return_time, max_offset
+        self._engage = engage_time
+        # how long both sole targets have been on the floor [s]
+        self._both_down = self.DeclareDiscreteState(1)
         self.feet_in_ports = [self.DeclareVectorInputPort(f"{side}_foot", 7) for side in FEET]
         self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
@@ -94,7 +106,11 @@ class FootForceDifferenceControl(LeafSystem):
 
     def _update(self, context, discrete_state):
         dz = float(context.get_discrete_state(self._dz).value()[0])
-        rate = self.force_error(context) / self._damping - dz / self._return
+        down = all(port.Eval(context)[2] <= SWING_HEIGHT for port in self.feet_in_ports)
+        both_down = float(context.get_discrete_state(self._both_down).value()[0]) + self._dt if down else 0.0
+        discrete_state.set_value(self._both_down, [both_down])
+        engaged = both_down >= self._engage - 1e-9
+        rate = (self.force_error(context) / self._damping if engaged else 0.0) - dz / self._return
         discrete_state.set_value(self._dz, [float(np.clip(dz + self._dt * rate, -self._max, self._max))])
         return EventStatus.Succeeded()
 

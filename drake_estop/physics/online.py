@@ -226,7 +226,8 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
 
 #: Settings of the feet's force difference control (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`)
-#: for a robot whose description gives its ``foot_force_damping`` [N s/m] (none for the default humanoid: off).
+#: for a robot whose description gives its ``foot_force_damping`` [N s/m] (and its ``foot_force_engage_time``
+#: [s]; the default humanoid gives both, TALOS a damping only, the G1 neither).
 FOOT_FORCE_CONTROL = {"return_time": 0.5, "max_offset": 0.02}
 
 
@@ -268,11 +269,12 @@ def controller_settings(robot=None) -> dict:
     ``zmp_margin`` (the stop plan's, [m]), ``swing_tilt_deadband`` ([rad]: :data:`SWING_TILT_COMPENSATION`)
     and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its description's ``stop_zmp_margin``,
     ``swing_tilt_deadband`` and ``foot_edge_margin``; ``foot_force_damping`` ([N s/m]: the feet's force
-    difference control, :data:`FOOT_FORCE_CONTROL`, only for a robot that gives it). The default humanoid
-    gives none."""
+    difference control, :data:`FOOT_FORCE_CONTROL`, only for a robot that gives it) and
+    ``foot_force_engage_time`` ([s]: how long both soles stand before that control acts)."""
     description = as_robot(robot)
     return {"zmp_margin": description.stop_zmp_margin, "swing_tilt_deadband": description.swing_tilt_deadband,
-            "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping}
+            "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping,
+            "foot_force_engage_time": description.foot_force_engage_time}
 
 
 def _robot_setting(settings: dict, robot_settings: dict, key: str, name: str) -> dict:
@@ -404,10 +406,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                                                             "swing_tilt_deadband"))
     feet = swing_tilt_system
     foot_force = None
-    if robot_settings["foot_force_damping"] is not None:
+    if controller.foot_force_control and robot_settings["foot_force_damping"] is not None:
         foot_force = add_foot_force_control(builder, feet=swing_tilt_system or planner, zmp_source=planner,
                                             sensors=estimator.sensors, servo_period=dt, timer=timer,
-                                            damping=robot_settings["foot_force_damping"], **FOOT_FORCE_CONTROL)
+                                            damping=robot_settings["foot_force_damping"], **_robot_setting(
+                                                FOOT_FORCE_CONTROL, robot_settings, "engage_time",
+                                                "foot_force_engage_time"))
         feet = foot_force
     connect_reference(builder, planner, ik, feet=feet)
     compliance = None

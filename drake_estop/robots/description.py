@@ -330,6 +330,9 @@ class RobotDescription:
     foot_force_damping : float or None
         The physics controller's foot force difference control for this robot, its damping [N s/m]
         (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`); None (default): off.
+    foot_force_engage_time : float or None
+        With ``foot_force_damping``: the control acts once both soles have been on the floor this long [s]
+        (longer than the walk's double support: only in a stop's); None (default): always.
     walking_zmp_offset : float or None
         The walk's single-support ZMP ahead of the support ankle [m] (the gait's ``zmp_offset``,
         inside the sole); None (default): at the ankle.
@@ -372,6 +375,7 @@ class RobotDescription:
     foot_edge_margin: float | None = None
     walking_zmp_offset: float | None = None
     foot_force_damping: float | None = None
+    foot_force_engage_time: float | None = None
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -384,7 +388,7 @@ class RobotDescription:
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
                      "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height",
                      "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin", "walking_zmp_offset",
-                     "foot_force_damping"):
+                     "foot_force_damping", "foot_force_engage_time"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
         bend = self.min_knee_bend
