@@ -17,7 +17,8 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
   braked landing, re-landed footholds, recovery step, capture landing, reference fallback and the feet's
   force control off; the foothold re-plan on; the re-plan's solves a tick unbounded) and with the plant at a
-  2 ms step: 572 runs, about 5 s of CPU each (about 25 min on 2 workers). Each row: the matrix's passes, its falls and the cells that fail.
+  2 ms step: 572 runs, about 5 s of CPU each (about 25 min on 2 workers). Each row: the matrix's passes,
+  its falls and the cells that fail.
   ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
 
 ROBUSTNESS.md holds the main report and, under its own heading between the :data:`ABLATION_BEGIN` and

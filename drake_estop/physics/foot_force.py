@@ -17,7 +17,9 @@ of the measured force difference against the one the reference ZMP asks for::
 
 with ``f^d`` the measured total force split by where the plan's ZMP lies between the ankles (all on
 the stance foot while the other swings), so an underloaded foot is pressed down and the other raised.
-In single support the stance foot carries everything, as asked, and ``dz`` decays.
+In single support the stance foot carries everything, as asked, and ``dz`` decays. With an engage time the
+control acts only once both sole targets have stood that long (a robot whose walk needs no such control
+gets it in a stop's double support alone); before that ``dz`` decays as in single support.
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from drake_estop.physics.swing_tilt import FEET, declare_feet_outputs
 from drake_estop.timing import timed
-
 
 #: A sole target higher than this above the floor [m] is a swinging foot.
 SWING_HEIGHT = 1e-4
