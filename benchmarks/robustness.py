@@ -465,7 +465,8 @@ def report(rows, sweep_times, phase_times, impulses, wall, workers) -> str:
     ticks = [r["tick_compute"] for r in rows if r.get("tick_compute", {}).get("median")]
     if ticks:
         lines += ["", "Controller work per servo tick (the tick's two state estimates, the stop planner, the IK, "
-                  "the foot-edge compliance and the swing-tilt compensation; not the simulated sensors' "
+                  "the foot-edge compliance, the swing-tilt compensation and the feet's force control; not the "
+                  "simulated sensors' "
                   "readings) over all runs (median of the runs' medians / worst p99 / "
                   f"worst max), wall clock: {_tick_line(ticks)} (two runs share the two cores, and a run "
                   "preempted by another process counts the wait)."]
