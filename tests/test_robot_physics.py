@@ -219,12 +219,14 @@ def test_g1_walks_and_stops_in_its_third_step(estop_time, support):
 
 
 def test_the_default_robot_keeps_the_controller_s_settings():
-    """The default humanoid gives no controller setting of its own: its stop parameters and the controller
-    blocks' settings are the controller's constants, no foot force control, its gait's ZMP at the ankle."""
+    """The default humanoid's stop parameters and the controller blocks' settings are the controller's
+    constants and its gait's ZMP is at the ankle; its only settings of its own are the feet's force control
+    (its damping and engage time)."""
     from drake_estop.physics.online import controller_settings, controller_stop_parameters
     from drake_estop.robots.parameters import default_robot
 
-    assert set(controller_settings().values()) == {None}
+    own = {name: value for name, value in controller_settings().items() if value is not None}
+    assert own == {"foot_force_damping": 80000.0, "foot_force_engage_time": 0.2}
     assert gait_parameters(default_robot()).zmp_offset == 0.0
     assert robot_stop_parameters() == controller_stop_parameters() == controller_stop_parameters(robot="default")
 
