@@ -102,3 +102,29 @@ def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
     assert "foot_height_difference" in handles.loggers
     handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions(foot_force_control=False))
     assert handles.foot_force is None and "foot_height_difference" not in handles.loggers
+
+
+#: A campaign run (seed 0, run 280) that rocked: 26.5 N s to the right at 2.956 s, a capture landing, then in
+#: the halt the robot stood on its rear heel with the fore sole lifted.
+ROCKING_RUN = ["simulate", "--physics", "--estop-time", "3.035", "--step-length", "0.2861", "--step-time", "0.79",
+               "--step-width", "0.1959", "--push", "2.956", "41.93", "-262.43", "0.113", "--mass-scale", "0.9584",
+               "--torso-mass-scale", "1.0477", "--torso-com-offset", "-0.01665", "--friction", "0.9417",
+               "--latency", "1", "--seed", "4655102860825302358"]
+
+
+@pytest.mark.slow
+def test_the_force_control_stops_a_pushed_robot_rocking_off_its_planned_support(tmp_path):
+    """The campaign run above meets every criterion with the force control (the default); without it a
+    sole the plan stands on unloads in the halt and the CoP leaves the planned support."""
+    import json
+
+    from drake_estop.cli import main
+
+    with_control, without = tmp_path / "with.json", tmp_path / "without.json"
+    assert main([*ROCKING_RUN, "--summary", str(with_control)]) == 0
+    assert main([*ROCKING_RUN, "--summary", str(without),
+                 "--scenario-text", "{controller: {foot_force_control: false}}"]) == 1
+    rocked = json.loads(without.read_text())["physics"]
+    assert [name for name, ok in rocked["criteria"].items() if not ok] == ["cop_in_support"]
+    assert rocked["numbers"]["cop_margin_plan_min_m"] < 0.0
+    assert json.loads(with_control.read_text())["physics"]["numbers"]["cop_margin_plan_min_m"] > 0.0
