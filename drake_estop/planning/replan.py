@@ -338,37 +338,23 @@ def _capture_deadline(dcm: float, zmp: float, edge: float, beyond: float, remain
     return capture_time(dcm=dcm, zmp=zmp, edge=edge, omega=omega)
 
 
+#: the spacing [m] and the landing points :func:`swing_reach` checks, from the swing ankle [m]
+_REACH_STEP = 0.005
+_REACH_GRID = np.arange(-1.0, 1.0 + 1e-9, _REACH_STEP)
+
+
 def swing_reach(pos, vel, acc, lateral: float, duration: float, max_acceleration: float):
     """The sagittal interval ``(low, high)`` [m] of landing points ``(x, lateral)`` the landing swing
     (quintic Hermite from the ankle's ``pos``, ``vel``, ``acc`` to rest: as :func:`swing_braking_time`)
     reaches in ``duration`` [s] keeping its horizontal acceleration within ``max_acceleration`` [m/s^2];
-    None where none does. Landing points on a 5 mm grid from 1 m behind to 1 m ahead of ``pos``."""
+    None where none does. Landing points on a 5 mm grid from 1 m behind to 1 m ahead of ``pos``.
+
+    The acceleration at each grid time is affine in the landing point, so the points within the limit form
+    an interval per grid time and their intersection is one interval (closed form); the grid points at its
+    two ends are then checked as a grid search checks them."""
     pos, vel, acc = (np.asarray(v, float)[:2] for v in (pos, vel, acc))
-    return _reach_on_grid(pos, vel, acc, lateral, float(duration), max_acceleration)
-
-
-#: the landing points :func:`swing_reach` checks, from the swing ankle [m]
-_REACH_GRID = np.arange(-1.0, 1.0 + 1e-9, 0.005)
-
-
-def _reach_accelerations(pos, vel, acc, lateral: float, duration: float, offsets):
-    """The landing swing's horizontal acceleration norms [m/s^2] on its check grid, per landing point
-    ``pos[0] + offsets`` (rows)."""
-    xs = pos[0] + offsets
-    distance = np.stack([xs - pos[0], np.full_like(xs, lateral - pos[1])], axis=1)  # (n, 2)
-    T = duration
-    terms = _BRAKING_TERMS
-    swing = (terms[0][None, :, None] * distance[:, None, :] + terms[1][None, :, None] * vel * T
-             + terms[2][None, :, None] * acc * T**2) / T**2
-    return np.max(np.linalg.norm(swing, axis=2), axis=1)
-
-
-def _reach_on_grid(pos, vel, acc, lateral: float, duration: float, limit: float):
-    """:func:`swing_reach`. The acceleration at each grid time is affine in the landing point, so the
-    points within ``limit`` form an interval per grid time and their intersection is one interval
-    (closed form); the grid points at its two ends are then checked as the grid search checks them."""
-    T = duration
-    bound = limit + 1e-9
+    T = float(duration)
+    bound = max_acceleration + 1e-9
     # acceleration at grid time j: (c_j dx + r_j[0], r_j[1]) for a landing dx ahead of the ankle
     c = _BRAKING_TERMS[0] / T**2
     r = (np.outer(_BRAKING_TERMS[0], [0.0, lateral - pos[1]]) / T**2 + np.outer(_BRAKING_TERMS[1], vel) / T
@@ -382,9 +368,8 @@ def _reach_on_grid(pos, vel, acc, lateral: float, duration: float, limit: float)
         return None
     ends = np.sort(np.stack([(-half - r[:, 0])[moving] / c[moving], (half - r[:, 0])[moving] / c[moving]]), axis=0)
     low, high = float(np.max(ends[0])), float(np.min(ends[1]))
-    step = 0.005
-    first = min(max(int(math.floor((low + 1.0) / step)) - 1, 0), len(_REACH_GRID) - 1)
-    last = min(max(int(math.ceil((high + 1.0) / step)) + 1, 0), len(_REACH_GRID) - 1)
+    first = min(max(int(math.floor((low + 1.0) / _REACH_STEP)) - 1, 0), len(_REACH_GRID) - 1)
+    last = min(max(int(math.ceil((high + 1.0) / _REACH_STEP)) + 1, 0), len(_REACH_GRID) - 1)
     if first > last:
         return None
     window = np.arange(first, last + 1)
@@ -392,6 +377,18 @@ def _reach_on_grid(pos, vel, acc, lateral: float, duration: float, limit: float)
     if len(inside) == 0:
         return None
     return float(pos[0] + _REACH_GRID[inside[0]]), float(pos[0] + _REACH_GRID[inside[-1]])
+
+
+def _reach_accelerations(pos, vel, acc, lateral: float, duration: float, offsets):
+    """The landing swing's horizontal acceleration norms [m/s^2] on its check grid, per landing point
+    ``pos[0] + offsets`` (rows)."""
+    xs = pos[0] + offsets
+    distance = np.stack([xs - pos[0], np.full_like(xs, lateral - pos[1])], axis=1)  # (n, 2)
+    T = duration
+    terms = _BRAKING_TERMS
+    swing = (terms[0][None, :, None] * distance[:, None, :] + terms[1][None, :, None] * vel * T
+             + terms[2][None, :, None] * acc * T**2) / T**2
+    return np.max(np.linalg.norm(swing, axis=2), axis=1)
 
 
 def _ankle_tries(plan: StopPlan, t: float, com_xy, com_vel_xy, current) -> dict:
