@@ -344,9 +344,21 @@ class StopPlan:
                 for step in self.pattern.steps if self.signal_time < step["touchdown"] <= self.start_time + 1e-9]
 
     @property
+    def stop_landing(self) -> dict | None:
+        """The stop's own landing ``{"time", "foot", "kind"}`` (kind: :attr:`step_kind`); None without one."""
+        if self.landing_foot is None:
+            return None
+        return {"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}
+
+    @property
+    def landings(self) -> list:
+        """Every landing between the signal and rest and why: the walk's own, then the stop's."""
+        return self.walk_landings + ([self.stop_landing] if self.landing_foot is not None else [])
+
+    @property
     def steps_after_signal(self) -> int:
         """Foot landings between the signal and rest (nominal ones included)."""
-        return len(self.walk_landings) + (1 if self.landing_foot is not None else 0)
+        return len(self.landings)
 
     @property
     def step_kind(self) -> str | None:
@@ -509,9 +521,7 @@ class StopPlan:
             "case": self.case,
             "steps_after_signal": self.steps_after_signal,
             # each landing after the signal and why: the walk's own before the stop starts, then the stop's
-            "steps": self.walk_landings
-            + ([{"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}]
-               if self.landing_foot is not None else []),
+            "steps": self.landings,
             "plan_start_time": self.start_time,
             "phase_times": {
                 "landing_end": self.landing_time,

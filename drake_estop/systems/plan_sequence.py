@@ -144,11 +144,9 @@ class PlanSequence:
         # landings made: a plan's landing counts once no later re-plan replaced it before its touchdown
         made = [p for p, nxt in zip(self.plans, self.plans[1:] + (None,))
                 if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
-        summary["steps_after_signal"] = self.plans[0].steps_after_signal - (self.plans[0].landing_foot is not None) \
-            + len(made)
         # every landing after the signal and why: the walk's own before the stop, then the landings made
-        summary["steps"] = self.plans[0].walk_landings + [
-            {"time": float(p.landing_time), "foot": p.landing_foot, "kind": p.step_kind} for p in made]
+        summary["steps"] = self.plans[0].walk_landings + [p.stop_landing for p in made]
+        summary["steps_after_signal"] = len(summary["steps"])
         summary.update(estop_time=self.signal_time, support=self.plans[0].support, replans=len(self.plans) - 1,
                        recovery_steps=sum(p.recovery_step for p in made),
                        capture_landings=sum(p.capture_landing for p in made),
