@@ -21,12 +21,12 @@ def test_the_desired_split_follows_the_zmp_between_the_ankles():
     assert desired_force_difference([LEFT, swinging], [0.15, 0.0], 300.0) == pytest.approx(300.0)
 
 
-def _run(forces, zmp, ticks=20, **settings):
-    """The control after ``ticks`` servo ticks with the soles reading ``forces`` (left, right) [N]; its
-    feet outputs and height difference."""
+def _run(forces, zmp, ticks=20, left=LEFT, **settings):
+    """The control after ``ticks`` servo ticks with the soles reading ``forces`` (left, right) [N] and the
+    left sole target ``left``; its feet outputs and height difference."""
     control = FootForceDifferenceControl(**settings)
     context = control.CreateDefaultContext()
-    control.feet_in_ports[0].FixValue(context, LEFT)
+    control.feet_in_ports[0].FixValue(context, left)
     control.feet_in_ports[1].FixValue(context, RIGHT)
     control.zmp_port.FixValue(context, zmp)
     ft = np.zeros(12)
@@ -57,16 +57,12 @@ def test_with_an_engage_time_the_control_waits_for_both_soles_to_stand_that_long
     engaged = _run((300.0, 0.0), [0.15, 0.0], ticks=60, damping=8000.0, engage_time=0.2)[1]
     always = _run((300.0, 0.0), [0.15, 0.0], ticks=21, damping=8000.0)[1]
     assert engaged == pytest.approx(always, rel=1e-12)  # 21 engaged ticks either way
-    global LEFT
-    lifted, LEFT = LEFT, [0.0, 0.1, 0.02, 1.0, 0.0, 0.0, 0.0]
-    try:
-        # the left foot swings and carries nothing, as the plan asks: nothing to correct, never engaged
-        assert _run((0.0, 300.0), [0.3, -0.1], ticks=60, damping=8000.0, engage_time=0.2)[1] == 0.0
-        # a swinging foot loaded against the plan: without an engage time the control acts at once
-        assert _run((300.0, 0.0), [0.3, -0.1], ticks=20, damping=8000.0)[1] != 0.0
-        assert _run((300.0, 0.0), [0.3, -0.1], ticks=60, damping=8000.0, engage_time=0.2)[1] == 0.0
-    finally:
-        LEFT = lifted
+    swinging = [0.0, 0.1, 0.02, 1.0, 0.0, 0.0, 0.0]
+    # the left foot swings and carries nothing, as the plan asks: nothing to correct, never engaged
+    assert _run((0.0, 300.0), [0.3, -0.1], ticks=60, left=swinging, damping=8000.0, engage_time=0.2)[1] == 0.0
+    # a swinging foot loaded against the plan: without an engage time the control acts at once
+    assert _run((300.0, 0.0), [0.3, -0.1], ticks=20, left=swinging, damping=8000.0)[1] != 0.0
+    assert _run((300.0, 0.0), [0.3, -0.1], ticks=60, left=swinging, damping=8000.0, engage_time=0.2)[1] == 0.0
 
 
 def test_the_settings_are_checked():
