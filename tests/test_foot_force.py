@@ -76,6 +76,9 @@ def test_the_settings_are_checked():
 
     with pytest.raises(ValueError, match="foot_force_engage_time"):
         dataclasses.replace(load_robot("default"), foot_force_engage_time=-0.2)
+    # an engage time times a control that is on: without a damping it is refused
+    with pytest.raises(ValueError, match="foot_force_engage_time is given without foot_force_damping"):
+        dataclasses.replace(load_robot("default"), foot_force_damping=None)
     DiagramBuilder().AddSystem(FootForceDifferenceControl())
 
 

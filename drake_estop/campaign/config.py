@@ -283,9 +283,9 @@ def _uniform(rng, bounds) -> float:
 def _signal_time(gait_values: dict, phase: float, robot: str = "default") -> tuple:
     """(signal time on the servo tick [s], its actual share of the stride) for the sampled ``phase``, on the
     gait of ``robot`` with ``gait_values``."""
-    from drake_estop.planning.gait import GaitParameters, NominalPattern
+    from drake_estop.planning.gait import NominalPattern
 
-    gait = GaitParameters(**gait_values) if robot == "default" else replace(_robot_gait(robot), **gait_values)
+    gait = replace(_robot_gait(robot), **gait_values)
     start, end = NominalPattern(gait).stride()
     t = _snap(start + phase * (end - start), SERVO_PERIOD)
     t = min(max(t, _snap(start, SERVO_PERIOD)), _snap(end, SERVO_PERIOD))

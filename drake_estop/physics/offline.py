@@ -246,10 +246,9 @@ def run_physics(gait_params: GaitParameters | None = None, stop_params: StopPara
     from drake_estop.robots.parameters import gait_parameters, stop_parameters
 
     robot = as_robot(robot)
-    default = robot == as_robot(None)
     physics = (physics or PhysicsParameters()).for_robot(robot)
-    stop_params = stop_params or (StopParameters() if default else stop_parameters(robot))
-    pattern = pattern or NominalPattern(gait_params or (GaitParameters() if default else gait_parameters(robot)))
+    stop_params = stop_params or stop_parameters(robot)
+    pattern = pattern or NominalPattern(gait_params or gait_parameters(robot))
     plan = plan_stop(pattern, estop_time, stop_params)
     ro = rollout(plan, after_halt=after_halt)
     reference = reference_for(ro, plan, filter_iterations=physics.filter_iterations, robot=robot)

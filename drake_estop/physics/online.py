@@ -479,18 +479,12 @@ def _checked_pattern(gait_params, pattern, robot=None) -> NominalPattern:
     """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (by default the
     robot's: the paper's for the default humanoid)."""
     if pattern is None:
-        return NominalPattern(gait_params or _robot_gait(robot))
+        from drake_estop.robots.parameters import gait_parameters
+
+        return NominalPattern(gait_params or gait_parameters(as_robot(robot)))
     if gait_params is not None and gait_params != pattern.params:
         raise ValueError("gait_params and pattern disagree: give one of them (pattern is NominalPattern(gait_params))")
     return pattern
-
-
-def _robot_gait(robot) -> GaitParameters:
-    """The robot's nominal gait (:func:`drake_estop.robots.gait_parameters`; the paper's for the default)."""
-    from drake_estop.robots.parameters import gait_parameters
-
-    description = as_robot(robot)
-    return GaitParameters() if description == as_robot(None) else gait_parameters(description)
 
 
 def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopParameters:
@@ -499,8 +493,8 @@ def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopPar
     from drake_estop.robots.parameters import stop_parameters
 
     description = as_robot(robot)
-    base = None if description == as_robot(None) else stop_parameters(description)
-    return controller_stop_parameters(base, braked_landing=braked_landing, robot=description)
+    return controller_stop_parameters(stop_parameters(description), braked_landing=braked_landing,
+                                      robot=description)
 
 
 def _planner_settings(controller, planner_options) -> dict:

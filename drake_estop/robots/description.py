@@ -331,8 +331,8 @@ class RobotDescription:
         The physics controller's foot force difference control for this robot, its damping [N s/m]
         (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`); None (default): off.
     foot_force_engage_time : float or None
-        With ``foot_force_damping``: the control acts once both soles have been on the floor this long [s]
-        (longer than the walk's double support: only in a stop's); None (default): always.
+        With ``foot_force_damping`` (alone it is refused): the control acts once both soles have been on the
+        floor this long [s] (longer than the walk's double support: only in a stop's); None (default): always.
     walking_zmp_offset : float or None
         The walk's single-support ZMP ahead of the support ankle [m] (the gait's ``zmp_offset``,
         inside the sole); None (default): at the ankle.
@@ -391,6 +391,9 @@ class RobotDescription:
                      "foot_force_damping", "foot_force_engage_time"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
+        if self.foot_force_engage_time is not None and self.foot_force_damping is None:
+            raise ValueError("foot_force_engage_time is given without foot_force_damping: the foot force control "
+                             "it times is off (give both, or neither)")
         bend = self.min_knee_bend
         if isinstance(bend, bool) or not isinstance(bend, (int, float)) or not 0.0 <= bend < 1.0:
             raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {bend!r}")

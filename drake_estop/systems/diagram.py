@@ -37,6 +37,7 @@ from drake_estop.robots.description import SIDES
 from drake_estop.robots.parameters import as_robot, gait_parameters, standing_height, stop_parameters
 from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
+from drake_estop.systems.multibody_zmp import multibody_zmp, support_margins
 from drake_estop.systems.reference import ReferenceLayout, pattern_layout, reference_vector
 from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
 
@@ -231,6 +232,11 @@ class DiagramResult:
     logged_reference: dict = field(default_factory=dict)  # planner outputs as logged
     #: (n,) 1.0 if a stop signal at the tick would stop in one step (after the latch: the latched plan's case)
     one_step_feasible: np.ndarray = None
+    #: (n, 2) the whole body's ZMP of the IK's q [m] (:func:`drake_estop.systems.multibody_zmp.multibody_zmp`:
+    #: the limbs' angular momentum included, which the plan's LIPM ZMP leaves out)
+    multibody_zmp: np.ndarray = None
+    #: (n,) its distance inside the soles the targets put on the floor [m] (negative outside)
+    multibody_zmp_margin: np.ndarray = None
 
     @property
     def sim_time(self):
@@ -260,7 +266,18 @@ class DiagramResult:
             "velocity_limit_violations": int(self.velocity_limit_violations.sum()),
             "joint_limit_violations": int(self.joint_limit_violations.sum()),
             "ticks": int(len(self.times)),
+            **self.multibody_zmp_summary(),
         }
+
+    def multibody_zmp_summary(self) -> dict:
+        """The whole body's ZMP margin in the soles on the floor [m], least over the run and over the stop
+        (from the signal): below 0 the plan asks the floor for a ZMP outside the feet (None: not computed)."""
+        margins = self.multibody_zmp_margin
+        if margins is None or not np.any(np.isfinite(margins)):
+            return {"multibody_zmp_margin_min_m": None, "stop_multibody_zmp_margin_min_m": None}
+        stop = margins[self.times >= self.plan.signal_time] if self.plan is not None else margins[:0]
+        return {"multibody_zmp_margin_min_m": float(np.nanmin(margins)),
+                "stop_multibody_zmp_margin_min_m": float(np.nanmin(stop)) if np.any(np.isfinite(stop)) else None}
 
 
 def _sole_errors(plant, robot, q_log, left, right):
@@ -330,6 +347,8 @@ def collect_result(handles, context, *, wall_time, html=None):
                 "foot_position": int(np.sum(foot_err > IK_FOOT_BOUND)),
                 "foot_rotation": int(np.sum(rot_err > IK_FOOT_ROT_BOUND))}
     n = len(times)
+    feet = {"left": ref["left_foot"], "right": ref["right_foot"]}
+    zmp = multibody_zmp(plant, q_log, float(times[1] - times[0])) if n >= 3 else None
     result = DiagramResult(
         times=times, com=ref["com"], com_vel=ref["com_vel"], zmp=ref["zmp"],
         phases=[PHASES[int(round(p))] for p in ref["phase"][:, 0]],
@@ -341,7 +360,8 @@ def collect_result(handles, context, *, wall_time, html=None):
         velocity_limit_violations=solved["velocity_limit_violations"][:, 0],
         joint_limit_violations=limit_viol, plan=plan, wall_time=wall_time,
         plan_wall_time=handles.planner.plan_wall_time(planner_context), html=html,
-        ik_failures=failures, one_step_feasible=solved["one_step_feasible"][:, 0],
+        ik_failures=failures, one_step_feasible=solved["one_step_feasible"][:, 0], multibody_zmp=zmp,
+        multibody_zmp_margin=None if zmp is None else support_margins(zmp, feet, handles.pattern.params.sole),
         logged_reference={name: logged[name][:n] for name in
                           ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase")})
     _warn_failures(result)

@@ -535,4 +535,9 @@ def describe(result):
             f"IK max COG {errors['ik_com_err_max_m'] * 1e3:.3f} mm, foot "
             f"{errors['ik_foot_err_max_m'] * 1e3:.3f} mm / {errors['ik_foot_rot_err_max_rad']:.1e} rad, "
             f"ticks over bounds {errors['ik_ticks_over_bounds']}, velocity-limit violations "
-            f"{errors['velocity_limit_violations']}; real-time factor {result.realtime_factor:.1f}")
+            f"{errors['velocity_limit_violations']}; whole-body ZMP margin {_mm(errors['multibody_zmp_margin_min_m'])} "
+            f"(stop {_mm(errors['stop_multibody_zmp_margin_min_m'])}); real-time factor {result.realtime_factor:.1f}")
+
+
+def _mm(value) -> str:
+    return "n/a" if value is None else f"{value * 1e3:.1f} mm"

@@ -1,0 +1,71 @@
+"""The whole body's ZMP of a joint trajectory, and its margin in the soles on the floor.
+
+The pattern and the stop plan are made on the linear inverted pendulum (the paper's eq. 4): the body is
+a point mass at the COG height and its ZMP is the plan's. The robot's limbs move besides, and their
+angular momentum about the COG shifts the ZMP the floor must carry. For a light-legged robot that is a
+few mm; for one whose legs weigh a third of it, swinging a 0.27 m step in 0.63 s, it is several cm and
+can leave the sole. This module measures it on the IK's joint trajectory (the kinematic diagram's
+``q``), before any physics: the floor's ZMP of a rigid multibody on flat ground at height 0 is::
+
+    p_x = c_x - (c_z m a_x + dL_y/dt) / (m (g + a_z))
+    p_y = c_y - (c_z m a_y - dL_x/dt) / (m (g + a_z))
+
+with ``c`` the COG, ``a`` its acceleration and ``L`` the angular momentum about it
+(``MultibodyPlant.CalcSpatialMomentumInWorldAboutPoint``), velocities by central differences of the
+configurations and their rates by second differences. With ``L`` constant this is the LIPM's ZMP.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_estop.planning.plan import soles_polygon
+from drake_estop.systems.ik import quaternion_to_matrix
+
+GRAVITY = 9.81  # [m/s^2], as the pattern's LIPM
+#: A sole target higher than this above the floor [m] is off it (as the foot force control's swing height).
+ON_FLOOR_HEIGHT = 1e-4
+
+
+def multibody_zmp(plant, q: np.ndarray, dt: float) -> np.ndarray:
+    """(n, 2) ZMP [m] of ``plant`` moving through the configurations ``q`` (n, nq), one every ``dt`` [s]
+    (n >= 3); the module docstring gives the formula."""
+    q = np.asarray(q, float)
+    if q.ndim != 2 or q.shape[0] < 3 or q.shape[1] != plant.num_positions():
+        raise ValueError(f"q must be (n >= 3, {plant.num_positions()}) configurations, got shape {q.shape}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be positive, got {dt!r}")
+    context = plant.CreateDefaultContext()
+    mass = plant.CalcTotalMass(context)
+    qdot = np.gradient(q, dt, axis=0)
+    com = np.empty((len(q), 3))
+    momentum = np.empty((len(q), 3))
+    for i in range(len(q)):
+        plant.SetPositions(context, q[i])
+        plant.SetVelocities(context, plant.MapQDotToVelocity(context, qdot[i]))
+        com[i] = plant.CalcCenterOfMassPositionInWorld(context)
+        momentum[i] = plant.CalcSpatialMomentumInWorldAboutPoint(context, com[i]).rotational()
+    acceleration = np.gradient(np.gradient(com, dt, axis=0), dt, axis=0)
+    momentum_rate = np.gradient(momentum, dt, axis=0)
+    vertical = mass * (GRAVITY + acceleration[:, 2])
+    zmp_x = com[:, 0] - (com[:, 2] * mass * acceleration[:, 0] + momentum_rate[:, 1]) / vertical
+    zmp_y = com[:, 1] - (com[:, 2] * mass * acceleration[:, 1] - momentum_rate[:, 0]) / vertical
+    return np.stack([zmp_x, zmp_y], axis=1)
+
+
+def support_margins(zmp: np.ndarray, feet: dict, sole) -> np.ndarray:
+    """(n,) distance [m] of each ``zmp`` (n, 2) inside the polygon of the soles on the floor at that tick
+    (negative outside; NaN where no sole target is on the floor). ``feet``: side -> (n, 7) sole targets
+    ``[x, y, z, qw, qx, qy, qz]``; ``sole``: the rectangle (:class:`drake_estop.planning.gait.Sole`)."""
+    margins = np.full(len(zmp), np.nan)
+    for i, point in enumerate(np.asarray(zmp, float)):
+        standing = tuple((side, float(target[i][0]), float(target[i][1]), _yaw(target[i][3:7]))
+                         for side, target in feet.items() if target[i][2] <= ON_FLOOR_HEIGHT)
+        if standing:
+            margins[i] = float(soles_polygon(sole, standing).margin(point[None, :])[0])
+    return margins
+
+
+def _yaw(quaternion) -> float:
+    rotation = quaternion_to_matrix(np.asarray(quaternion, float) / np.linalg.norm(quaternion))
+    return float(np.arctan2(rotation[1, 0], rotation[0, 0]))
