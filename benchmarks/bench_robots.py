@@ -7,7 +7,9 @@ For every ``--every``-th servo tick of the robot's stride (single then double su
 step), runs one stop through one diagram (:func:`drake_estop.systems.stride.sweep_stride`) and
 prints a table: signals, one-step share, the IK's worst COG and sole errors, ticks over the IK's
 bounds (1 mm, 1 mm, 0.01 rad), joint-ticks over a speed limit, time to rest (median, worst), the
-signals that do not stop in one step, and the robot's gait and limits.
+whole body's ZMP in the stops (its least margin in the soles, the limbs' momentum included, and the
+signals whose stop puts it outside), the signals that do not stop in one step, and the robot's gait
+and limits.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parame
 from drake_estop.systems.stride import rows_as_dicts, stride_summary, sweep_stride
 
 HEADER = ("| robot | signals | one-step | IK COG max [mm] | IK sole max [mm] | ticks over IK bounds | "
-          "joint-speed violations | time to rest median / worst [s] | run [s] |")
+          "joint-speed violations | time to rest median / worst [s] | whole-body ZMP margin min [mm] / "
+          "stops outside the soles | run [s] |")
 
 
 def run_robot(name: str, every: int) -> dict:
@@ -45,7 +48,9 @@ def table(results: list) -> str:
         lines.append(f"| {result['robot']} | {s['signals']} | {s['one_step']} ({100 * s['one_step_share']:.0f} %) | "
                      f"{s['ik_com_error_max_m'] * 1e3:.3f} | {s['ik_foot_error_max_m'] * 1e3:.3f} | "
                      f"{s['ik_ticks_over_bounds']} | {s['velocity_limit_violations']} | "
-                     f"{s['time_to_rest_median_s']:.3f} / {s['time_to_rest_max_s']:.3f} | {result['wall_time']:.0f} |")
+                     f"{s['time_to_rest_median_s']:.3f} / {s['time_to_rest_max_s']:.3f} | "
+                     f"{s['stop_multibody_zmp_margin_min_m'] * 1e3:.1f} / {s['signals_with_multibody_zmp_outside']} | "
+                     f"{result['wall_time']:.0f} |")
     for result in results:
         others = [row for row in result["rows"] if row["case"] != "one-step"]
         gait, stop = result["gait"], result["stop"]

@@ -34,8 +34,8 @@ def test_a_body_at_rest_has_its_zmp_under_its_cog():
 
 def test_a_translating_body_has_the_lipm_zmp():
     """The base translated at a constant acceleration, no rotation and no joint moving: no angular momentum
-    about the COG, so the ZMP is the LIPM's (eq. 4), c - c_z a / g, on every tick the second differences
-    reach (the ends are one-sided)."""
+    about the COG, so the ZMP is the LIPM's (eq. 4), c - c_z a / g, on every tick whose averaging window
+    lies inside the run (the ends are one-sided)."""
     plant, q = _standing(40)
     times = DT * np.arange(len(q))
     acceleration = np.array([1.5, -0.8])
@@ -43,7 +43,7 @@ def test_a_translating_body_has_the_lipm_zmp():
     zmp = multibody_zmp(plant, q, DT)
     com = np.array([_com(plant, row) for row in q])
     expected = com[:, :2] - com[:, 2:3] * acceleration / GRAVITY
-    np.testing.assert_allclose(zmp[2:-2], expected[2:-2], atol=1e-6)
+    np.testing.assert_allclose(zmp[6:-6], expected[6:-6], atol=1e-6)
 
 
 def test_a_swinging_leg_moves_the_zmp_against_its_angular_momentum():
@@ -82,12 +82,28 @@ def test_bad_input_names_the_argument():
         multibody_zmp(plant, q[:, :-1], DT)
     with pytest.raises(ValueError, match="dt must be positive"):
         multibody_zmp(plant, q, 0.0)
+    with pytest.raises(ValueError, match="window must be finite and non-negative"):
+        multibody_zmp(plant, q, DT, window=-0.01)
+
+
+def test_a_landing_transient_is_averaged_over_the_window():
+    """A stop signalled 15 ms before the 3.5 s touchdown on the default humanoid: the swing foot brakes onto
+    the floor within a few ticks, and the instantaneous ZMP (no averaging) leaves the soles by 63 mm for
+    20 ms; averaged over 50 ms (the default) it stays 6 mm inside. Measured, both."""
+    from drake_estop.systems.diagram import simulate_diagram
+
+    result = simulate_diagram(estop_time=3.485)
+    plant, _, _ = shared_ik(None)
+    feet = {"left": result.logged_reference["left_foot"], "right": result.logged_reference["right_foot"]}
+    instantaneous = support_margins(multibody_zmp(plant, result.q_full, DT, window=0.0), feet,
+                                    result.plan.pattern.params.sole)
+    assert np.nanmin(instantaneous) < -0.03 < 0.0 < result.error_summary()["stop_multibody_zmp_margin_min_m"]
 
 
 def test_the_default_humanoid_s_stop_keeps_the_whole_body_zmp_in_its_soles():
     """The paper's 3.4 s stop on the default humanoid: the kinematic diagram reports the whole body's ZMP
-    margin, least over the run and over the stop, and both are positive (measured 41 mm against the plan's
-    LIPM 52 mm: its light legs shift the ZMP by about a centimetre)."""
+    margin, least over the run and over the stop, and both are positive (measured 49 mm, in the stop, against
+    the plan's LIPM 52 mm: its light legs shift the ZMP by a few millimetres)."""
     from drake_estop.systems.diagram import simulate_diagram
 
     result = simulate_diagram(estop_time=3.4)

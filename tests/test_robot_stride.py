@@ -1,6 +1,7 @@
 """A stop at every 4th servo tick of a stride, each through the kinematic diagram, for the G1 and TALOS
 (``drake_estop.systems.stride``; ``benchmarks/bench_robots.py`` runs every tick)."""
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -23,6 +24,14 @@ def test_a_requested_stop_runs_as_a_scheduled_one():
     assert np.array_equal(requested.q_full, scheduled.q_full)
     row = StrideStop.of(requested)
     assert (row.case, row.final_phase, row.velocity_limit_violations) == ("one-step", "stopped", 0)
+    # the stop's whole-body ZMP margin reaches the row and the summary (the default humanoid's: inside)
+    assert row.stop_multibody_zmp_margin == requested.error_summary()["stop_multibody_zmp_margin_min_m"] > 0.02
+    summary = stride_summary([row])
+    assert summary["stop_multibody_zmp_margin_min_m"] == row.stop_multibody_zmp_margin
+    assert summary["signals_with_multibody_zmp_outside"] == 0
+    outside = dataclasses.replace(row, stop_multibody_zmp_margin=-0.004)
+    summary = stride_summary([row, outside])
+    assert (summary["stop_multibody_zmp_margin_min_m"], summary["signals_with_multibody_zmp_outside"]) == (-0.004, 1)
 
 
 def test_the_sweep_refuses_a_bad_spacing():

@@ -12,7 +12,8 @@ can leave the sole. This module measures it on the IK's joint trajectory (the ki
 
 with ``c`` the COG, ``a`` its acceleration and ``L`` the angular momentum about it
 (``MultibodyPlant.CalcSpatialMomentumInWorldAboutPoint``), velocities by central differences of the
-configurations and their rates by second differences. With ``L`` constant this is the LIPM's ZMP.
+configurations and the rates averaged over ``AVERAGING_WINDOW``. With ``L`` constant this is the LIPM's
+ZMP.
 """
 
 from __future__ import annotations
@@ -23,18 +24,25 @@ from drake_estop.planning.plan import soles_polygon
 from drake_estop.systems.ik import quaternion_to_matrix
 
 GRAVITY = 9.81  # [m/s^2], as the pattern's LIPM
+#: The window [s] the COG's acceleration and the momentum's rate are averaged over: a swing foot braking to
+#: its touchdown within a few ticks swings the instantaneous ZMP by decimetres, but the body cannot tip
+#: on a moment that lasts 20 ms (the averaged ZMP is where the floor carries the window's moment).
+AVERAGING_WINDOW = 0.05
 #: A sole target higher than this above the floor [m] is off it (as the foot force control's swing height).
 ON_FLOOR_HEIGHT = 1e-4
 
 
-def multibody_zmp(plant, q: np.ndarray, dt: float) -> np.ndarray:
+def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WINDOW) -> np.ndarray:
     """(n, 2) ZMP [m] of ``plant`` moving through the configurations ``q`` (n, nq), one every ``dt`` [s]
-    (n >= 3); the module docstring gives the formula."""
+    (n >= 3), its rates averaged over ``window`` [s] (one tick each side at least); the module docstring
+    gives the formula."""
     q = np.asarray(q, float)
     if q.ndim != 2 or q.shape[0] < 3 or q.shape[1] != plant.num_positions():
         raise ValueError(f"q must be (n >= 3, {plant.num_positions()}) configurations, got shape {q.shape}")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be positive, got {dt!r}")
+    if not (np.isfinite(window) and window >= 0):
+        raise ValueError(f"window must be finite and non-negative, got {window!r}")
     context = plant.CreateDefaultContext()
     mass = plant.CalcTotalMass(context)
     qdot = np.gradient(q, dt, axis=0)
@@ -45,8 +53,9 @@ def multibody_zmp(plant, q: np.ndarray, dt: float) -> np.ndarray:
         plant.SetVelocities(context, plant.MapQDotToVelocity(context, qdot[i]))
         com[i] = plant.CalcCenterOfMassPositionInWorld(context)
         momentum[i] = plant.CalcSpatialMomentumInWorldAboutPoint(context, com[i]).rotational()
-    acceleration = np.gradient(np.gradient(com, dt, axis=0), dt, axis=0)
-    momentum_rate = np.gradient(momentum, dt, axis=0)
+    span = max(1, int(round(window / (2.0 * dt))))
+    acceleration = _rate(np.gradient(com, dt, axis=0), dt, span)
+    momentum_rate = _rate(momentum, dt, span)
     vertical = mass * (GRAVITY + acceleration[:, 2])
     zmp_x = com[:, 0] - (com[:, 2] * mass * acceleration[:, 0] + momentum_rate[:, 1]) / vertical
     zmp_y = com[:, 1] - (com[:, 2] * mass * acceleration[:, 1] - momentum_rate[:, 0]) / vertical
@@ -64,6 +73,14 @@ def support_margins(zmp: np.ndarray, feet: dict, sole) -> np.ndarray:
         if standing:
             margins[i] = float(soles_polygon(sole, standing).margin(point[None, :])[0])
     return margins
+
+
+def _rate(values: np.ndarray, dt: float, span: int) -> np.ndarray:
+    """The rate of ``values`` (n, k) over ``2 span`` ticks centred on each (fewer at the ends): its mean
+    over that window."""
+    index = np.arange(len(values))
+    ahead, behind = np.minimum(index + span, len(values) - 1), np.maximum(index - span, 0)
+    return (values[ahead] - values[behind]) / (dt * (ahead - behind))[:, None]
 
 
 def _yaw(quaternion) -> float:

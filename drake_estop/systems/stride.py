@@ -47,6 +47,9 @@ class StrideStop:
         Joint-ticks over a joint's speed limit; joints outside their position range, summed over ticks.
     wall_time : float
         Wall-clock time of the run [s].
+    stop_multibody_zmp_margin : float or None
+        The whole body's ZMP's least margin in the soles on the floor from the signal on [m] (negative:
+        outside; :func:`drake_estop.systems.multibody_zmp.multibody_zmp`, the limbs' momentum included).
     """
 
     signal_time: float
@@ -62,6 +65,7 @@ class StrideStop:
     velocity_limit_violations: int
     joint_limit_violations: int
     wall_time: float
+    stop_multibody_zmp_margin: float | None = None
 
     @classmethod
     def of(cls, result: DiagramResult) -> StrideStop:
@@ -74,7 +78,8 @@ class StrideStop:
                    ik_foot_rotation_error=errors["ik_foot_rot_err_max_rad"],
                    ik_ticks_over_bounds=int(max(errors["ik_ticks_over_bounds"].values())),
                    velocity_limit_violations=errors["velocity_limit_violations"],
-                   joint_limit_violations=errors["joint_limit_violations"], wall_time=result.wall_time)
+                   joint_limit_violations=errors["joint_limit_violations"], wall_time=result.wall_time,
+                   stop_multibody_zmp_margin=errors["stop_multibody_zmp_margin_min_m"])
 
 
 def run_signal(handles, signal_time: float, *, after_halt: float = 1.0) -> DiagramResult:
@@ -148,9 +153,11 @@ def sweep_stride(*, robot=None, gait=None, stop=None, every: int = 1, step_index
 
 def stride_summary(rows: list[StrideStop]) -> dict:
     """Signals, one-step share, worst IK errors [m, rad], ticks over the IK's bounds, joint-speed and
-    joint-range violations, and the time to rest (median, worst) [s] of a sweep."""
+    joint-range violations, the time to rest (median, worst) [s] and the whole body's ZMP in the stops (the
+    least margin [m], the signals whose stop puts it outside the soles) of a sweep."""
     one_step = sum(row.case == "one-step" for row in rows)
     rest = np.array([row.time_to_rest for row in rows])
+    margins = [row.stop_multibody_zmp_margin for row in rows if row.stop_multibody_zmp_margin is not None]
     return {
         "signals": len(rows), "one_step": one_step, "one_step_share": one_step / len(rows),
         "stopped": sum(row.final_phase == "stopped" for row in rows),
@@ -164,6 +171,8 @@ def stride_summary(rows: list[StrideStop]) -> dict:
         "signals_with_velocity_violations": sum(row.velocity_limit_violations > 0 for row in rows),
         "joint_limit_violations": sum(row.joint_limit_violations for row in rows),
         "time_to_rest_median_s": float(np.median(rest)), "time_to_rest_max_s": float(rest.max()),
+        "stop_multibody_zmp_margin_min_m": min(margins) if margins else None,
+        "signals_with_multibody_zmp_outside": sum(margin < 0 for margin in margins),
     }
 
 
