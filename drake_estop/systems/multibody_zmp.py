@@ -4,8 +4,9 @@ The pattern and the stop plan are made on the linear inverted pendulum (the pape
 a point mass at the COG height and its ZMP is the plan's. The robot's limbs move besides, and their
 angular momentum about the COG shifts the ZMP the floor must carry. On the default humanoid's walk that is
 a few mm; where a double-support stop brakes at 3 m/s^2, or where the legs weigh 43 % of the robot (the G1)
-and swing a 0.27 m step in 0.63 s, it is several cm and can leave the sole. This module measures it on the IK's joint trajectory (the kinematic diagram's
-``q``), before any physics: the floor's ZMP of a rigid multibody on flat ground at height 0 is::
+and swing a 0.27 m step in 0.63 s, it is several cm and can leave the sole. This module measures it on
+the IK's joint trajectory (the kinematic diagram's ``q``), before any physics: the floor's ZMP of a rigid
+multibody on flat ground at height 0 is::
 
     p_x = c_x - (c_z m a_x + dL_y/dt) / (m (g + a_z))
     p_y = c_y - (c_z m a_y - dL_x/dt) / (m (g + a_z))
