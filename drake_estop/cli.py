@@ -300,7 +300,7 @@ def _simulate(args) -> int:
         print(f"whole-body IK: COG error max {ik['ik_com_err_max_m'] * 1e3:.3f} mm, foot error max "
               f"{ik['ik_foot_err_max_m'] * 1e3:.3f} mm, ticks over bounds {ik['ik_ticks_over_bounds']}, "
               f"joint-velocity-limit violations {ik['velocity_limit_violations']}")
-        if ik.get("multibody_zmp_margin_min_m") is not None:
+        if ik.get("stop_multibody_zmp_margin_min_m") is not None:  # the run's least is then one too
             print(f"whole-body ZMP (the limbs' momentum included): least margin in the soles "
                   f"{ik['multibody_zmp_margin_min_m'] * 1e3:.1f} mm, in the stop "
                   f"{ik['stop_multibody_zmp_margin_min_m'] * 1e3:.1f} mm (below 0: outside the feet)")

@@ -28,10 +28,8 @@ import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from drake_estop.physics.swing_tilt import FEET, declare_feet_outputs
+from drake_estop.systems.reference import SWING_HEIGHT
 from drake_estop.timing import timed
-
-#: A sole target higher than this above the floor [m] is a swinging foot.
-SWING_HEIGHT = 1e-4
 
 
 def desired_force_difference(feet, zmp, total: float, swing_height: float = SWING_HEIGHT) -> float:

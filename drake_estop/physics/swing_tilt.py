@@ -32,6 +32,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import matrix_to_quaternion, quaternion_to_matrix, rotation_exp, rotation_log
+from drake_estop.systems.reference import SWING_HEIGHT
 from drake_estop.timing import timed
 
 FEET = ("left", "right")
@@ -110,7 +111,7 @@ class SwingFootTiltCompensation(LeafSystem):
     """
 
     def __init__(self, *, plant, servo_period=0.005, deadband=0.01, max_tilt=0.17, return_time=0.3,
-                 contact_force=50.0, swing_height=1e-4, timer=None, robot=None):
+                 contact_force=50.0, swing_height=SWING_HEIGHT, timer=None, robot=None):
         super().__init__()
         for name, value in (("servo_period", servo_period), ("max_tilt", max_tilt), ("return_time", return_time),
                             ("swing_height", swing_height)):

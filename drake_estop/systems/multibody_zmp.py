@@ -22,15 +22,14 @@ from __future__ import annotations
 import numpy as np
 
 from drake_estop.planning.plan import soles_polygon
-from drake_estop.systems.ik import quaternion_to_matrix
+from drake_estop.systems.ik import quaternion_to_matrix, yaw_of
+from drake_estop.systems.reference import SWING_HEIGHT
 
 GRAVITY = 9.81  # [m/s^2], as the pattern's LIPM
 #: The window [s] the COG's acceleration and the momentum's rate are averaged over: a swing foot braking to
 #: its touchdown within a few ticks swings the instantaneous ZMP by decimetres, but the body cannot tip
 #: on a moment that lasts 20 ms (the averaged ZMP is where the floor carries the window's moment).
 AVERAGING_WINDOW = 0.05
-#: A sole target higher than this above the floor [m] is off it (as the foot force control's swing height).
-ON_FLOOR_HEIGHT = 1e-4
 
 
 def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WINDOW) -> np.ndarray:
@@ -69,8 +68,8 @@ def support_margins(zmp: np.ndarray, feet: dict, sole) -> np.ndarray:
     ``[x, y, z, qw, qx, qy, qz]``; ``sole``: the rectangle (:class:`drake_estop.planning.gait.Sole`)."""
     margins = np.full(len(zmp), np.nan)
     for i, point in enumerate(np.asarray(zmp, float)):
-        standing = tuple((side, float(target[i][0]), float(target[i][1]), _yaw(target[i][3:7]))
-                         for side, target in feet.items() if target[i][2] <= ON_FLOOR_HEIGHT)
+        standing = tuple((side, float(target[i][0]), float(target[i][1]), yaw_of(quaternion_to_matrix(target[i][3:7])))
+                         for side, target in feet.items() if target[i][2] <= SWING_HEIGHT)
         if standing:
             margins[i] = float(soles_polygon(sole, standing).margin(point[None, :])[0])
     return margins
@@ -82,8 +81,3 @@ def _rate(values: np.ndarray, dt: float, span: int) -> np.ndarray:
     index = np.arange(len(values))
     ahead, behind = np.minimum(index + span, len(values) - 1), np.maximum(index - span, 0)
     return (values[ahead] - values[behind]) / (dt * (ahead - behind))[:, None]
-
-
-def _yaw(quaternion) -> float:
-    rotation = quaternion_to_matrix(np.asarray(quaternion, float) / np.linalg.norm(quaternion))
-    return float(np.arctan2(rotation[1, 0], rotation[0, 0]))

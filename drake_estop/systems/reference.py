@@ -119,6 +119,8 @@ REFERENCE_LAYOUT = DEFAULT_LAYOUT.entries
 REFERENCE_SLICES = DEFAULT_LAYOUT.slices
 REFERENCE_SIZE = DEFAULT_LAYOUT.size
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])  # a level sole heading along x
+#: A sole target whose z (its lift) is above this [m] is off the floor: a swinging foot.
+SWING_HEIGHT = 1e-4
 _WALKING = float(PHASES.index("walking"))
 
 
