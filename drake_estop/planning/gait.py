@@ -324,7 +324,12 @@ class NominalPattern:
                     durations.append(step["double"])
                     coeffs.append(lipm.transition_coeffs(zmp_xy[axis], nxt[axis], step["double"]))
             first, last = self._support_zmp(0)[axis], self._support_zmp(len(self.steps) - 1)[axis]
-            dcm_needed = lipm.required_start_dcm(durations, coeffs, last, self.w)
+            # the walk ends standing: its DCM reaches the feet's midpoint through the final shift's ZMP
+            # transition (ended on the last support's ZMP, the COG would still run towards that ankle at the
+            # last touchdown, and reversing it asks a ZMP outside the sole: 35 mm on the G1 and TALOS)
+            settle = lipm.transition_coeffs(last, mid_end[axis], p.final_shift_time)
+            dcm_needed = lipm.required_start_dcm(durations + [p.final_shift_time], coeffs + [settle],
+                                                 mid_end[axis], self.w)
             base = np.eye(6)[0] * mid0[axis] + (first - mid0[axis]) * lipm.SMOOTHSTEP
             init = lipm.solve_bump_coeffs(
                 base, [lipm.BUMP_A], p.initial_shift_time, mid0[axis], 0.0, self.w, [("dcm", dcm_needed)]
