@@ -7,9 +7,10 @@ from robot_helpers import needs_robots
 
 from drake_estop.planning.gait import Sole
 from drake_estop.systems.ik import shared_ik
-from drake_estop.systems.multibody_zmp import GRAVITY, multibody_zmp, support_margins
+from drake_estop.systems.multibody_zmp import multibody_zmp, support_margins
 
 DT = 0.005
+GRAVITY = -shared_ik(None)[0].gravity_field().gravity_vector()[2]  # the IK plant's (the LIPM's, 9.80665)
 
 
 def _standing(n=20):
@@ -126,3 +127,23 @@ def test_the_g1_s_own_walk_asks_for_a_zmp_behind_its_heel():
     lipm = margins_of(result.zmp, feet, result.plan.pattern.params.sole)
     assert np.nanmin(lipm) > 0.005
     assert result.error_summary()["multibody_zmp_margin_min_m"] < -0.005
+
+
+def test_the_zmp_takes_the_plant_s_gravity():
+    """A plant under 5 m/s^2: the translating base's ZMP is c - c_z a / 5 (the gravity the plant has, not a
+    constant)."""
+    from pydrake.multibody.plant import MultibodyPlant
+
+    from drake_estop.model import load_humanoid
+
+    plant = MultibodyPlant(0.0)
+    load_humanoid(plant)
+    plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, -5.0])
+    plant.Finalize()
+    q = np.tile(plant.GetPositions(plant.CreateDefaultContext()), (40, 1))
+    q[:, 6] = 0.7
+    times = DT * np.arange(len(q))
+    q[:, 4] += 0.5 * 1.5 * times ** 2
+    zmp = multibody_zmp(plant, q, DT)
+    com = np.array([_com(plant, row) for row in q])
+    np.testing.assert_allclose(zmp[6:-6, 0], com[6:-6, 0] - com[6:-6, 2] * 1.5 / 5.0, atol=1e-6)

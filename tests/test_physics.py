@@ -21,8 +21,7 @@ from pydrake.multibody.tree import SpatialInertia, UnitInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_estop.model import load_humanoid
-from drake_estop.physics.criteria import CRITERIA, multibody_zmp
+from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.offline import ZmpPreviewFilter, run_physics
 from drake_estop.physics.plant import CopEstimator, PhysicsParameters
 from drake_estop.physics.sweep import sweep_row, write_sweep
@@ -137,27 +136,6 @@ def test_preview_filter_is_causal_at_the_switch():
     x = flt.track(nominal, changed, switch)
     np.testing.assert_array_equal(x[:switch], flt.track(nominal)[:switch])  # no anticipation
     assert abs(x[-1] - 0.15) < 1e-3
-
-
-@pytest.fixture(scope="module")
-def ik_plant():
-    plant = MultibodyPlant(0.0)
-    load_humanoid(plant)
-    plant.Finalize()
-    return plant
-
-
-def test_multibody_zmp_static_posture_is_com_projection(ik_plant):
-    from drake_estop.model import nominal_standing_configuration
-    q = nominal_standing_configuration(ik_plant)
-    q[ik_plant.GetBodyByName("pelvis").floating_positions_start() + 4] += 0.1  # shift forward
-    times = np.arange(0.0, 0.1, 0.005)
-    qs = np.tile(q, (len(times), 1))
-    zmp = multibody_zmp(ik_plant, times, qs)
-    context = ik_plant.CreateDefaultContext()
-    ik_plant.SetPositions(context, q)
-    com = ik_plant.CalcCenterOfMassPositionInWorld(context)
-    np.testing.assert_allclose(zmp, np.tile(com[:2], (len(times), 1)), atol=1e-9)
 
 
 # -- the paper's two scenarios in physics ---------------------------------------

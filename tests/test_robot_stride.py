@@ -56,3 +56,20 @@ def test_every_4th_tick_of_a_stride_stops_with_the_ik_within_a_millimetre(name, 
     assert summary["velocity_limit_violations"] == 0 and summary["joint_limit_violations"] == 0
     assert summary["one_step_share"] >= least_one_step
     assert {row.support for row in rows} == {"single", "double"}
+
+
+def test_the_robots_benchmark_formats_a_robot_without_margins():
+    """bench_robots.py's table: a robot none of whose stops has a sole on the floor to measure the whole-body
+    ZMP in shows "none" instead of failing, and the walk's columns (LIPM -> corrected) are printed."""
+    from scripts import load_script
+
+    bench = load_script("benchmarks/bench_robots.py")
+    summary = {"signals": 1, "one_step": 1, "one_step_share": 1.0, "ik_com_error_max_m": 1e-5,
+               "ik_foot_error_max_m": 1e-5, "ik_ticks_over_bounds": 0, "velocity_limit_violations": 0,
+               "time_to_rest_median_s": 0.5, "time_to_rest_max_s": 0.6, "stop_multibody_zmp_margin_min_m": float("nan"),
+               "signals_with_multibody_zmp_outside": 0}
+    walk = {"lipm": {"zmp_shift_max_m": 0.0742, "zmp_margin_min_m": -0.0142},
+            "corrected": {"zmp_shift_max_m": 0.004, "zmp_margin_min_m": 0.0168}}
+    text = bench.table([{"robot": "r", "summary": summary, "rows": [], "gait": {}, "stop": {}, "walk": walk,
+                         "wall_time": 1.0}])
+    assert "| none / 0 | 74.2 / -14.2 -> 4.0 / 16.8 | 1 |" in text

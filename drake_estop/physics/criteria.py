@@ -48,31 +48,6 @@ def joint_velocity_peak(plant, states: np.ndarray, times: np.ndarray) -> dict:
             "time": float(times[tick])}
 
 
-def multibody_zmp(plant, times, q, *, context=None) -> np.ndarray:
-    """ZMP (n, 2) on z = 0 of the whole-body motion q(t) (rigid multibody, finite differences).
-
-    Ground wrench about the world origin from the spatial momentum h = (L, P):
-    ``f = dP/dt - m g``, ``n = dL/dt - c x m g``; ZMP = ``(-n_y, n_x) / f_z``.
-    """
-    context = context or plant.CreateDefaultContext()
-    n = len(times)
-    momentum = np.zeros((n, 6))
-    com = np.zeros((n, 3))
-    for i in range(n):
-        a, b = max(i - 1, 0), min(i + 1, n - 1)
-        plant.SetPositions(context, q[i])
-        qdot = (q[b] - q[a]) / (times[b] - times[a])
-        plant.SetVelocities(context, plant.MapQDotToVelocity(context, qdot))
-        h = plant.CalcSpatialMomentumInWorldAboutPoint(context, np.zeros(3))
-        momentum[i, :3], momentum[i, 3:] = h.rotational(), h.translational()
-        com[i] = plant.CalcCenterOfMassPositionInWorld(context)
-    rate = np.gradient(momentum, times, axis=0)
-    weight = np.array([0.0, 0.0, -plant.CalcTotalMass(context) * GRAVITY])
-    force = rate[:, 3:] - weight
-    moment = rate[:, :3] - np.cross(com, weight)
-    return np.column_stack([-moment[:, 1], moment[:, 0]]) / force[:, 2:3]
-
-
 @dataclass
 class PhysicsResult:
     """Per-tick (5 ms) arrays of one physics run and its success criteria."""

@@ -41,7 +41,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, TrajectorySource
 
 from drake_estop.model import WALKING_COM_HEIGHT
-from drake_estop.physics.criteria import JointReference, PhysicsResult, analyse, multibody_zmp
+from drake_estop.physics.criteria import JointReference, PhysicsResult, analyse
 from drake_estop.physics.plant import (
     SIDES,
     CopEstimator,
@@ -56,6 +56,7 @@ from drake_estop.planning.planner import StopParameters, StopPlan, plan_stop
 from drake_estop.planning.rollout import Rollout, rollout
 from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import WholeBodyIkSolver, converged_posture, shared_ik
+from drake_estop.systems.multibody_zmp import multibody_zmp
 from drake_estop.systems.reference import sole_pose
 
 
@@ -274,9 +275,10 @@ def _shifted(ro: Rollout, offset) -> Rollout:
 
 def _zmp_error(ro: Rollout, offset, robot=None):
     """(JointReference, multibody - planned ZMP) of ``ro`` with the COG shifted by ``offset``."""
-    plant, solver, context = shared_ik(robot)
+    plant, solver, _ = shared_ik(robot)
     reference = joint_reference(plant, _shifted(ro, offset), solver=solver)
-    return reference, multibody_zmp(plant, ro.times, reference.q, context=context) - ro.zmp
+    dt = float(ro.times[1] - ro.times[0])
+    return reference, multibody_zmp(plant, reference.q, dt, window=0.0) - ro.zmp
 
 
 def _nominal_errors(pattern: NominalPattern, dt: float, iterations: int, flt: ZmpPreviewFilter, robot=None):

@@ -475,16 +475,22 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
     return out
 
 
-def _checked_pattern(gait_params, pattern, robot=None) -> NominalPattern:
+def _checked_pattern(gait_params, pattern, robot=None, whole_body: bool = False) -> NominalPattern:
     """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (by default the
-    robot's: the paper's for the default humanoid)."""
-    if pattern is None:
-        from drake_estop.robots.parameters import gait_parameters
+    robot's: the paper's for the default humanoid); with ``whole_body``, its COG corrected for the limbs'
+    momentum unless it carries a correction already."""
+    from drake_estop.robots.parameters import gait_parameters
+    from drake_estop.systems.whole_body_walk import whole_body_pattern
 
-        return NominalPattern(gait_params or gait_parameters(as_robot(robot)))
-    if gait_params is not None and gait_params != pattern.params:
+    if pattern is not None and gait_params is not None and gait_params != pattern.params:
         raise ValueError("gait_params and pattern disagree: give one of them (pattern is NominalPattern(gait_params))")
-    return pattern
+    if pattern is None:
+        gait_params = gait_params or gait_parameters(as_robot(robot))
+    elif not whole_body or pattern.com_correction is not None:
+        return pattern
+    else:
+        gait_params = pattern.params
+    return whole_body_pattern(robot, gait_params) if whole_body else NominalPattern(gait_params)
 
 
 def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopParameters:
@@ -609,8 +615,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
 
     robot = as_robot(robot)
-    pattern = _checked_pattern(gait_params, pattern, robot)
     controller = ControllerOptions() if controller is None else controller
+    pattern = _checked_pattern(gait_params, pattern, robot, getattr(controller, "whole_body_walk", False))
     _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options)
     perturbations = perturbations or Perturbations()
     stop_params = stop_params or robot_stop_parameters(robot, braked_landing=controller.braked_landing)

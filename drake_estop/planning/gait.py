@@ -20,6 +20,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.arms import DEFAULT_ARM_JOINTS, DEFAULT_ARM_NEUTRAL, ArmSwing
+from drake_estop.planning.com_correction import ComCorrection
 
 
 @dataclass(frozen=True)
@@ -261,6 +262,10 @@ class NominalPattern:
     ----------
     params : GaitParameters, optional
         The gait (default: the paper's).
+    com_correction : ComCorrection, optional
+        Added to the COG (position, velocity, acceleration) and not to the ZMP: the walk's COG moved so that
+        the whole body's ZMP, not the LIPM's, is the planned one
+        (:func:`drake_estop.systems.whole_body_walk.whole_body_pattern`). Default none: the LIPM's COG.
 
     Notes
     -----
@@ -271,8 +276,9 @@ class NominalPattern:
     stride (single then double support of the third step).
     """
 
-    def __init__(self, params: GaitParameters | None = None):
+    def __init__(self, params: GaitParameters | None = None, com_correction: ComCorrection | None = None):
         self.params = params or GaitParameters()
+        self.com_correction = com_correction
         p = self.params
         self.w = p.omega
         self._build_footsteps()
@@ -393,7 +399,11 @@ class NominalPattern:
     def com(self, t):
         """COG x, y position, velocity, acceleration and ZMP at times ``t``: 4 arrays (n, 2)."""
         out = [traj.evaluate(t) for traj in self.trajectories]
-        return tuple(np.stack([out[0][i], out[1][i]], axis=-1) for i in range(4))
+        pos, vel, acc, zmp = (np.stack([out[0][i], out[1][i]], axis=-1) for i in range(4))
+        if self.com_correction is not None:
+            offset, rate, accel = self.com_correction.evaluate(t)
+            pos, vel, acc = pos + offset, vel + rate, acc + accel
+        return pos, vel, acc, zmp
 
     def feet_at(self, t: float):
         """Ankle positions (x, y, lift) and their velocities/accelerations at time ``t``."""
@@ -461,6 +471,9 @@ class NominalPattern:
     def state(self, t: float) -> PatternState:
         axes = [traj.evaluate_at(float(t)) for traj in self.trajectories]
         pos, vel, zmp, rate, accel = (np.array([a[i] for a in axes]) for i in (0, 1, 3, 4, 5))
+        if self.com_correction is not None:
+            offset, velocity, _ = self.com_correction.evaluate(t)
+            pos, vel = pos + offset[0], vel + velocity[0]
         support, index, side = self.support_at(t)
         feet, feet_vel, feet_acc = self.feet_at(t)
         next_landing, rear, landing_yaw = None, None, 0.0

@@ -123,7 +123,8 @@ def _add_loggers(builder, planner, ik, period):
 
 
 def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshcat=None,
-                  button_name="Emergency stop", publish_period=1.0 / 64.0, robot=None, plan_ahead=True):
+                  button_name="Emergency stop", publish_period=1.0 / 64.0, robot=None, plan_ahead=True,
+                  pattern=None):
     """Build the e-stop diagram; returns :class:`DiagramHandles`.
 
     ``estop_time`` schedules the stop (None: only the Meshcat button or the
@@ -135,12 +136,16 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     gait and stop parameters default to its own
     (:func:`drake_estop.robots.parameters.gait_parameters`, ``stop_parameters``).
     ``plan_ahead``: :class:`~drake_estop.systems.stop_controller.StopPlannerSystem`'s (every tick
-    plans the stop of a signal at it, so the latch takes it ready).
+    plans the stop of a signal at it, so the latch takes it ready). ``pattern``: a walk built already
+    (e.g. :func:`drake_estop.systems.whole_body_walk.whole_body_pattern`'s), instead of
+    ``NominalPattern(gait_params)``; give one of the two.
     """
     robot = as_robot(robot)
-    gait_params = gait_params or gait_parameters(robot)
+    if pattern is not None and gait_params is not None and gait_params != pattern.params:
+        raise ValueError("gait_params and pattern disagree: give one of them")
+    gait_params = pattern.params if pattern is not None else gait_params or gait_parameters(robot)
     stop_params = stop_params or stop_parameters(robot)
-    pattern = NominalPattern(gait_params)
+    pattern = pattern or NominalPattern(gait_params)
     layout = robot_layout(robot, pattern)
     builder = DiagramBuilder()
     plant, scene_graph = _add_plant(builder, robot)
@@ -414,13 +419,13 @@ def run(handles, *, after_halt=1.0, realtime_rate=0.0):
 
 
 def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html=None,
-                     meshcat=None, after_halt=1.0, realtime_rate=None, robot=None):
+                     meshcat=None, after_halt=1.0, realtime_rate=None, robot=None, pattern=None):
     """Build, run to ``halt_end + after_halt`` and collect a :class:`DiagramResult`.
 
     ``html``: write a self-contained Meshcat replay there (a Meshcat is
     created if none is given).  ``realtime_rate`` defaults to 1 for a live
     Meshcat without a replay file (so a person can press the button), else
-    as fast as possible. ``robot``: see :func:`build_diagram`.
+    as fast as possible. ``robot``, ``pattern``: see :func:`build_diagram`.
     """
     from drake_estop.systems.visualization import add_floor_under, make_meshcat, start_recording, write_replay
 
@@ -429,7 +434,7 @@ def simulate_diagram(gait_params=None, stop_params=None, estop_time=3.4, *, html
     if realtime_rate is None:
         realtime_rate = 1.0 if (meshcat is not None and html is None) else 0.0
     handles = build_diagram(gait_params=gait_params, stop_params=stop_params,
-                            estop_time=estop_time, meshcat=meshcat, robot=robot)
+                            estop_time=estop_time, meshcat=meshcat, robot=robot, pattern=pattern)
     if meshcat is not None:
         add_floor_under(meshcat, handles.pattern)  # the camera: StopVisualizer
     if html is not None:

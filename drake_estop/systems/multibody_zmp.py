@@ -25,7 +25,6 @@ from drake_estop.planning.plan import soles_polygon
 from drake_estop.systems.ik import quaternion_to_matrix, yaw_of
 from drake_estop.systems.reference import SWING_HEIGHT
 
-GRAVITY = 9.81  # [m/s^2], as the pattern's LIPM
 #: The window [s] the COG's acceleration and the momentum's rate are averaged over: a swing foot braking to
 #: its touchdown within a few ticks swings the instantaneous ZMP by decimetres, but the body cannot tip
 #: on a moment that lasts 20 ms (the averaged ZMP is where the floor carries the window's moment).
@@ -45,6 +44,7 @@ def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WIN
         raise ValueError(f"window must be finite and non-negative, got {window!r}")
     context = plant.CreateDefaultContext()
     mass = plant.CalcTotalMass(context)
+    gravity = -float(plant.gravity_field().gravity_vector()[2])  # the plant's own (the LIPM's, robots/plant.py)
     qdot = np.gradient(q, dt, axis=0)
     com = np.empty((len(q), 3))
     momentum = np.empty((len(q), 3))
@@ -56,7 +56,7 @@ def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WIN
     span = max(1, int(round(window / (2.0 * dt))))
     acceleration = _rate(np.gradient(com, dt, axis=0), dt, span)
     momentum_rate = _rate(momentum, dt, span)
-    vertical = mass * (GRAVITY + acceleration[:, 2])
+    vertical = mass * (gravity + acceleration[:, 2])
     zmp_x = com[:, 0] - (com[:, 2] * mass * acceleration[:, 0] + momentum_rate[:, 1]) / vertical
     zmp_y = com[:, 1] - (com[:, 2] * mass * acceleration[:, 1] - momentum_rate[:, 0]) / vertical
     return np.stack([zmp_x, zmp_y], axis=1)
