@@ -86,8 +86,9 @@ class ControllerOptions:
         (:func:`drake_estop.systems.whole_body_walk.whole_body_pattern`: the whole-body ZMP of the IK's
         walk is the planned one), computed before the run (5-8 s; once per robot and gait in a process);
         a given pattern that carries a correction already is walked as it is. Default off: on 70 hard runs
-        of the campaign it stopped 35 (33 without) with 6 falls (11 without); not yet measured on the
-        whole campaign.
+        of the campaign it stopped 35 (33 without) with 6 falls (11 without), but the perturbation matrix
+        drops to 43/44 with it (a fall: the 17 N s push to the right early in single support); not
+        measured on the whole campaign.
     """
 
     kind: str = "online"
