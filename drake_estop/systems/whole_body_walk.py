@@ -17,10 +17,11 @@ plan at most: G1 74 -> 4.0 mm (its least margin in the soles -14.2 -> +16.8 mm),
 True)``): on 70 hard runs of the default humanoid's campaign 35 stop (33 on the LIPM's COG) and 6 fall (11);
 the perturbation matrix 43/44 (44/44), the 17 N s push to the right early in single support falling.
 The G1's single support then tracks (its CoP 3 mm behind the plan's ZMP, not 37 mm on the heel; torso tilt
-5 mrad, not 13), but its swing foot strikes the floor 30 ms early at the first landing, bounces and the
-robot falls sooner (2.5 s, not 3.15 s, with the feet's force control at 8000 N s/m); its 1.0 s walking
-setup, which walks on the LIPM's COG, falls at 3.6 s with it. Landing on stiff servos, not the COG, is
-what the G1 still lacks.
+5 mrad, not 13). With the feet's force control (8000 N s/m) and a 10 mrad swing-tilt dead band its own
+0.79 s walk stands and stops from double support and from single support late in the walk; at its 2 mrad
+dead band the swing foot struck the floor 30 ms early and bounced (a fall at 2.5 s), and on the LIPM's COG
+it falls in the walk whatever the dead band. Its third step's single-support stops still fail by a
+millimetre of CoP or a bounce at the landing: the stop is not corrected.
 """
 
 from __future__ import annotations
