@@ -1,6 +1,8 @@
 """The walk's COG corrected for the whole body's momentum: its whole-body ZMP (measured on the IK's joint
 trajectory) within millimetres of the planned one, inside the G1's soles where the LIPM's walk leaves them."""
 
+import warnings
+
 import numpy as np
 import pytest
 from robot_helpers import needs_robots
@@ -17,7 +19,8 @@ def test_the_default_walk_s_whole_body_zmp_comes_to_the_plan():
     foot braking, the arms); corrected in two passes, within 10 mm (4.0 mm measured), still inside the soles,
     the IK within its bounds and the ZMP planned the same."""
     plain = walk_zmp_shift(NominalPattern())
-    with _no_ik_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # the IK missing its bounds warns
         pattern = whole_body_pattern()
         corrected = walk_zmp_shift(pattern)
     assert plain.largest > 0.05
@@ -50,20 +53,6 @@ def test_a_diagram_takes_a_pattern_and_refuses_other_gait_parameters():
     assert build_diagram(pattern=pattern).pattern is pattern
     with pytest.raises(ValueError, match="gait_params and pattern disagree"):
         build_diagram(pattern=pattern, gait_params=GaitParameters(step_length=0.2))
-
-
-class _no_ik_warning:
-    """Fails on a RuntimeWarning (the IK missing its bounds) raised inside it."""
-
-    def __enter__(self):
-        import warnings
-
-        self._catch = warnings.catch_warnings()
-        self._catch.__enter__()
-        warnings.simplefilter("error", RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._catch.__exit__(*exc)
 
 
 @pytest.mark.slow

@@ -476,21 +476,15 @@ def _per_tick(log, servo_period: float) -> np.ndarray:
 
 
 def _checked_pattern(gait_params, pattern, robot=None, whole_body: bool = False) -> NominalPattern:
-    """The walk of :func:`run_online`: ``pattern``, or one built from ``gait_params`` (by default the
-    robot's: the paper's for the default humanoid); with ``whole_body``, its COG corrected for the limbs'
-    momentum unless it carries a correction already."""
-    from drake_estop.robots.parameters import gait_parameters
+    """The walk of :func:`run_online` (:func:`drake_estop.robots.parameters.walk_pattern`); with
+    ``whole_body``, its COG corrected for the limbs' momentum unless it carries a correction already."""
+    from drake_estop.robots.parameters import walk_pattern
     from drake_estop.systems.whole_body_walk import whole_body_pattern
 
-    if pattern is not None and gait_params is not None and gait_params != pattern.params:
-        raise ValueError("gait_params and pattern disagree: give one of them (pattern is NominalPattern(gait_params))")
-    if pattern is None:
-        gait_params = gait_params or gait_parameters(as_robot(robot))
-    elif not whole_body or pattern.com_correction is not None:
+    pattern = walk_pattern(robot, gait_params, pattern)
+    if not whole_body or pattern.com_correction is not None:
         return pattern
-    else:
-        gait_params = pattern.params
-    return whole_body_pattern(robot, gait_params) if whole_body else NominalPattern(gait_params)
+    return whole_body_pattern(robot, pattern.params)
 
 
 def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopParameters:

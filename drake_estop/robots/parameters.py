@@ -25,7 +25,7 @@ import numpy as np
 
 from drake_estop import model
 from drake_estop.planning.arms import ArmSwing
-from drake_estop.planning.gait import GaitParameters
+from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.plan import StopParameters
 from drake_estop.robots.description import RobotDescription
 from drake_estop.robots.loading import load_robot, model_file
@@ -106,6 +106,24 @@ def gait_parameters(description: RobotDescription, **changes) -> GaitParameters:
     if description.walking_zmp_offset is not None:
         gait = replace(gait, zmp_offset=description.walking_zmp_offset)
     return replace(gait, **changes) if changes else gait
+
+
+def walk_pattern(robot=None, gait_params: GaitParameters | None = None,
+                 pattern: NominalPattern | None = None) -> NominalPattern:
+    """The walk a run takes: ``pattern`` (built already), else ``NominalPattern(gait_params)``, by default
+    ``robot``'s own gait (a description, a name or None: the default humanoid).
+
+    Raises
+    ------
+    ValueError
+        ``gait_params`` and ``pattern`` both given and disagreeing.
+    """
+    if pattern is not None:
+        if gait_params is not None and gait_params != pattern.params:
+            raise ValueError("gait_params and pattern disagree: give one of them (pattern is "
+                             "NominalPattern(gait_params))")
+        return pattern
+    return NominalPattern(gait_params or gait_parameters(as_robot(robot)))
 
 
 def stop_parameters(description: RobotDescription, **changes) -> StopParameters:

@@ -34,7 +34,7 @@ from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.plan import LONGEST_STOP
 from drake_estop.planning.planner import PHASES
 from drake_estop.robots.description import SIDES
-from drake_estop.robots.parameters import as_robot, gait_parameters, standing_height, stop_parameters
+from drake_estop.robots.parameters import as_robot, standing_height, stop_parameters, walk_pattern
 from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.multibody_zmp import multibody_zmp, support_margins
@@ -141,11 +141,8 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     ``NominalPattern(gait_params)``; give one of the two.
     """
     robot = as_robot(robot)
-    if pattern is not None and gait_params is not None and gait_params != pattern.params:
-        raise ValueError("gait_params and pattern disagree: give one of them")
-    gait_params = pattern.params if pattern is not None else gait_params or gait_parameters(robot)
+    pattern = walk_pattern(robot, gait_params, pattern)
     stop_params = stop_params or stop_parameters(robot)
-    pattern = pattern or NominalPattern(gait_params)
     layout = robot_layout(robot, pattern)
     builder = DiagramBuilder()
     plant, scene_graph = _add_plant(builder, robot)

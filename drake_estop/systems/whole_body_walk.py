@@ -68,9 +68,8 @@ def walk_zmp_shift(pattern: NominalPattern, robot=None) -> WalkZmpShift:
 
     handles = build_diagram(robot=robot, pattern=pattern, estop_time=None)
     simulator, wall = run(handles, after_halt=0.5)
-    result = collect_result(handles, simulator.get_context(), wall_time=wall)
-    planned = pattern.com(result.times)[3]
-    return WalkZmpShift(result.times, result.multibody_zmp - planned, result.multibody_zmp_margin)
+    result = collect_result(handles, simulator.get_context(), wall_time=wall)  # result.zmp: the walk's, planned
+    return WalkZmpShift(result.times, result.multibody_zmp - result.zmp, result.multibody_zmp_margin)
 
 
 def whole_body_pattern(robot=None, gait_params=None, *, passes: int = DEFAULT_PASSES) -> NominalPattern:
