@@ -11,7 +11,8 @@ from pydrake.systems.analysis import Simulator
 from drake_estop.planning.gait import SIDES
 from drake_estop.planning.plan import landing_swing
 from drake_estop.planning.planner import InfeasibleStop, plan_stop, replan_stop
-from drake_estop.planning.replan import RECOVERY_DCM_AHEAD, RECOVERY_ZMP_MARGIN
+from drake_estop.planning.capture import MAX_STEP_WIDTH
+from drake_estop.planning.replan import RECOVERY_ZMP_MARGIN, recovery_dcm_ahead, recovery_landing_width
 from drake_estop.systems.plan_sequence import PlanSequence
 
 DT = 0.005
@@ -89,22 +90,21 @@ def test_no_recovery_step_where_it_cannot_help(pattern, params):
     with pytest.raises(InfeasibleStop) as backward:
         replan_stop(plan, t, pos, vel - np.array([3.3, 0.0]), recovery_step=True)
     assert "recovery step" not in str(backward.value)
-    # a DCM short of RECOVERY_DCM_AHEAD past the fore ankle: the stop's own limits failed, not the feet
+    # a DCM short of recovery_dcm_ahead past the fore ankle: the stop's own limits failed, not the feet
     fore_x = plan.final_feet[plan.landing_foot][0]
     short = vel.copy()
-    short[0] = (fore_x + RECOVERY_DCM_AHEAD - 0.01 - pos[0]) * pattern.w
+    short[0] = (fore_x + recovery_dcm_ahead(pattern.params.sole) - 0.01 - pos[0]) * pattern.w
     with pytest.raises(InfeasibleStop):
         replan_stop(plan, t, pos, short)
     with pytest.raises(InfeasibleStop) as near:
         replan_stop(plan, t, pos, short, recovery_step=True)
     assert "recovery step" not in str(near.value)
-    # a DCM heading for the rear foot's side, past the fore sole's inner edge less the margin: lifting the
-    # rear foot would drop the robot onto that side
+    # a DCM heading for the rear foot's side so fast that it passes even the widest landing's ankle by the
+    # soonest touchdown: lifting the rear foot would drop the robot onto that side
     fore_y = plan.final_feet[plan.landing_foot][1]
     rear_y = plan.final_feet[next(side for side in SIDES if side != plan.landing_foot)][1]
     inward = vel.copy()
-    inner = pattern.params.sole.inner - min(params.zmp_margin, RECOVERY_ZMP_MARGIN)
-    inward[1] = (fore_y + math.copysign(inner + 0.01, rear_y - fore_y) - pos[1]) * pattern.w
+    inward[1] = (fore_y + math.copysign(0.2, rear_y - fore_y) - pos[1]) * pattern.w
     with pytest.raises(InfeasibleStop) as sideways:
         replan_stop(plan, t, pos, inward, recovery_step=True)
     assert "recovery step" not in str(sideways.value)
@@ -118,6 +118,54 @@ def test_no_recovery_step_where_it_cannot_help(pattern, params):
     # a push no step within the limits catches: the message names both failures
     with pytest.raises(InfeasibleStop, match="recovery step: .*single-support"):
         replan_stop(plan, t, pos, vel + np.array([2.5, 0.0]), recovery_step=True)
+
+
+def test_a_recovery_step_lands_wider_where_the_dcm_heads_for_the_rear_foot(pattern, params):
+    """The fore sole cannot hold a DCM heading for the rear foot's side (past the sole's inner edge less the
+    margin): the step lands wider, so that by the touchdown the DCM lies between the feet (eq. 6-9)."""
+    plan, t, pos, vel = _pushed_after_landing(pattern, params)
+    fore = plan.landing_foot
+    rear = next(side for side in SIDES if side != fore)
+    fore_y, rear_y = plan.final_feet[fore][1], plan.final_feet[rear][1]
+    toward = math.copysign(1.0, rear_y - fore_y)
+    inner = pattern.params.sole.inner - min(params.zmp_margin, RECOVERY_ZMP_MARGIN)
+    inward = vel.copy()
+    inward[1] = (fore_y + toward * (inner + 0.04) - pos[1]) * pattern.w
+    nominal = replan_stop(plan, t, pos, vel, recovery_step=True)
+    wide = replan_stop(plan, t, pos, inward, recovery_step=True)
+    assert wide.recovery_step and wide.landing_foot == rear
+    nominal_width, wide_width = (abs(p.final_feet[rear][1] - fore_y) for p in (nominal, wide))
+    assert nominal_width == pytest.approx(abs(rear_y - fore_y), abs=1e-9)  # the rear foot's own width
+    assert nominal_width + 0.02 < wide_width <= MAX_STEP_WIDTH + 1e-9
+    # the ZMP holds the fore sole's inner edge (less the margin) until the touchdown
+    assert toward * (wide.com([t])[3][0][1] - fore_y) == pytest.approx(inner, abs=1e-6)
+    pos_t, vel_t, _, _ = wide.com([wide.landing_time])
+    dcm_y = pos_t[0][1] + vel_t[0][1] / pattern.w
+    low, high = sorted(wide.final_feet[side][1] for side in SIDES)
+    assert low < dcm_y < high
+    end_pos, end_vel, _, _ = wide.com([wide.halt_end + 0.2])
+    np.testing.assert_allclose(end_vel[0], 0.0, atol=1e-6)
+
+
+def test_recovery_landing_width():
+    # the DCM reaches no further than the rear foot's midline by the touchdown: its width stands
+    assert recovery_landing_width(0.02, 0.03, 0.2, math.exp(1.0)) == pytest.approx(0.2)
+    assert recovery_landing_width(-0.02, -0.03, -0.2, math.exp(1.0)) == pytest.approx(-0.2)
+    # past it: twice its reach, the DCM at the new midline (xi(T) = p + (xi - p) exp(w T), eq. 6-9)
+    reach = 0.04 + (0.07 - 0.04) * math.exp(1.0)
+    assert recovery_landing_width(0.07, 0.04, 0.19, math.exp(1.0)) == pytest.approx(2 * reach)
+    assert recovery_landing_width(-0.07, -0.04, -0.19, math.exp(1.0)) == pytest.approx(-2 * reach)
+    # at most the widest step; a DCM past that landing's ankle: none
+    assert recovery_landing_width(0.09, 0.04, 0.19, math.exp(1.0)) == pytest.approx(MAX_STEP_WIDTH)
+    assert recovery_landing_width(0.14, 0.04, 0.19, math.exp(1.0)) is None
+
+
+def test_the_recovery_dcm_threshold_scales_with_the_toe(pattern):
+    from dataclasses import replace
+
+    sole = pattern.params.sole
+    assert recovery_dcm_ahead(sole) == pytest.approx(0.05, abs=1e-4)  # the default humanoid's 13.5 cm toe
+    assert recovery_dcm_ahead(replace(sole, toe=0.095)) == pytest.approx(0.035, abs=2e-4)  # TALOS's 9.5 cm
 
 
 def test_landing_swing_clearance_lifts_a_foot_from_the_floor_to_it():

@@ -127,10 +127,11 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     support where a stop would end: the paper's plan has no such step (its
     stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
     steps towards the capture point. Only forward (the rear foot steps past
-    the fore foot), from a DCM at least ``RECOVERY_DCM_AHEAD`` past the fore
-    ankle, not heading laterally past the fore sole's inner edge, with the
-    rear leg within ``max_rear_reach``; a DCM outside the feet sideways or
-    behind is not caught (sideways no step without a crossover would:
+    the fore foot), from a DCM at least :func:`recovery_dcm_ahead` past the
+    fore ankle, landing wider where the DCM heads for the rear foot's side
+    (:func:`recovery_landing_width`; none where it passes the widest landing),
+    with the rear leg within ``max_rear_reach``; a DCM outside the feet
+    sideways or behind is not caught (sideways no step without a crossover would:
     :func:`drake_estop.planning.capture.step_out_gain`).
 
     **Capture landing** (``capture_landing=True``, the default; before the landing only). Where a
@@ -551,14 +552,21 @@ class _ReplanStart:
 RECOVERY_ZMP_MARGIN = 0.015
 
 
-#: A recovery step needs the measured DCM at least this far [m] past the fore ankle (sagittally). Measured
-#: on the robustness benchmark: steps taken from DCMs 2.5-3.5 cm past the ankle (a left push late in single
-#: support, a backward push in double support whose rebound failed a double-support re-plan) failed two
-#: runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past. Laterally the
-#: DCM may lie no further towards the rear foot than the fore sole's inner edge less the margin (the step
-#: lifts that foot): in the campaign, steps from DCMs 4.6-9.9 cm towards it (pushes forward-left and left)
-#: made a run that passed fall, another fail by 0.4 mm and a third, failing already, fall.
-RECOVERY_DCM_AHEAD = 0.05
+#: A recovery step needs the measured DCM past the fore ankle (sagittally) by at least this share of the
+#: sole's toe length (:func:`recovery_dcm_ahead`: 5 cm on the default humanoid's 13.5 cm toe, 3.5 cm on
+#: TALOS's 9.5 cm). Measured on the robustness benchmark (default humanoid): steps taken from DCMs 2.5-3.5 cm
+#: past the ankle (a left push late in single support, a backward push in double support whose rebound
+#: failed a double-support re-plan) failed two runs that held without them; the forward pushes the steps
+#: caught had it 6.8-8.2 cm past. On TALOS a 0.3 m/s forward push at its first double-support tick put the
+#: DCM 5.0 cm past its ankle, 4.5 cm short of its toe, where no double-support stop exists (the COG would
+#: rest 0.39 m ahead of the rear ankle, past its 0.29 m reach): with a fixed 5 cm it took no step and fell.
+RECOVERY_DCM_TOE_SHARE = 0.37
+
+
+def recovery_dcm_ahead(sole) -> float:
+    """How far [m] past the fore ankle the measured DCM must be for a recovery step: the
+    :data:`RECOVERY_DCM_TOE_SHARE` of the ``sole``'s toe length."""
+    return RECOVERY_DCM_TOE_SHARE * sole.toe
 
 
 def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopParameters, footholds,
@@ -570,10 +578,14 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
     where given. The ZMP steps, at rest, onto the fore sole less ``zmp_margin``: sagittally under the
     measured DCM (holding it, eq. 6-9; a CoP already on the toe stays there), laterally where it sends the
-    DCM to the feet's midline by the soonest touchdown the swing speed allows. The landing keeps the rear
-    foot's lateral offset from the fore foot (within the step widths of :mod:`drake_estop.planning.capture`),
-    along the fore foot's heading; its length, the landing time and the phases after it are the
-    single-support solve's (III.A, eq. 21-26), the nominal touchdown one single-support time after ``t``.
+    DCM to the feet's midline by the soonest touchdown the swing speed allows. Where the fore sole cannot
+    hold it that far (the DCM heads for the rear foot's side), the LIPM's DCM at that touchdown
+    (:func:`recovery_landing_width`) sets the landing's width: wide enough to have it between the feet,
+    within the step widths of :mod:`drake_estop.planning.capture`; a DCM past even the widest landing's
+    ankle takes no step (lifting that foot would drop the robot onto its side). Otherwise the landing
+    keeps the rear foot's lateral offset from the fore foot, along the fore foot's heading; its length,
+    the landing time and the phases after it are the single-support solve's (III.A, eq. 21-26), the
+    nominal touchdown one single-support time after ``t``.
     """
     feet = plan.feet(t)
     now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
@@ -588,21 +600,24 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     dcm = com + vel / w
     turn = rotation(float(yaw[fore]))
     local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
-    if local[0] < RECOVERY_DCM_AHEAD:
+    sole = plan.pattern.params.sole
+    if local[0] < recovery_dcm_ahead(sole):
         raise failure  # the DCM is not far past the fore ankle: the stop's own limits failed, not the feet
     if float((turn.T @ (com - now[rear][:2]))[0]) > params.max_rear_reach:
         raise failure  # the rear leg is stretched straight: it drags over the floor instead of lifting
     params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
-    sole, margin = plan.pattern.params.sole, params.zmp_margin
+    margin = params.zmp_margin
     lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
     lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
-    if math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
-        raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
     # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
     # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
     soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
-    lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, math.exp(w * soonest))
+    grow = math.exp(w * soonest)
+    lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, grow)
     zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)
+    width = recovery_landing_width(local[1], float((turn.T @ (zmp - now[fore][:2]))[1]), lateral, grow)
+    if width is None:
+        raise failure  # the DCM heads past the widest landing: lifting the rear foot drops the robot onto it
     gait = plan.pattern.params
     zero = np.zeros(3)
     upper, upper_rate = plan.upper_body(t)
@@ -610,7 +625,7 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
         plan.start_state, time=float(t), support="single", support_foot=fore, com=com, com_vel=vel, zmp=zmp,
         zmp_rate=np.zeros(2), zmp_accel=np.zeros(2), feet=now, feet_vel={side: zero.copy() for side in SIDES},
         feet_acc={side: zero.copy() for side in SIDES},
-        next_landing=now[fore][:2] + turn @ np.array([gait.step_length, lateral]), rear_foot=None,
+        next_landing=now[fore][:2] + turn @ np.array([gait.step_length, width]), rear_foot=None,
         upper_body=upper, upper_body_rate=upper_rate, feet_yaw=dict(yaw),
         feet_yaw_rate={side: 0.0 for side in SIDES}, next_landing_yaw=float(yaw[fore]),
         recovery_touchdown=float(t) + gait.single_support_time)
@@ -623,3 +638,20 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     new.recovery_step = True
     new.swing_start = dict(new.swing_start, clearance=plan.pattern.params.lift_height)  # lifted from the floor
     return with_compute_time(new, wall)
+
+
+def recovery_landing_width(dcm_y: float, zmp_y: float, lateral: float, grow: float) -> float | None:
+    """A recovery step's landing offset [m] across the fore foot (signed as ``lateral``, the rear foot's
+    offset clamped to the step widths), or None where no landing within them catches the DCM.
+
+    ``dcm_y`` and ``zmp_y`` [m] are the measured DCM and the held ZMP across the fore sole and ``grow``
+    ``= exp(w T)`` for the soonest touchdown ``T``: the DCM there is ``p + (xi - p) grow`` (eq. 6-9). The
+    landing keeps ``lateral`` unless that DCM lies past its midline; then it lands twice the DCM's offset
+    out (the DCM at the new feet's midline), at most :data:`~drake_estop.planning.capture.MAX_STEP_WIDTH`.
+    None where the DCM passes even that landing's ankle.
+    """
+    side = math.copysign(1.0, lateral)
+    reach = side * (zmp_y + (dcm_y - zmp_y) * grow)  # towards the rear foot's side
+    if reach > MAX_STEP_WIDTH:
+        return None
+    return side * min(max(abs(lateral), 2.0 * reach), MAX_STEP_WIDTH)
