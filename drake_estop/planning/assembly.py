@@ -270,7 +270,8 @@ def _plan_local(pattern: NominalPattern, state: PatternState, params: StopParame
             raise InfeasibleStop("objective time: no stop from the ZMP moving on the support sole")
     problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
     if kind == "single":  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
-        landing_y = capture_landing_y(pattern, state, solution.landing)
+        landing_y = capture_landing_y(pattern, state, solution.landing, min_width=params.min_step_width,
+                                      max_width=params.max_step_width)
         if landing_y is not None and abs(landing_y - float(state.next_landing[1])) > 1e-9:
             state = replace(state, next_landing=np.array([float(state.next_landing[0]), landing_y]))
             problem, kind, feet, solution = _solve_both_axes(pattern, state, params, zmp_region)
@@ -406,7 +407,8 @@ def _time_plan(pattern, state, params, signal_time, case, t_solve, paper_landing
 
         brake = search(landing_y)
         if brake is not None:  # a sideways deviation: land where the lateral capture point goes (planning/capture.py)
-            shifted = capture_landing_y(pattern, state, brake.ends[0])
+            shifted = capture_landing_y(pattern, state, brake.ends[0], min_width=params.min_step_width,
+                                        max_width=params.max_step_width)
             if shifted is not None and abs(shifted - landing_y) > 1e-9:
                 landing_y, brake = shifted, search(shifted)
     if brake is None:

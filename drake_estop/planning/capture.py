@@ -19,13 +19,13 @@ foot is the nominal one:
 less ``(p - p_nominal) * (exp(w * landing_duration) - 1)`` where a re-plan's ankle
 strategy holds the support ZMP at ``p`` instead of the walk's ``p_nominal``
 (:func:`drake_estop.planning.replan.ankle_zmp`; the same LIPM solution),
-clamped to the step widths the legs can take (:data:`MIN_STEP_WIDTH`, no foot
-collision; :data:`MAX_STEP_WIDTH`, the hip's reach). A deviation whose shift is
+clamped to the step widths the legs can take (``StopParameters.min_step_width``,
+no foot collision; ``max_step_width``, the leg's reach). A deviation whose shift is
 under :data:`SHIFT_THRESHOLD` (sensor noise) keeps the nominal footstep, so an
 unperturbed plan is the paper's.
 
 **Landing in time** (:func:`capture_time`). A landing clamped at
-:data:`MAX_STEP_WIDTH` catches the DCM only if the foot is down before the DCM
+``max_step_width`` catches the DCM only if the foot is down before the DCM
 passes the landed sole's outer edge. Measured, 29 N s to the right at 2.95 s
 (the left foot supporting): the plan's landing point lay 0.41 m ahead of the
 swing foot, which the braked swing (15 m/s^2) reached 0.44 s after the push,
@@ -53,16 +53,21 @@ DCM (0.12 m, inside the 0.176 m edge, at 3.05 s) does not show.
 import math
 
 from drake_estop.planning.gait import NominalPattern, PatternState, Sole
+from drake_estop.planning.plan import StopParameters
 
-MIN_STEP_WIDTH = 0.15  # [m] ankle to ankle: 4 cm between the soles' inner edges (0.055 m each)
-MAX_STEP_WIDTH = 0.30  # [m] ankle to ankle: the IK keeps the hip roll within its limit
+#: The default humanoid's landing widths [m], ankle to ankle (``StopParameters.min_step_width`` /
+#: ``max_step_width``; a robot's own come from its description: :func:`drake_estop.robots.stop_parameters`).
+MIN_STEP_WIDTH = StopParameters.min_step_width
+MAX_STEP_WIDTH = StopParameters.max_step_width
 SHIFT_THRESHOLD = 0.01  # [m] smaller landing shifts (estimator noise, ~1 mm DCM) keep the nominal footstep
 
 
-def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_duration: float) -> float | None:
+def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_duration: float, *,
+                      min_width: float = MIN_STEP_WIDTH, max_width: float = MAX_STEP_WIDTH) -> float | None:
     """The lateral landing [m] of the swing foot for a single-support ``state`` whose COG may differ
-    from the walk's at ``state.time``, touching down ``landing_duration`` [s] later; None when the
-    nominal landing stands (the shift is below :data:`SHIFT_THRESHOLD`)."""
+    from the walk's at ``state.time``, touching down ``landing_duration`` [s] later, ``min_width`` to
+    ``max_width`` [m] from the support ankle; None when the nominal landing stands (the shift is below
+    :data:`SHIFT_THRESHOLD`)."""
     if state.support != "single" or state.next_landing is None or state.recovery_touchdown is not None:
         return None  # (a recovery step is aimed at the measured DCM already: replan._recovery_step)
     w = pattern.w
@@ -78,7 +83,7 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     support_y = float(state.feet[state.support_foot][1])
     side = math.copysign(1.0, nominal_y - support_y)  # the swing foot's side
     width = side * (nominal_y + shift - support_y)
-    return support_y + side * min(max(width, MIN_STEP_WIDTH), MAX_STEP_WIDTH)
+    return support_y + side * min(max(width, min_width), max_width)
 
 
 def capture_time(*, dcm: float, zmp: float, edge: float, omega: float) -> float:

@@ -107,6 +107,10 @@ class StopParameters:
         rest over the stride from 1.08 s to 0.85 s.
     max_fore_reach, max_rear_reach : float
         Leg reach from the COG to the landing / rear ankle [m].
+    min_step_width, max_step_width : float
+        Ankle-to-ankle widths [m] a landing moved sideways (the capture
+        landing, the recovery step; :mod:`drake_estop.planning.capture`) may
+        take: the soles clear of each other, the landing leg within its reach.
     cost_tolerance : float
         Relative suboptimality of the interior-point solution (dimensionless).
 
@@ -188,6 +192,11 @@ class StopParameters:
     # up to 26 rad/s against its 6 rad/s limit; 0.195 lands it bent by 0.4 rad or more.
     max_fore_reach: float = 0.195
     max_rear_reach: float = 0.26
+    # landing widths, ankle to ankle [m], for a landing moved sideways (planning/capture.py): 4 cm between
+    # the soles' inner edges (0.055 m each), and the widest the whole-body IK lands with the hip roll
+    # within its limit (models/humanoid.urdf)
+    min_step_width: float = 0.15
+    max_step_width: float = 0.30
     cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
     def __post_init__(self):
@@ -195,14 +204,15 @@ class StopParameters:
                      "min_landing_time", "max_landing_time", "min_transition_time",
                      "max_transition_time", "min_slowdown_time", "max_slowdown_time",
                      "max_swing_speed", "cost_tolerance", "max_fore_reach", "max_rear_reach",
-                     "max_swing_descent_speed"):
+                     "max_swing_descent_speed", "min_step_width", "max_step_width"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         for low, high in (("min_landing_time", "max_landing_time"),
                           ("min_transition_time", "max_transition_time"),
                           ("min_slowdown_time", "max_slowdown_time"),
-                          ("min_step_length", "max_step_length")):
+                          ("min_step_length", "max_step_length"),
+                          ("min_step_width", "max_step_width")):
             if getattr(self, low) >= getattr(self, high):
                 raise ValueError(f"{low} must be below {high}")
         slope = self.landing_approach_slope

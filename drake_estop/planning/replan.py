@@ -19,7 +19,7 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.assembly import plan_from, with_compute_time
-from drake_estop.planning.capture import MAX_STEP_WIDTH, MIN_STEP_WIDTH, capture_time
+from drake_estop.planning.capture import MAX_STEP_WIDTH, capture_time
 from drake_estop.planning.gait import SIDES, rotation
 from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan, snap_to_tick
 from drake_estop.planning.problems import descent_time
@@ -226,7 +226,7 @@ def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop)
     """The single-support re-plan's last try: land sooner and nearer, by the lateral DCM's deadline.
 
     After a sideways push towards the swing foot's side, the lateral DCM diverges from the support ZMP
-    (eq. 6-9) and runs past the widest landing (:data:`~drake_estop.planning.capture.MAX_STEP_WIDTH`)
+    (eq. 6-9) and runs past the widest landing (``params.max_step_width``)
     unless the foot comes down in time. The other tries keep the plan's landing point, whose sagittal
     distance the braked swing needs long to cover, and its ``min_landing_time`` (the braking time from
     that re-plan's start). Measured, 29 N s to the right at 2.95 s: the plan landed at 3.49 s, 0.44 s
@@ -288,7 +288,7 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     held = turn.T @ (np.asarray(changes["zmp"], float)[:2] - ankle)
     # the support ZMP at the sole's edge towards the swing side slows a DCM heading there
     zmp_local = np.array([held[0], toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)])
-    widest = toward * MAX_STEP_WIDTH
+    widest = toward * params.max_step_width
     deadline = _capture_deadline(float(dcm[1]), float(zmp_local[1]), widest + toward * CAPTURE_DCM_PAST_ANKLE,
                                  widest, plan.landing_time - float(changes["time"]), w)
     if deadline is None:
@@ -608,14 +608,15 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
     margin = params.zmp_margin
     lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
-    lateral = math.copysign(min(max(abs(lateral), MIN_STEP_WIDTH), MAX_STEP_WIDTH), lateral)
+    lateral = math.copysign(min(max(abs(lateral), params.min_step_width), params.max_step_width), lateral)
     # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
     # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
     soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
     grow = math.exp(w * soonest)
     lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, grow)
     zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)
-    width = recovery_landing_width(local[1], float((turn.T @ (zmp - now[fore][:2]))[1]), lateral, grow)
+    width = recovery_landing_width(local[1], float((turn.T @ (zmp - now[fore][:2]))[1]), lateral, grow,
+                                   params.max_step_width)
     if width is None:
         raise failure  # the DCM heads past the widest landing: lifting the rear foot drops the robot onto it
     gait = plan.pattern.params
@@ -640,18 +641,19 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     return with_compute_time(new, wall)
 
 
-def recovery_landing_width(dcm_y: float, zmp_y: float, lateral: float, grow: float) -> float | None:
+def recovery_landing_width(dcm_y: float, zmp_y: float, lateral: float, grow: float,
+                           max_width: float = MAX_STEP_WIDTH) -> float | None:
     """A recovery step's landing offset [m] across the fore foot (signed as ``lateral``, the rear foot's
     offset clamped to the step widths), or None where no landing within them catches the DCM.
 
     ``dcm_y`` and ``zmp_y`` [m] are the measured DCM and the held ZMP across the fore sole and ``grow``
     ``= exp(w T)`` for the soonest touchdown ``T``: the DCM there is ``p + (xi - p) grow`` (eq. 6-9). The
     landing keeps ``lateral`` unless that DCM lies past its midline; then it lands twice the DCM's offset
-    out (the DCM at the new feet's midline), at most :data:`~drake_estop.planning.capture.MAX_STEP_WIDTH`.
-    None where the DCM passes even that landing's ankle.
+    out (the DCM at the new feet's midline), at most ``max_width`` [m] (the robot's
+    ``StopParameters.max_step_width``). None where the DCM passes even that landing's ankle.
     """
     side = math.copysign(1.0, lateral)
     reach = side * (zmp_y + (dcm_y - zmp_y) * grow)  # towards the rear foot's side
-    if reach > MAX_STEP_WIDTH:
+    if reach > max_width:
         return None
-    return side * min(max(abs(lateral), 2.0 * reach), MAX_STEP_WIDTH)
+    return side * min(max(abs(lateral), 2.0 * reach), max_width)

@@ -296,6 +296,10 @@ class RobotDescription:
     max_fore_reach, max_rear_reach : float or None
         Leg reach from the COG to the landing ankle at touchdown and to the rear ankle at rest [m];
         None: measured with inverse kinematics (:func:`drake_estop.robots.measure.reach_limits`).
+    min_step_width, max_step_width : float or None
+        Ankle-to-ankle widths a landing moved sideways may take (the capture landing, the recovery
+        step) [m]; None: the soles' inner edges plus 4 cm apart, and the widest step measured with
+        inverse kinematics (:func:`drake_estop.robots.measure.reach_limits`).
     servo_gains : tuple of ServoGain
         PD gains per joint group; every actuated joint must match one.
     limit_overrides : tuple of LimitOverride
@@ -360,6 +364,8 @@ class RobotDescription:
     step_time: float | None = None
     max_fore_reach: float | None = None
     max_rear_reach: float | None = None
+    min_step_width: float | None = None
+    max_step_width: float | None = None
     servo_gains: tuple[ServoGain, ...] = ()
     limit_overrides: tuple[LimitOverride, ...] = ()
     nominal_posture: tuple[JointAngle, ...] = ()
@@ -386,11 +392,19 @@ class RobotDescription:
         _check_positive("walking_com_height", self.walking_com_height)
         _check_positive("sole_thickness", self.sole_thickness)
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
-                     "max_rear_reach", "lift_height", "crouch_depth", "lowest_com_height", "height",
+                     "max_rear_reach", "min_step_width", "max_step_width", "lift_height", "crouch_depth",
+                     "lowest_com_height", "height",
                      "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin", "walking_zmp_offset",
                      "foot_force_damping", "foot_force_engage_time"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
+        if None not in (self.min_step_width, self.max_step_width) and self.min_step_width >= self.max_step_width:
+            raise ValueError(f"min_step_width ({self.min_step_width} m) must be below max_step_width "
+                             f"({self.max_step_width} m)")
+        inner = self.left_foot.inner + self.right_foot.inner
+        if self.min_step_width is not None and self.min_step_width <= inner:
+            raise ValueError(f"min_step_width ({self.min_step_width} m) overlaps the soles: their inner edges "
+                             f"take {inner} m")
         if self.foot_force_engage_time is not None and self.foot_force_damping is None:
             raise ValueError("foot_force_engage_time is given without foot_force_damping: the foot force control "
                              "it times is off (give both, or neither)")

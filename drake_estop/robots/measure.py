@@ -24,15 +24,19 @@ over (0, 0), the ankles at y = +-step_width / 2, both soles flat on the floor.
   landing knee makes the knee speed unbounded); r as large as the IK still
   solves;
 * rear reach: the COG at rest over the feet's midpoint, the soles at x = +-r,
-  the knees bent by at least 0.0 rad (up to straight); r as large as solves.
+  the knees bent by at least 0.0 rad (up to straight); r as large as solves;
+* widest step: the support (right) sole where it stands, the landing (left)
+  sole moved out sideways to y = step_width / 2 + r with its knee bent by at
+  least 0.4 rad, the COG over (0, 0); the width is step_width + r.
 
 r is grown from 0 in 5 cm steps, each solve warm-started from the last, and
 the step halved on a failure down to 1 mm: the reach is as far as the IK
 still converges, which near a straight knee may be a few millimetres short of
 the geometric limit. The default humanoid's planner numbers (fore 0.195 m,
-rear 0.26 m, measured by hand with the project's whole-body IK) stay in its
-description; this measurement gives it fore 0.198 m and rear 0.250 m, the G1
-0.186 / 0.228 m, TALOS 0.241 / 0.300 m.
+rear 0.26 m, widest step 0.30 m, measured by hand with the project's whole-body
+IK) stay in its description; this measurement gives it fore 0.198 m, rear
+0.250 m and widest step 0.338 m, the G1 0.186 / 0.228 / 0.383 m, TALOS
+0.241 / 0.300 / 0.465 m.
 
 **Standing posture** (:func:`nominal_standing_configuration`): the same IK
 with the soles at (0, +-hip_half_width) and the COG at the walking height over
@@ -79,7 +83,7 @@ REACH_RESOLUTION = 0.001
 STANCE_TOLERANCE = 1e-6
 #: Knee bend of the initial guess of a stance [rad].
 GUESS_KNEE = 0.6
-_REACH_CACHE_VERSION = 2
+_REACH_CACHE_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -124,10 +128,11 @@ class GaitDefaults:
 @dataclass(frozen=True)
 class Reach:
     """Leg reach from the COG to the landing ankle at touchdown (``fore``) and to the rear ankle at
-    rest (``rear``) [m]."""
+    rest (``rear``), and the widest step, ankle to ankle (``width``) [m]."""
 
     fore: float
     rear: float
+    width: float
 
 
 # -- facts --------------------------------------------------------------------------------------------
@@ -370,11 +375,15 @@ def _measure(description: RobotDescription) -> Reach:
         return stance.solve(feet={"left": (r, half), "right": (-r, -half)}, com=com,
                             knee_bend={s: REST_KNEE_BEND for s in SIDES}, guess=guess)
 
+    def wide(r, guess):
+        return stance.solve(feet={"left": (0.0, half + r), "right": (0.0, -half)}, com=com,
+                            knee_bend={"left": FORE_KNEE_BEND}, guess=guess)
+
     start_fore = fore(0.0, start)
     if start_fore is None:
         raise ValueError(f"walking_com_height: {height} m leaves no knee bend of {FORE_KNEE_BEND} rad "
                          f"in {description.name!r}'s standing posture")
-    return Reach(fore=_grow(fore, start_fore), rear=_grow(rear, start))
+    return Reach(fore=_grow(fore, start_fore), rear=_grow(rear, start), width=2 * half + _grow(wide, start_fore))
 
 
 def _reach_cache_file(description: RobotDescription) -> os.PathLike:
@@ -391,7 +400,7 @@ def measure_reach(description: RobotDescription) -> Reach:
     Returns
     -------
     Reach
-        Fore and rear reach [m].
+        Fore and rear reach and the widest step [m].
     """
     path = _reach_cache_file(description)
     if path.is_file():
@@ -399,19 +408,19 @@ def measure_reach(description: RobotDescription) -> Reach:
     reach = _measure(description)
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as handle:
-        json.dump({"fore": reach.fore, "rear": reach.rear}, handle)
+        json.dump({"fore": reach.fore, "rear": reach.rear, "width": reach.width}, handle)
     os.replace(handle.name, path)
     return reach
 
 
 def reach_limits(description: RobotDescription) -> Reach:
-    """The planner's reach limits: the description's ``max_fore_reach`` / ``max_rear_reach``, else
-    :func:`measure_reach`'s [m]."""
-    fore, rear = description.max_fore_reach, description.max_rear_reach
-    if fore is None or rear is None:
+    """The planner's reach limits: the description's ``max_fore_reach`` / ``max_rear_reach`` /
+    ``max_step_width``, else :func:`measure_reach`'s [m]."""
+    fore, rear, width = description.max_fore_reach, description.max_rear_reach, description.max_step_width
+    if None in (fore, rear, width):
         measured = measure_reach(description)
-        fore, rear = fore or measured.fore, rear or measured.rear
-    return Reach(fore=fore, rear=rear)
+        fore, rear, width = fore or measured.fore, rear or measured.rear, width or measured.width
+    return Reach(fore=fore, rear=rear, width=width)
 
 
 def max_fore_reach(description: RobotDescription) -> float:

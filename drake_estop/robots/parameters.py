@@ -127,12 +127,25 @@ def walk_pattern(robot=None, gait_params: GaitParameters | None = None,
 
 
 def stop_parameters(description: RobotDescription, **changes) -> StopParameters:
-    """The robot's stop limits: its leg reach and crouch depth [m] on the paper's weights; ``changes``
-    override any field."""
+    """The robot's stop limits: its leg reach, landing widths and crouch depth [m] on the paper's weights;
+    ``changes`` override any field."""
     reach = reach_limits(description)
     stop = StopParameters(max_fore_reach=reach.fore, max_rear_reach=reach.rear,
+                          min_step_width=min_step_width(description), max_step_width=reach.width,
                           crouch_depth=_scaled(description, "crouch_depth", REFERENCE_CROUCH_DEPTH))
     return replace(stop, **changes) if changes else stop
+
+
+#: The least gap [m] between the soles' inner edges of a landing moved sideways (no foot collision).
+STEP_WIDTH_CLEARANCE = 0.04
+
+
+def min_step_width(description: RobotDescription) -> float:
+    """The narrowest landing [m], ankle to ankle: the description's ``min_step_width``, else the soles'
+    inner edges :data:`STEP_WIDTH_CLEARANCE` apart."""
+    if description.min_step_width is not None:
+        return description.min_step_width
+    return round(description.left_foot.inner + description.right_foot.inner + STEP_WIDTH_CLEARANCE, 6)
 
 
 def com_height_range(description: RobotDescription) -> tuple[float, float]:
