@@ -59,6 +59,26 @@ def test_wide_steps_are_clamped_to_the_maximum_width():
     assert plan.landing_position[1] == pytest.approx(support_y - capture.MAX_STEP_WIDTH)
 
 
+@pytest.mark.parametrize("dvy, width", [(-0.2, 0.26), (0.1, 0.17)])
+def test_the_landing_widths_are_the_stop_parameters(dvy, width):
+    """A robot's own step widths (StopParameters.min_step_width / max_step_width) bound the landing."""
+    t = 3.15 if dvy < 0 else 3.37
+    support_y, _ = _support_y(t)
+    params = replace(PARAMS, min_step_width=0.17) if dvy > 0 else replace(PARAMS, max_step_width=0.26)
+    plan = plan_stop(PATTERN, t, params, measured=_measured(t, dvy))
+    assert plan.landing_position[1] == pytest.approx(support_y - width)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"min_step_width": 0.0}, "min_step_width must be a positive"),
+    ({"max_step_width": math.inf}, "max_step_width must be a positive finite"),
+    ({"min_step_width": 0.3, "max_step_width": 0.3}, "min_step_width must be below max_step_width"),
+])
+def test_bad_landing_widths_are_refused_naming_the_field(changes, message):
+    with pytest.raises(ValueError, match=message):
+        StopParameters(**changes)
+
+
 def test_a_deviation_under_the_threshold_keeps_the_nominal_footstep():
     t = 3.37
     _, nominal_y = _support_y(t)

@@ -2,6 +2,7 @@
 forward (planner.replan_stop(recovery_step=True), StopPlannerSystem(recovery_step=...))."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -145,6 +146,10 @@ def test_a_recovery_step_lands_wider_where_the_dcm_heads_for_the_rear_foot(patte
     assert low < dcm_y < high
     end_pos, end_vel, _, _ = wide.com([wide.halt_end + 0.2])
     np.testing.assert_allclose(end_vel[0], 0.0, atol=1e-6)
+    # a robot whose widest step is narrower lands at it (StopParameters.max_step_width)
+    narrow, _, _, _ = _pushed_after_landing(pattern, replace(params, max_step_width=nominal_width + 0.01))
+    capped = replan_stop(narrow, t, pos, inward, recovery_step=True)
+    assert abs(capped.final_feet[rear][1] - fore_y) == pytest.approx(nominal_width + 0.01, abs=1e-9)
 
 
 def test_recovery_landing_width():
@@ -161,8 +166,6 @@ def test_recovery_landing_width():
 
 
 def test_the_recovery_dcm_threshold_scales_with_the_toe(pattern):
-    from dataclasses import replace
-
     sole = pattern.params.sole
     assert recovery_dcm_ahead(sole) == pytest.approx(0.05, abs=1e-4)  # the default humanoid's 13.5 cm toe
     assert recovery_dcm_ahead(replace(sole, toe=0.095)) == pytest.approx(0.035, abs=2e-4)  # TALOS's 9.5 cm

@@ -47,6 +47,7 @@ from drake_estop.robots import (
     robot_facts,
     set_servo_gains,
     sole_frame,
+    stop_parameters,
 )
 from drake_estop.robots.loading import built_in_path, model_file
 from drake_estop.robots.measure import REFERENCE_LEG_LENGTH
@@ -127,6 +128,8 @@ def test_default_description_equals_the_planner_and_gait_defaults(default):
     stop, gait = StopParameters(), GaitParameters()
     assert reach_limits(default).fore == stop.max_fore_reach
     assert reach_limits(default).rear == stop.max_rear_reach
+    assert reach_limits(default).width == stop.max_step_width
+    assert stop_parameters(default) == stop  # the landing widths too (0.15 / 0.30 m)
     defaults = gait_defaults(default)
     assert (defaults.step_length, defaults.step_width, defaults.step_time) == (
         gait.step_length, gait.step_width, gait.step_time)
@@ -249,6 +252,21 @@ def test_external_robot_reach_is_plausible(external):
     leg = robot_facts(description).leg_length
     assert 0.2 * leg < reach.fore < 0.6 * leg
     assert 0.2 * leg < reach.rear < 0.6 * leg
+    step_width = gait_defaults(description).step_width
+    assert reach.width == (description.max_step_width or measured.width)
+    assert step_width + 0.1 < measured.width < step_width + 0.4 * leg  # the landing leg reaches out sideways
+
+
+def test_external_robot_landing_widths_come_from_its_soles_and_reach(external):
+    """What makes a landing moved sideways (the capture landing, the recovery step) possible is the robot's:
+    its soles' inner edges 4 cm apart at the narrowest, its measured widest step at the widest."""
+    description, _ = external
+    stop = stop_parameters(description)
+    inner = description.left_foot.inner + description.right_foot.inner
+    assert stop.min_step_width == pytest.approx(inner + 0.04)
+    assert stop.max_step_width == reach_limits(description).width
+    assert (stop.min_step_width, stop.max_step_width) != (StopParameters().min_step_width,
+                                                          StopParameters().max_step_width)
 
 
 def test_external_robot_gait_defaults_scale_with_the_leg(external):
@@ -315,6 +333,9 @@ def _load(document, tmp_path):
     (lambda d: d.update(model="robot.txt"), "model: .*robot.txt is not a URDF"),
     (lambda d: d.update(floating_base="l_thigh"), "floating_base: body 'l_thigh' has an inboard joint"),
     (lambda d: d.update(walking_com_height=0.0), "walking_com_height must be a positive"),
+    (lambda d: d.update(max_step_width=0.12), r"min_step_width \(0.15 m\) must be below max_step_width"),
+    (lambda d: d.update(min_step_width=0.1), r"min_step_width \(0.1 m\) overlaps the soles"),
+    (lambda d: d.update(max_step_width=-0.3), "max_step_width must be a positive"),
     (lambda d: d.update(servo_gains=[{"key": "hip", "kp": 1.0, "kd": 1.0}]), "servo_gains: no gain .*'l_knee'"),
     (lambda d: d.update(torso=["chest_yaw", "l_knee"]), r"torso\[1\]: joint 'l_knee' is also in left_leg.knee"),
     (lambda d: d.pop("left_leg"), "left_leg is missing"),
