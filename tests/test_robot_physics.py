@@ -188,6 +188,20 @@ def test_talos_stops_after_a_forward_push_at_the_signal():
 
 @pytest.mark.slow
 @needs_robots
+def test_talos_steps_out_of_a_forward_push_at_its_first_double_support_tick():
+    """27.1 N s forward at 3.67 s, the touchdown of the third step: the DCM lies 5.0 cm past the fore ankle,
+    4.5 cm short of TALOS's 9.5 cm toe, and no double-support stop exists (the COG would come to rest 0.39 m
+    ahead of the rear ankle, past its 0.29 m reach). The recovery step's threshold is the robot's (0.37 of
+    the toe: 3.5 cm); at the default humanoid's fixed 5 cm it took no step and fell."""
+    result = _run("talos", 3.67, push=(1.0, 0.0))
+    _assert_stops(result, "double")
+    summary = result.plan.summary()
+    assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
+    assert result.plan.final_feet["left"][0] > result.plan.final_feet["right"][0]  # the rear foot stepped
+
+
+@pytest.mark.slow
+@needs_robots
 def test_g1_stops_after_a_forward_push_in_the_weight_shift():
     """A forward push of 0.3 m/s times the G1's 33.3 kg (10.0 N s) on its pelvis at a double-support signal."""
     _assert_stops(_run("g1", 0.8, push=(1.0, 0.0)), "double")
