@@ -189,10 +189,11 @@ def test_talos_stops_after_a_forward_push_at_the_signal():
 @pytest.mark.slow
 @needs_robots
 def test_talos_steps_out_of_a_forward_push_at_its_first_double_support_tick():
-    """27.1 N s forward at 3.67 s, the touchdown of the third step: the DCM lies 5.0 cm past the fore ankle,
-    4.5 cm short of TALOS's 9.5 cm toe, and no double-support stop exists (the COG would come to rest 0.39 m
-    ahead of the rear ankle, past its 0.29 m reach). The recovery step's threshold is the robot's (0.37 of
-    the toe: 3.5 cm); at the default humanoid's fixed 5 cm it took no step and fell."""
+    """27.1 N s forward at 3.67 s, the touchdown of the third step: no double-support stop exists (the COG
+    would come to rest 0.39 m ahead of the rear ankle, past its 0.29 m reach), and the DCM, 5 cm past the
+    fore ankle, lies 5.3 cm towards the rear foot, past the fore sole's inner edge less the margin (4 cm),
+    as the weight moves onto the fore foot. The recovery step lands where the LIPM's DCM is between the
+    feet at its touchdown; the rule it replaced took no step there and the robot fell (red with it)."""
     result = _run("talos", 3.67, push=(1.0, 0.0))
     _assert_stops(result, "double")
     summary = result.plan.summary()

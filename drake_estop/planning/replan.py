@@ -557,9 +557,10 @@ RECOVERY_ZMP_MARGIN = 0.015
 #: TALOS's 9.5 cm). Measured on the robustness benchmark (default humanoid): steps taken from DCMs 2.5-3.5 cm
 #: past the ankle (a left push late in single support, a backward push in double support whose rebound
 #: failed a double-support re-plan) failed two runs that held without them; the forward pushes the steps
-#: caught had it 6.8-8.2 cm past. On TALOS a 0.3 m/s forward push at its first double-support tick put the
-#: DCM 5.0 cm past its ankle, 4.5 cm short of its toe, where no double-support stop exists (the COG would
-#: rest 0.39 m ahead of the rear ankle, past its 0.29 m reach): with a fixed 5 cm it took no step and fell.
+#: caught had it 6.8-8.2 cm past. A share of the toe, not a length: a shorter sole has less room ahead of
+#: the ankle for the ZMP that holds the DCM while the rear foot swings (on TALOS's 0.3 m/s forward push at its
+#: first double-support tick the DCM lay 4.97 cm past the ankle at the first re-plan; it steps there, 50 ms
+#: before a fixed 5 cm would let it, and both stop).
 RECOVERY_DCM_TOE_SHARE = 0.37
 
 
