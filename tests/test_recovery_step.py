@@ -100,15 +100,19 @@ def test_no_recovery_step_where_it_cannot_help(pattern, params):
     with pytest.raises(InfeasibleStop) as near:
         replan_stop(plan, t, pos, short, recovery_step=True)
     assert "recovery step" not in str(near.value)
-    # a DCM heading for the rear foot's side so fast that it passes even the widest landing's ankle by the
-    # soonest touchdown: lifting the rear foot would drop the robot onto that side
+    # a DCM heading for the rear foot's side, past the fore sole's inner edge less the margin: lifting the
+    # rear foot would drop the robot onto that side (the default); with recovery_step_inward, a DCM so fast
+    # that it passes even the widest landing's ankle by the soonest touchdown
     fore_y = plan.final_feet[plan.landing_foot][1]
     rear_y = plan.final_feet[next(side for side in SIDES if side != plan.landing_foot)][1]
-    inward = vel.copy()
-    inward[1] = (fore_y + math.copysign(0.2, rear_y - fore_y) - pos[1]) * pattern.w
-    with pytest.raises(InfeasibleStop) as sideways:
-        replan_stop(plan, t, pos, inward, recovery_step=True)
-    assert "recovery step" not in str(sideways.value)
+    inner = pattern.params.sole.inner - min(params.zmp_margin, RECOVERY_ZMP_MARGIN)
+    for start, offset in ((plan, inner + 0.01), (_pushed_after_landing(pattern, replace(
+            params, recovery_step_inward=True))[0], 0.2)):
+        inward = vel.copy()
+        inward[1] = (fore_y + math.copysign(offset, rear_y - fore_y) - pos[1]) * pattern.w
+        with pytest.raises(InfeasibleStop) as sideways:
+            replan_stop(start, t, pos, inward, recovery_step=True)
+        assert "recovery step" not in str(sideways.value)
     # the COG so far ahead of the rear ankle that the rear leg is straight: it would drag, not lift
     rear = next(side for side in SIDES if side != plan.landing_foot)
     stretched = pos.copy()
@@ -123,7 +127,9 @@ def test_no_recovery_step_where_it_cannot_help(pattern, params):
 
 def test_a_recovery_step_lands_wider_where_the_dcm_heads_for_the_rear_foot(pattern, params):
     """The fore sole cannot hold a DCM heading for the rear foot's side (past the sole's inner edge less the
-    margin): the step lands wider, so that by the touchdown the DCM lies between the feet (eq. 6-9)."""
+    margin): with ``recovery_step_inward`` the step lands wider, so that by the touchdown the DCM lies
+    between the feet (eq. 6-9); without it (the default humanoid's) no step is taken there."""
+    params = replace(params, recovery_step_inward=True)
     plan, t, pos, vel = _pushed_after_landing(pattern, params)
     fore = plan.landing_foot
     rear = next(side for side in SIDES if side != fore)
@@ -146,6 +152,11 @@ def test_a_recovery_step_lands_wider_where_the_dcm_heads_for_the_rear_foot(patte
     assert low < dcm_y < high
     end_pos, end_vel, _, _ = wide.com([wide.halt_end + 0.2])
     np.testing.assert_allclose(end_vel[0], 0.0, atol=1e-6)
+    # the default: no step while the DCM heads for the rear foot's side
+    standing, _, _, _ = _pushed_after_landing(pattern, replace(params, recovery_step_inward=False))
+    with pytest.raises(InfeasibleStop) as held:
+        replan_stop(standing, t, pos, inward, recovery_step=True)
+    assert "recovery step" not in str(held.value)
     # a robot whose widest step is narrower lands at it (StopParameters.max_step_width)
     narrow, _, _, _ = _pushed_after_landing(pattern, replace(params, max_step_width=nominal_width + 0.01))
     capped = replan_stop(narrow, t, pos, inward, recovery_step=True)

@@ -111,6 +111,11 @@ class StopParameters:
         Ankle-to-ankle widths [m] a landing moved sideways (the capture
         landing, the recovery step; :mod:`drake_estop.planning.capture`) may
         take: the soles clear of each other, the landing leg within its reach.
+    recovery_step_inward : bool
+        A re-plan's recovery step is taken while the DCM heads for the rear
+        foot's side (past the fore sole's inner edge less the margin), landing
+        wider (:func:`drake_estop.planning.replan.recovery_landing_width`);
+        default False: no step there (a robot's measured choice).
     cost_tolerance : float
         Relative suboptimality of the interior-point solution (dimensionless).
 
@@ -197,6 +202,9 @@ class StopParameters:
     # within its limit (models/humanoid.urdf)
     min_step_width: float = 0.15
     max_step_width: float = 0.30
+    # a recovery step with the DCM heading for the rear foot's side (landing wider); off on the default
+    # humanoid: on its campaign such steps lost runs that stood without them (planning/replan.py)
+    recovery_step_inward: bool = False
     cost_tolerance: float = 1e-6  # relative suboptimality of the interior-point solution
 
     def __post_init__(self):
@@ -222,6 +230,8 @@ class StopParameters:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and not math.isnan(value) and value > 0):
                 raise ValueError(f"{name} must be > 0 (max_swing_acceleration: inf for no limit), got {value!r}")
+        if not isinstance(self.recovery_step_inward, bool):
+            raise ValueError(f"recovery_step_inward must be a bool, got {self.recovery_step_inward!r}")
         if not isinstance(self.landing_approach_when_braking, bool):
             raise ValueError("landing_approach_when_braking must be a bool, "
                              f"got {self.landing_approach_when_braking!r}")

@@ -552,22 +552,26 @@ class _ReplanStart:
 RECOVERY_ZMP_MARGIN = 0.015
 
 
-#: A recovery step needs the measured DCM past the fore ankle (sagittally) by at least this share of the
-#: sole's toe length (:func:`recovery_dcm_ahead`: 5 cm on the default humanoid's 13.5 cm toe, 3.5 cm on
-#: TALOS's 9.5 cm). Measured on the robustness benchmark (default humanoid): steps taken from DCMs 2.5-3.5 cm
-#: past the ankle (a left push late in single support, a backward push in double support whose rebound
-#: failed a double-support re-plan) failed two runs that held without them; the forward pushes the steps
-#: caught had it 6.8-8.2 cm past. A share of the toe, not a length: a shorter sole has less room ahead of
-#: the ankle for the ZMP that holds the DCM while the rear foot swings (on TALOS's 0.3 m/s forward push at its
-#: first double-support tick the DCM lay 4.97 cm past the ankle at the first re-plan; it steps there, 50 ms
-#: before a fixed 5 cm would let it, and both stop).
+#: A recovery step needs the measured DCM past the fore ankle (sagittally) by at least this share of the sole's toe
+#: length (:func:`recovery_dcm_ahead`: 5 cm on the default humanoid's 13.5 cm toe, 3.5 cm on TALOS's 9.5 cm).
+#: Measured on the robustness benchmark (default humanoid): steps taken from DCMs 2.5-3.5 cm past the ankle (a left
+#: push late in single support, a backward push in double support whose rebound failed a double-support re-plan)
+#: failed two runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past. A share of
+#: the toe, not a length: a shorter sole has less room ahead of the ankle for the ZMP that holds the DCM while the
+#: rear foot swings (on TALOS's 0.3 m/s forward push at its first double-support tick the DCM lay 4.97 cm past the
+#: ankle at the first re-plan; it steps there, 50 ms before a fixed 5 cm would let it, and both stop). Laterally
+#: the DCM may lie no further towards the rear foot than the fore sole's inner edge less the margin (the step lifts
+#: that foot) unless the robot's StopParameters.recovery_step_inward says so: in the default humanoid's campaign,
+#: steps from DCMs 4.6-9.9 cm towards it (pushes forward-left and left) made a run that passed fall, another fail
+#: by 0.4 mm and a third, failing already, fall; with the landing widened instead (recovery_step_inward), 2 of the
+#: campaign's first 122 runs that had stopped failed (CoP 0.4 and 12 mm out) and none was gained.
 RECOVERY_DCM_TOE_SHARE = 0.37
 
 
 def recovery_dcm_ahead(sole) -> float:
     """How far [m] past the fore ankle the measured DCM must be for a recovery step: the
-    :data:`RECOVERY_DCM_TOE_SHARE` of the ``sole``'s toe length."""
-    return RECOVERY_DCM_TOE_SHARE * sole.toe
+    :data:`RECOVERY_DCM_TOE_SHARE` of the ``sole``'s toe length, to the millimetre."""
+    return round(RECOVERY_DCM_TOE_SHARE * sole.toe, 3)
 
 
 def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopParameters, footholds,
@@ -579,11 +583,12 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
     where given. The ZMP steps, at rest, onto the fore sole less ``zmp_margin``: sagittally under the
     measured DCM (holding it, eq. 6-9; a CoP already on the toe stays there), laterally where it sends the
-    DCM to the feet's midline by the soonest touchdown the swing speed allows. Where the fore sole cannot
-    hold it that far (the DCM heads for the rear foot's side), the LIPM's DCM at that touchdown
-    (:func:`recovery_landing_width`) sets the landing's width: wide enough to have it between the feet,
-    within the step widths of :mod:`drake_estop.planning.capture`; a DCM past even the widest landing's
-    ankle takes no step (lifting that foot would drop the robot onto its side). Otherwise the landing
+    DCM to the feet's midline by the soonest touchdown the swing speed allows. A DCM heading for the rear
+    foot's side, past the fore sole's inner edge less the margin, takes no step (lifting that foot drops
+    the robot onto its side), unless ``params.recovery_step_inward`` (a robot's measured choice): then the
+    step lands as wide as the LIPM's DCM at that touchdown needs to lie between the feet
+    (:func:`recovery_landing_width`, within the robot's step widths), and a DCM past even the widest
+    landing's ankle takes none. Otherwise the landing
     keeps the rear foot's lateral offset from the fore foot, along the fore foot's heading; its length,
     the landing time and the phases after it are the single-support solve's (III.A, eq. 21-26), the
     nominal touchdown one single-support time after ``t``.
@@ -610,9 +615,12 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     margin = params.zmp_margin
     lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
     lateral = math.copysign(min(max(abs(lateral), params.min_step_width), params.max_step_width), lateral)
+    behind = float((turn.T @ (dcm - now[rear][:2]))[0])  # the DCM ahead of the rear ankle
+    if not params.recovery_step_inward and math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
+        raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
     # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
     # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
-    soonest = max(params.min_landing_time, float((turn.T @ (dcm - now[rear][:2]))[0]) / params.max_swing_speed)
+    soonest = max(params.min_landing_time, behind / params.max_swing_speed)
     grow = math.exp(w * soonest)
     lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, grow)
     zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)

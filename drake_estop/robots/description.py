@@ -300,6 +300,9 @@ class RobotDescription:
         Ankle-to-ankle widths a landing moved sideways may take (the capture landing, the recovery
         step) [m]; None: the soles' inner edges plus 4 cm apart, and the widest step measured with
         inverse kinematics (:func:`drake_estop.robots.measure.reach_limits`).
+    recovery_step_inward : bool
+        The recovery step is taken while the DCM heads for the rear foot's side, landing wider
+        (``StopParameters.recovery_step_inward``; default False, the default humanoid's: measured per robot).
     servo_gains : tuple of ServoGain
         PD gains per joint group; every actuated joint must match one.
     limit_overrides : tuple of LimitOverride
@@ -366,6 +369,7 @@ class RobotDescription:
     max_rear_reach: float | None = None
     min_step_width: float | None = None
     max_step_width: float | None = None
+    recovery_step_inward: bool = False
     servo_gains: tuple[ServoGain, ...] = ()
     limit_overrides: tuple[LimitOverride, ...] = ()
     nominal_posture: tuple[JointAngle, ...] = ()
@@ -398,6 +402,8 @@ class RobotDescription:
                      "foot_force_damping", "foot_force_engage_time"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
+        if not isinstance(self.recovery_step_inward, bool):
+            raise ValueError(f"recovery_step_inward must be true or false, got {self.recovery_step_inward!r}")
         if None not in (self.min_step_width, self.max_step_width) and self.min_step_width >= self.max_step_width:
             raise ValueError(f"min_step_width ({self.min_step_width} m) must be below max_step_width "
                              f"({self.max_step_width} m)")

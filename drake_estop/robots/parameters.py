@@ -132,6 +132,7 @@ def stop_parameters(description: RobotDescription, **changes) -> StopParameters:
     reach = reach_limits(description)
     stop = StopParameters(max_fore_reach=reach.fore, max_rear_reach=reach.rear,
                           min_step_width=min_step_width(description), max_step_width=reach.width,
+                          recovery_step_inward=description.recovery_step_inward,
                           crouch_depth=_scaled(description, "crouch_depth", REFERENCE_CROUCH_DEPTH))
     return replace(stop, **changes) if changes else stop
 
