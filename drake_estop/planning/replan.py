@@ -128,9 +128,9 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
     steps towards the capture point. Only forward (the rear foot steps past
     the fore foot), from a DCM at least :func:`recovery_dcm_ahead` past the
-    fore ankle, landing wider where the DCM heads for the rear foot's side
-    (:func:`recovery_landing_width`; none where it passes the widest landing),
-    with the rear leg within ``max_rear_reach``; a DCM outside the feet
+    fore ankle, not heading for the rear foot's side past the fore sole's
+    inner edge (unless ``recovery_step_inward``: landing wider,
+    :func:`recovery_landing_width`), with the rear leg within ``max_rear_reach``; a DCM outside the feet
     sideways or behind is not caught (sideways no step without a crossover would:
     :func:`drake_estop.planning.capture.step_out_gain`).
 
@@ -588,10 +588,9 @@ def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopPar
     the robot onto its side), unless ``params.recovery_step_inward`` (a robot's measured choice): then the
     step lands as wide as the LIPM's DCM at that touchdown needs to lie between the feet
     (:func:`recovery_landing_width`, within the robot's step widths), and a DCM past even the widest
-    landing's ankle takes none. Otherwise the landing
-    keeps the rear foot's lateral offset from the fore foot, along the fore foot's heading; its length,
-    the landing time and the phases after it are the single-support solve's (III.A, eq. 21-26), the
-    nominal touchdown one single-support time after ``t``.
+    landing's ankle takes none. Otherwise the landing keeps the rear foot's lateral offset from the fore
+    foot, along the fore foot's heading; its length, the landing time and the phases after it are the
+    single-support solve's (III.A, eq. 21-26), the nominal touchdown one single-support time after ``t``.
     """
     feet = plan.feet(t)
     now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
