@@ -664,4 +664,6 @@ def recovery_landing_width(dcm_y: float, zmp_y: float, lateral: float, grow: flo
     reach = side * (zmp_y + (dcm_y - zmp_y) * grow)  # towards the rear foot's side
     if reach > max_width:
         return None
-    return side * min(max(abs(lateral), 2.0 * reach), max_width)
+    if 2.0 * reach <= abs(lateral) + 1e-9:  # (a ZMP aimed at the midline reaches it to rounding: the width stands)
+        return lateral
+    return side * min(2.0 * reach, max_width)
