@@ -37,13 +37,15 @@ the upper body at zero; "knee" is the knee bend at the walking COG height):
 | step time [s] | 0.80 | 0.79 | 0.86 |
 | swing lift / crouch [m] | 0.05 / 0.04 | 0.049 / 0.039 | 0.058 / 0.046 |
 | fore / rear reach [m] | 0.195 / 0.26 | 0.186 / 0.228 | 0.241 / 0.29 |
+| sideways landing widths [m] | 0.15-0.30 | 0.096-0.383 | 0.15-0.30 |
 | arm swing | shoulder pitch, elbow | shoulder pitch, elbow | arm joint 1, elbow |
 
 The default's gait and reach are its description's (the planner's defaults);
 the others' are scaled and measured (:mod:`drake_estop.robots.measure`; the
 default measures 0.198 / 0.250 m), but for the G1's step length and width
-and TALOS's rear reach (measured 0.300 m), which their descriptions set (the
-YAML files say why). The walking COG heights of ``g1`` and
+and TALOS's rear reach (measured 0.300 m) and widest step (measured 0.465 m),
+which their descriptions set (the YAML files say why). The narrowest
+sideways landing puts the soles' inner edges 4 cm apart. The walking COG heights of ``g1`` and
 ``talos`` put the COG 7 % of the leg length below the straight-leg COG, as the
 default's 0.814 m does; their sole rectangles and gains are explained in their
 YAML files.
