@@ -192,13 +192,16 @@ def test_talos_steps_out_of_a_forward_push_at_its_first_double_support_tick():
     """27.1 N s forward at 3.67 s, the touchdown of the third step: no double-support stop exists (the COG
     would come to rest 0.39 m ahead of the rear ankle, past its 0.29 m reach), and the DCM, 5 cm past the
     fore ankle, lies 5.3 cm towards the rear foot, past the fore sole's inner edge less the margin (4 cm),
-    as the weight moves onto the fore foot. The recovery step lands where the LIPM's DCM is between the
-    feet at its touchdown; the rule it replaced took no step there and the robot fell (red with it)."""
+    as the weight moves onto the fore foot. TALOS's description takes the recovery step there
+    (``recovery_step_inward``), landing where the LIPM's DCM is between the feet at its touchdown; with the
+    default humanoid's rule (no step) it falls."""
     result = _run("talos", 3.67, push=(1.0, 0.0))
     _assert_stops(result, "double")
     summary = result.plan.summary()
     assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
     assert result.plan.final_feet["left"][0] > result.plan.final_feet["right"][0]  # the rear foot stepped
+    standing = _run("talos", 3.67, push=(1.0, 0.0), recovery_step_inward=False)
+    assert standing.plan.summary()["recovery_steps"] == 0 and not standing.criteria["no_fall"]
 
 
 @pytest.mark.slow

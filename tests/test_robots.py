@@ -265,8 +265,8 @@ def test_external_robot_landing_widths_come_from_its_soles_and_reach(external):
     inner = description.left_foot.inner + description.right_foot.inner
     assert stop.min_step_width == pytest.approx(inner + 0.04)
     assert stop.max_step_width == reach_limits(description).width
-    assert (stop.min_step_width, stop.max_step_width) != (StopParameters().min_step_width,
-                                                          StopParameters().max_step_width)
+    assert stop.max_step_width == (description.max_step_width or measure_reach(description).width)
+    assert stop.recovery_step_inward == description.recovery_step_inward
 
 
 def test_external_robot_gait_defaults_scale_with_the_leg(external):
