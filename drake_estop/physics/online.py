@@ -520,13 +520,13 @@ def _planner_settings(controller, planner_options) -> dict:
     return {**controller.planner_options(), **planner_options}
 
 
-def _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options):
-    """ValueError naming the first argument of :func:`run_online` that cannot run."""
+def _check_run_arguments(pattern, estop_time, after_halt):
+    """ValueError naming the first of :func:`run_online`'s times that cannot run (its ``controller`` and
+    ``planner_options`` are checked before the walk is made: :func:`_planner_settings`)."""
     if isinstance(estop_time, bool) or not (finite_number(estop_time) and 0.0 <= float(estop_time) <= pattern.end_time):
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
     if isinstance(after_halt, bool) or not (finite_number(after_halt) and float(after_halt) >= 1.0):
         raise ValueError(f"after_halt must be at least 1 s, as simulate's --after-halt, got {after_halt!r}")
-    _planner_settings(controller, planner_options)
 
 
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
@@ -610,8 +610,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
 
     robot = as_robot(robot)
     controller = ControllerOptions() if controller is None else controller
-    pattern = _checked_pattern(gait_params, pattern, robot, getattr(controller, "whole_body_walk", False))
-    _check_run_arguments(pattern, estop_time, after_halt, controller, planner_options)
+    _planner_settings(controller, planner_options)  # the walk below reads the controller
+    pattern = _checked_pattern(gait_params, pattern, robot, controller.whole_body_walk)
+    _check_run_arguments(pattern, estop_time, after_halt)
     perturbations = perturbations or Perturbations()
     stop_params = stop_params or robot_stop_parameters(robot, braked_landing=controller.braked_landing)
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
