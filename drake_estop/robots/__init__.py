@@ -31,8 +31,8 @@ the upper body at zero; "knee" is the knee bend at the walking COG height):
 | straight-leg COG [m] | 0.863 | 0.703 | 0.928 |
 | walking COG [m] (knee [rad]) | 0.814 (0.89) | 0.655 (0.90) | 0.87 (0.89) |
 | standing half width [m] | 0.060 | 0.1185 | 0.085 |
-| sole toe / heel [m] | 0.135 / 0.105 | 0.12 / 0.05 | 0.095 / 0.105 |
-| sole inner / outer [m] | 0.055 / 0.081 | 0.025 / 0.025 | 0.055 / 0.055 |
+| sole toe / heel [m] | 0.135 / 0.105 | 0.125 / 0.042 | 0.095 / 0.105 |
+| sole inner / outer [m] | 0.055 / 0.081 | 0.028 / 0.028 | 0.055 / 0.055 |
 | step length / width [m] | 0.30 / 0.19 | 0.27 / 0.25 | 0.346 / 0.251 |
 | step time [s] | 0.80 | 0.79 | 0.86 |
 | swing lift / crouch [m] | 0.05 / 0.04 | 0.049 / 0.039 | 0.058 / 0.046 |
