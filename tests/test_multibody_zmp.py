@@ -60,6 +60,8 @@ def test_a_swinging_leg_moves_the_zmp_against_its_angular_momentum():
     acceleration = np.gradient(np.gradient(com, DT, axis=0), DT, axis=0)
     lipm = com[:, 0] - com[:, 2] * acceleration[:, 0] / (GRAVITY + acceleration[:, 2])
     assert np.abs(zmp[5:-5, 0] - lipm[5:-5]).max() > 0.01
+    # the COG given by a caller that has it (the diagram's result) is the one computed here: the same ZMP
+    np.testing.assert_array_equal(multibody_zmp(plant, q, DT, com=com), zmp)
 
 
 def test_the_margin_is_in_the_soles_on_the_floor():
@@ -85,6 +87,8 @@ def test_bad_input_names_the_argument():
         multibody_zmp(plant, q, 0.0)
     with pytest.raises(ValueError, match="window must be finite and non-negative"):
         multibody_zmp(plant, q, DT, window=-0.01)
+    with pytest.raises(ValueError, match="com must be"):
+        multibody_zmp(plant, q, DT, com=np.zeros((len(q) - 1, 3)))
 
 
 def test_a_landing_transient_is_averaged_over_the_window():
@@ -99,6 +103,8 @@ def test_a_landing_transient_is_averaged_over_the_window():
     instantaneous = support_margins(multibody_zmp(plant, result.q_full, DT, window=0.0), feet,
                                     result.plan.pattern.params.sole)
     assert np.nanmin(instantaneous) < -0.03 < 0.0 < result.error_summary()["stop_multibody_zmp_margin_min_m"]
+    # the result's ZMP (on the COG the result computed for the IK's errors) is this function's on its q
+    np.testing.assert_array_equal(result.multibody_zmp, multibody_zmp(plant, result.q_full, DT))
 
 
 def test_the_default_humanoid_s_stop_keeps_the_whole_body_zmp_in_its_soles():

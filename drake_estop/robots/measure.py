@@ -54,7 +54,7 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from pydrake.math import RigidTransform
@@ -408,7 +408,7 @@ def measure_reach(description: RobotDescription) -> Reach:
     reach = _measure(description)
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as handle:
-        json.dump({"fore": reach.fore, "rear": reach.rear, "width": reach.width}, handle)
+        json.dump(asdict(reach), handle)
     os.replace(handle.name, path)
     return reach
 

@@ -350,7 +350,7 @@ def collect_result(handles, context, *, wall_time, html=None):
                 "foot_rotation": int(np.sum(rot_err > IK_FOOT_ROT_BOUND))}
     n = len(times)
     feet = {"left": ref["left_foot"], "right": ref["right_foot"]}
-    zmp = multibody_zmp(plant, q_log, float(times[1] - times[0])) if n >= 3 else None
+    zmp = multibody_zmp(plant, q_log, float(times[1] - times[0]), com=com_fk) if n >= 3 else None
     result = DiagramResult(
         times=times, com=ref["com"], com_vel=ref["com_vel"], zmp=ref["zmp"],
         phases=[PHASES[int(round(p))] for p in ref["phase"][:, 0]],

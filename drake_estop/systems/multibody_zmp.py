@@ -31,10 +31,11 @@ from drake_estop.systems.reference import SWING_HEIGHT
 AVERAGING_WINDOW = 0.05
 
 
-def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WINDOW) -> np.ndarray:
+def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WINDOW, *, com=None) -> np.ndarray:
     """(n, 2) ZMP [m] of ``plant`` moving through the configurations ``q`` (n, nq), one every ``dt`` [s]
     (n >= 3), its rates averaged over ``window`` [s] (one tick each side at least); the module docstring
-    gives the formula."""
+    gives the formula. ``com`` (n, 3): the plant's COG at each ``q`` [m] where the caller has it already
+    (computed here otherwise)."""
     q = np.asarray(q, float)
     if q.ndim != 2 or q.shape[0] < 3 or q.shape[1] != plant.num_positions():
         raise ValueError(f"q must be (n >= 3, {plant.num_positions()}) configurations, got shape {q.shape}")
@@ -45,13 +46,17 @@ def multibody_zmp(plant, q: np.ndarray, dt: float, window: float = AVERAGING_WIN
     context = plant.CreateDefaultContext()
     mass = plant.CalcTotalMass(context)
     gravity = -float(plant.gravity_field().gravity_vector()[2])  # the plant's own (the LIPM's, robots/plant.py)
+    if com is not None and np.shape(com) != (len(q), 3):
+        raise ValueError(f"com must be ({len(q)}, 3), got shape {np.shape(com)}")
     qdot = np.gradient(q, dt, axis=0)
-    com = np.empty((len(q), 3))
+    given = com is not None
+    com = np.asarray(com, float) if given else np.empty((len(q), 3))
     momentum = np.empty((len(q), 3))
     for i in range(len(q)):
         plant.SetPositions(context, q[i])
         plant.SetVelocities(context, plant.MapQDotToVelocity(context, qdot[i]))
-        com[i] = plant.CalcCenterOfMassPositionInWorld(context)
+        if not given:
+            com[i] = plant.CalcCenterOfMassPositionInWorld(context)
         momentum[i] = plant.CalcSpatialMomentumInWorldAboutPoint(context, com[i]).rotational()
     span = max(1, int(round(window / (2.0 * dt))))
     acceleration = _rate(np.gradient(com, dt, axis=0), dt, span)

@@ -72,27 +72,43 @@ def walk_zmp_shift(pattern: NominalPattern, robot=None) -> WalkZmpShift:
     return WalkZmpShift(result.times, result.multibody_zmp - result.zmp, result.multibody_zmp_margin)
 
 
-def whole_body_pattern(robot=None, gait_params=None, *, passes: int = DEFAULT_PASSES) -> NominalPattern:
+@dataclass(frozen=True)
+class CorrectedWalk:
+    """A walk corrected for the limbs' momentum: its ``pattern`` and the shift of the LIPM's walk its first
+    pass measured (``lipm_shift``, :class:`WalkZmpShift`)."""
+
+    pattern: NominalPattern
+    lipm_shift: WalkZmpShift
+
+
+def corrected_walk(robot=None, gait_params=None, *, passes: int = DEFAULT_PASSES) -> CorrectedWalk:
     """``robot``'s walk (``gait_params``, default its own gait) with the COG corrected in ``passes`` rounds so
-    that the whole body's ZMP is the planned one (the module docstring). The IK rolls the walk out once a
-    pass (2-3 s each on the default humanoid, 4-5 s on the G1); a process keeps the last few (the pattern is
-    not changed after it is built)."""
+    that the whole body's ZMP is the planned one (the module docstring), and what the first round measured
+    on the LIPM's walk. The IK rolls the walk out once a pass (2-3 s each on the default humanoid, 4-5 s on
+    the G1); a process keeps the last few (the pattern is not changed after it is built)."""
     if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
         raise ValueError(f"passes must be a positive integer, got {passes!r}")
     robot = as_robot(robot)
     return _corrected(robot, gait_params or gait_parameters(robot), passes)
 
 
+def whole_body_pattern(robot=None, gait_params=None, *, passes: int = DEFAULT_PASSES) -> NominalPattern:
+    """The pattern of :func:`corrected_walk`."""
+    return corrected_walk(robot, gait_params, passes=passes).pattern
+
+
 @functools.lru_cache(maxsize=4)
-def _corrected(robot, gait_params, passes: int) -> NominalPattern:
+def _corrected(robot, gait_params, passes: int) -> CorrectedWalk:
     pattern = NominalPattern(gait_params)
-    correction = None
+    correction, first = None, None
     for _ in range(passes):
         measured = walk_zmp_shift(pattern, robot)
+        first = measured if first is None else first
         step = lipm_correction(measured.times, measured.shift, pattern.w)
         correction = step if correction is None else correction + step
         pattern = NominalPattern(gait_params, com_correction=correction)
-    return pattern
+    return CorrectedWalk(pattern, first)
 
 
-__all__ = ["DEFAULT_PASSES", "WalkZmpShift", "walk_zmp_shift", "whole_body_pattern"]
+__all__ = ["DEFAULT_PASSES", "CorrectedWalk", "WalkZmpShift", "corrected_walk", "walk_zmp_shift",
+           "whole_body_pattern"]
