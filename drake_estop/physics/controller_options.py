@@ -89,6 +89,11 @@ class ControllerOptions:
         of the campaign it stopped 35 (33 without) with 6 falls (11 without), but the perturbation matrix
         drops to 43/44 with it (a fall: the 17 N s push to the right early in single support); not
         measured on the whole campaign.
+    hip_strategy : bool
+        The trunk bows into a fore-aft push in the stop (:class:`drake_estop.physics.hip_strategy.HipStrategy`,
+        :data:`drake_estop.physics.hip_strategy.HIP_STRATEGY`): its angular momentum decelerates the COG
+        while the ankle is saturated (default on; acts only where the robot's description names its
+        ``trunk_pitch_joint``; off for comparison).
     """
 
     kind: str = "online"
@@ -105,6 +110,7 @@ class ControllerOptions:
     foot_force_control: bool = True
     max_replan_solves: int | None = MAX_REPLAN_SOLVES
     whole_body_walk: bool = False
+    hip_strategy: bool = True
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:

@@ -175,6 +175,7 @@ from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerO
 from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
 from drake_estop.physics.estimation import add_state_estimation
 from drake_estop.physics.foot_force import add_foot_force_control
+from drake_estop.physics.hip_strategy import HIP_STRATEGY, add_hip_strategy
 from drake_estop.physics.perturbations import (
     Perturbations,
     add_pelvis_push,
@@ -425,7 +426,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                                                 FOOT_FORCE_CONTROL, robot_settings, "engage_time",
                                                 "foot_force_engage_time"))
         feet = foot_force
-    connect_reference(builder, planner, ik, feet=feet)
+    hip = None
+    if controller.hip_strategy:
+        hip = add_hip_strategy(builder, reference=planner, estimator=estimator, plant=kin_plant, robot=robot,
+                               layout=planner.layout, omega=pattern.w, servo_period=dt, timer=timer,
+                               **HIP_STRATEGY)
+    connect_reference(builder, planner, ik, feet=feet, upper_body=hip)
     compliance = None
     if controller.foot_compliance:
         compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
@@ -444,6 +450,8 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     }
     if swing_tilt_system is not None:
         loggers["swing_tilt"] = LogVectorOutput(swing_tilt_system.tilt_port, builder, period)
+    if hip is not None:
+        loggers["hip_strategy_bow"] = LogVectorOutput(hip.bow_port, builder, period)
     if compliance is not None:
         loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
     if foot_force is not None:
@@ -589,7 +597,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         reference: no stop from the measured state), ``joint_velocity_violations`` (ticks with a joint over its
         velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
         offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
-        [rad]), the estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
+        [rad]), ``hip_strategy_bow_max`` (the hip strategy's largest bow of the trunk [rad]), the
+        estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
         from 0: 1.0 if a stop signal at that tick would stop in one step, from the planner's output, the
         state it planned from included; after the latch the latched stop's case; NaN for a tick whose
         update had not run).
@@ -663,5 +672,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "swing_tilt_max": float(np.max(np.linalg.norm(
             handles.loggers["swing_tilt"].FindLog(context).data().reshape(2, 3, -1), axis=1)))
         if handles.swing_tilt is not None else 0.0,
+        # the hip strategy's largest bow of the trunk [rad] (0 without it, or where it never bowed)
+        "hip_strategy_bow_max": float(np.max(np.abs(
+            handles.loggers["hip_strategy_bow"].FindLog(context).data()[0])))
+        if "hip_strategy_bow" in handles.loggers else 0.0,
     }
     return result

@@ -340,6 +340,10 @@ class RobotDescription:
     foot_force_engage_time : float or None
         With ``foot_force_damping`` (alone it is refused): the control acts once both soles have been on the
         floor this long [s] (longer than the walk's double support: only in a stop's); None (default): always.
+    trunk_pitch_joint : str or None
+        The trunk joint that pitches the upper body (one of ``torso``): the physics controller's hip
+        strategy bows it into a fore-aft push (:mod:`drake_estop.physics.hip_strategy`); None (default):
+        no hip strategy.
     walking_zmp_offset : float or None
         The walk's single-support ZMP ahead of the support ankle [m] (the gait's ``zmp_offset``,
         inside the sole); None (default): at the ankle.
@@ -386,6 +390,7 @@ class RobotDescription:
     walking_zmp_offset: float | None = None
     foot_force_damping: float | None = None
     foot_force_engage_time: float | None = None
+    trunk_pitch_joint: str | None = None
 
     def __post_init__(self):
         for name in ("name", "model", "floating_base", "torso_body"):
@@ -414,6 +419,9 @@ class RobotDescription:
         if self.foot_force_engage_time is not None and self.foot_force_damping is None:
             raise ValueError("foot_force_engage_time is given without foot_force_damping: the foot force control "
                              "it times is off (give both, or neither)")
+        if self.trunk_pitch_joint is not None and self.trunk_pitch_joint not in self.torso:
+            raise ValueError(f"trunk_pitch_joint {self.trunk_pitch_joint!r} is not one of the torso joints "
+                             f"({', '.join(self.torso) or 'none'})")
         bend = self.min_knee_bend
         if isinstance(bend, bool) or not isinstance(bend, (int, float)) or not 0.0 <= bend < 1.0:
             raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {bend!r}")
