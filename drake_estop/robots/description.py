@@ -419,13 +419,13 @@ class RobotDescription:
         if self.foot_force_engage_time is not None and self.foot_force_damping is None:
             raise ValueError("foot_force_engage_time is given without foot_force_damping: the foot force control "
                              "it times is off (give both, or neither)")
-        if self.trunk_pitch_joint is not None and self.trunk_pitch_joint not in self.torso:
-            raise ValueError(f"trunk_pitch_joint {self.trunk_pitch_joint!r} is not one of the torso joints "
-                             f"({', '.join(self.torso) or 'none'})")
         bend = self.min_knee_bend
         if isinstance(bend, bool) or not isinstance(bend, (int, float)) or not 0.0 <= bend < 1.0:
             raise ValueError(f"min_knee_bend must be in [0, 1) rad, got {bend!r}")
         self._check_joint_lists()
+        if self.trunk_pitch_joint is not None and self.trunk_pitch_joint not in self.torso:
+            raise ValueError(f"trunk_pitch_joint {self.trunk_pitch_joint!r} is not one of the torso joints "
+                             f"({', '.join(self.torso) or 'none'})")
         self._check_gains()
 
     def _check_joint_lists(self):
