@@ -131,11 +131,12 @@ class HipStrategy(LeafSystem):
     State: the bow's start time (NaN: none yet) and signed amplitude [rad]; the estimated DCM along the
     heading over the last :data:`RATE_TICKS` ticks. The update (every ``servo_period``) starts a bow where
     none is under way, the DCM deviation along the heading exceeds ``trigger`` and the push rate
-    (:func:`push_rate`) that way exceeds ``min_rate``: ``amplitude`` towards it, clipped to ``[lower, upper]`` less the planner's target (the
-    joint's range; ``direction`` +1 where a positive angle bows forward, -1 where it bows back).
+    (:func:`push_rate`) that way exceeds ``min_rate``: ``amplitude`` towards it, clipped to
+    ``[lower, upper]`` less the planner's target (the joint's range; ``direction`` +1 where a positive
+    angle bows forward, -1 where it bows back).
 
-    Raises ``ValueError`` naming a non-positive ``trigger``, ``min_rate``, ``amplitude``, time or ``omega``, a negative
-    ``hold_time``, a ``joint_index`` outside ``upper_body``, ``direction`` not +-1, or a bow faster than
+    Raises ``ValueError`` naming a non-positive ``trigger``, ``min_rate``, ``amplitude``, time or ``omega``, a
+    negative ``hold_time``, a ``joint_index`` outside ``upper_body``, ``direction`` not +-1, or a bow faster than
     ``max_speed`` [rad/s] (``amplitude`` over ``rise_time`` or ``return_time``).
     """
 
