@@ -45,8 +45,8 @@ from drake_estop.timing import timed
 
 #: The default humanoid's hip strategy: trigger [m], least push rate [m/s], amplitude [rad], rise / hold /
 #: return times [s].
-HIP_STRATEGY = {"trigger": 0.04, "min_rate": 0.6, "amplitude": 0.12, "rise_time": 0.2, "hold_time": 0.3,
-                "return_time": 0.6}
+HIP_STRATEGY = {"trigger": 0.05, "min_rate": 0.6, "amplitude": 0.12, "rise_time": 0.2, "hold_time": 0.3,
+                "return_time": 0.6, "backward": False}
 #: Ticks over which the deviation's rate is measured (20 ms at the 5 ms servo tick).
 RATE_TICKS = 4
 
@@ -148,7 +148,7 @@ class HipStrategy(LeafSystem):
                  min_rate: float = HIP_STRATEGY["min_rate"],
                  amplitude: float = HIP_STRATEGY["amplitude"], rise_time: float = HIP_STRATEGY["rise_time"],
                  hold_time: float = HIP_STRATEGY["hold_time"], return_time: float = HIP_STRATEGY["return_time"],
-                 timer=None):
+                 backward: bool = HIP_STRATEGY["backward"], timer=None):
         super().__init__()
         for name, value in (("trigger", trigger), ("min_rate", min_rate), ("amplitude", amplitude),
                             ("rise_time", rise_time),
@@ -172,6 +172,7 @@ class HipStrategy(LeafSystem):
         self._lower, self._upper = float(lower), float(upper)
         self._trigger, self._amplitude = float(trigger), float(amplitude)
         self._min_rate, self._servo_period = float(min_rate), float(servo_period)
+        self._backward = bool(backward)
         self.upper_body_in_port = self.DeclareVectorInputPort("upper_body", upper_body_size)
         self.com_port = self.DeclareVectorInputPort("com", 3)
         self.com_vel_port = self.DeclareVectorInputPort("com_vel", 3)
@@ -215,7 +216,7 @@ class HipStrategy(LeafSystem):
             return EventStatus.Succeeded()  # a bow is under way
         phase = int(round(float(self.phase_port.Eval(context)[0])))
         deviation = self.deviation(context)
-        if not _WALKING < phase < _STOPPED or abs(deviation) <= self._trigger:
+        if not _WALKING < phase < _STOPPED or abs(deviation) <= self._trigger or (deviation < 0 and not self._backward):
             return EventStatus.Succeeded()
         push = push_rate(history, RATE_TICKS * self._servo_period,
                          self._omega * float(heading @ (dcm - self.zmp_port.Eval(context))))
