@@ -141,8 +141,19 @@ def test_no_bow_while_walking_or_stopped():
         assert math.isnan(_state_after_update(system, context)[0]), phase
 
 
-def test_a_dcm_behind_bows_back_within_the_joints_range():
+def test_a_dcm_pushed_behind_bows_back_only_where_asked():
     system = _system()
+    context = system.CreateDefaultContext()
+    _pushing(system, context, _fix(system, context, ahead=-0.1), -2.0)
+    assert math.isnan(_state_after_update(system, context)[0])  # by default the trunk bows forward only
+    forward = HipStrategy(upper_body_size=UPPER, joint_index=1, omega=OMEGA, direction=-1.0)
+    context = forward.CreateDefaultContext()
+    _pushing(forward, context, _fix(forward, context, ahead=-0.1), -2.0)  # (the joint's sign is not the bow's)
+    assert math.isnan(_state_after_update(forward, context)[0])
+
+
+def test_a_dcm_behind_bows_back_within_the_joints_range():
+    system = _system(backward=True)
     context = system.CreateDefaultContext()
     _pushing(system, context, _fix(system, context, ahead=-0.1, trunk=0.02), -2.0)
     # 0.12 rad back asked, the joint's lower limit -0.0873 rad from its target 0.02 rad allows 0.1073

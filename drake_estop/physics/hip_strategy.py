@@ -15,17 +15,19 @@ the landing foot carries the robot. What it buys is time, while the ankle is sat
 the air (Pratt et al. 2006 count it as a flywheel in the capture region).
 
 :class:`HipStrategy` sits between the stop planner and the whole-body IK. In the stop (the planner's
-phase past "walking"), when a push is under way it bows the trunk's pitch joint towards it by
+phase past "walking"), when a push from behind is under way it bows the trunk's pitch joint forward by
 ``amplitude`` [rad] (within the joint's range and speed limit) along :func:`bow_profile`; the IK keeps the
 whole-body COG on the plan, so the pelvis moves back as the trunk goes forward. A push is two things
-measured along the feet's heading: the estimated DCM runs ahead of (or behind) the reference's by more
-than ``trigger`` [m], and its rate exceeds the LIPM's divergence from the reference ZMP by more than
+measured along the feet's heading: the estimated DCM runs ahead of the reference's by more than
+``trigger`` [m], and its rate exceeds the LIPM's divergence from the reference ZMP by more than
 ``min_rate`` [m/s] (:func:`push_rate`: an external force ``F`` adds ``F / (m omega)``, 0.6 m/s for 121 N on
 the 58 kg robot; the CoP moving under the push takes part of it: measured when the deviation passed 4 cm,
 0.33 m/s for a 17 N s push, 0.70-0.98 m/s for 30-35 N s ones). A deviation alone also follows a
 re-plan's new reference, a rebound or a landing; the rate alone, the stop's own ZMP transfer. One bow at
 a time; another may follow once it has returned. The bow counts in the torso's tilt (a fall criterion
-past 0.26 rad).
+past 0.26 rad). ``backward`` bows back as well, against a push from the front: off by default (the
+default humanoid's trunk bows 0.087 rad back at most, and on the campaign its backward bows fired on
+landing impacts, which brake the DCM as a push does, and lost runs).
 
 Measured on the default humanoid (benchmarks/ROBUSTNESS.md; its ablation row turns it off): a 30 N s
 forward push in double support (3.55 s) falls without it and stops with it; a 35 N s one early in single
@@ -132,8 +134,9 @@ class HipStrategy(LeafSystem):
 
     State: the bow's start time (NaN: none yet) and signed amplitude [rad]; the estimated DCM along the
     heading over the last :data:`RATE_TICKS` ticks. The update (every ``servo_period``) starts a bow where
-    none is under way, the DCM deviation along the heading exceeds ``trigger`` and the push rate
-    (:func:`push_rate`) that way exceeds ``min_rate``: ``amplitude`` towards it, clipped to
+    none is under way, the DCM deviation along the heading exceeds ``trigger`` (ahead; behind too with
+    ``backward``) and the push rate (:func:`push_rate`) that way exceeds ``min_rate``: ``amplitude``
+    towards it, clipped to
     ``[lower, upper]`` less the planner's target (the joint's range; ``direction`` +1 where a positive
     angle bows forward, -1 where it bows back).
 
