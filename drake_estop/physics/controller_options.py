@@ -90,10 +90,14 @@ class ControllerOptions:
         drops to 43/44 with it (a fall: the 17 N s push to the right early in single support); not
         measured on the whole campaign.
     hip_strategy : bool
-        The trunk bows into a fore-aft push in the stop (:class:`drake_estop.physics.hip_strategy.HipStrategy`,
-        :data:`drake_estop.physics.hip_strategy.HIP_STRATEGY`): its angular momentum decelerates the COG
-        while the ankle is saturated (default on; acts only where the robot's description names its
-        ``trunk_pitch_joint``; off for comparison).
+        The trunk bows forward into a push from behind in the stop
+        (:class:`drake_estop.physics.hip_strategy.HipStrategy`, :data:`drake_estop.physics.hip_strategy.HIP_STRATEGY`):
+        its angular momentum decelerates the COG
+        while the ankle is saturated; acts only where the robot's description names its ``trunk_pitch_joint``.
+        Default off: it stops a 30 N s forward push in double support that fells the robot without it
+        (benchmarks/ROBUSTNESS.md), but on the first 120 runs of the campaign it lost 2 that stopped without
+        it (forward bows after a sideways or backward push, when the robot ran forward on its own) and
+        gained none.
     """
 
     kind: str = "online"
@@ -110,7 +114,7 @@ class ControllerOptions:
     foot_force_control: bool = True
     max_replan_solves: int | None = MAX_REPLAN_SOLVES
     whole_body_walk: bool = False
-    hip_strategy: bool = True
+    hip_strategy: bool = False
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:
