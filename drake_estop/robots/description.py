@@ -342,8 +342,8 @@ class RobotDescription:
         floor this long [s] (longer than the walk's double support: only in a stop's); None (default): always.
     trunk_pitch_joint : str or None
         The trunk joint that pitches the upper body (one of ``torso``): the physics controller's hip
-        strategy bows it into a fore-aft push (:mod:`drake_estop.physics.hip_strategy`); None (default):
-        no hip strategy.
+        strategy (``ControllerOptions.hip_strategy``) bows it into a push (:mod:`drake_estop.physics.hip_strategy`);
+        None (default): no hip strategy.
     walking_zmp_offset : float or None
         The walk's single-support ZMP ahead of the support ankle [m] (the gait's ``zmp_offset``,
         inside the sole); None (default): at the ankle.
