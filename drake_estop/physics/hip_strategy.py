@@ -50,7 +50,7 @@ from drake_estop.timing import timed
 
 #: The default humanoid's hip strategy: trigger [m], least push rate [m/s], amplitude [rad], rise / hold /
 #: return times [s].
-HIP_STRATEGY = {"trigger": 0.05, "min_rate": 0.6, "amplitude": 0.12, "rise_time": 0.2, "hold_time": 0.3,
+HIP_STRATEGY = {"trigger": 0.04, "min_rate": 0.6, "amplitude": 0.12, "rise_time": 0.2, "hold_time": 0.3,
                 "return_time": 0.6, "backward": False}
 #: Ticks over which the deviation's rate is measured (20 ms at the 5 ms servo tick).
 RATE_TICKS = 4
