@@ -95,9 +95,9 @@ class ControllerOptions:
         its angular momentum decelerates the COG
         while the ankle is saturated; acts only where the robot's description names its ``trunk_pitch_joint``.
         Default off: a 30 N s forward push in double support stops with it in one recovery step (without:
-        two, the rear sole slipping 12.6 mm), but on the first 120 runs of the campaign it lost 2 that stopped without
-        it (forward bows after a sideways or backward push, when the robot ran forward on its own) and
-        gained none.
+        two, the rear sole slipping 12.6 mm), but on the first 120 runs of the campaign it lost 2 that stop
+        without it (forward bows after a sideways or backward push, when the robot ran forward on its own) and
+        gained 1.
     """
 
     kind: str = "online"
