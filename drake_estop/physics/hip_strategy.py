@@ -32,9 +32,9 @@ landing impacts, which brake the DCM as a push does, and lost runs).
 Measured on the default humanoid, with it against without: a 30 N s forward push in double support
 (3.55 s) stops in one recovery step, where without it two are taken and the rear sole slips 12.6 mm
 (tests/test_online_pushes.py); a 35 N s one early in single support (2.95 s) falls without it and with it
-stays up, its torso tilted 0.264 rad (0.12 of it the bow; limit 0.26). ``benchmarks/robustness.py
---controller-option hip_strategy=true``: the sweep 40/40, the matrix 44/44 and every push cell as without it
-but that 30 N s one. Pushes sideways are not helped: the default model's trunk has no roll joint. Off by
+stays up, its torso tilted 0.264 rad (0.12 of it the bow; limit 0.26) and the CoP 3.4 mm out of its
+support. With ``benchmarks/robustness.py --controller-option hip_strategy=true``: the sweep 40/40, the
+matrix 44/44 and every push cell as without it but that 30 N s one. Pushes sideways are not helped: the default model's trunk has no roll joint. Off by
 default (``ControllerOptions.hip_strategy``): on the campaign's first 120 runs it lost 2 that stop without
 it (forward bows after a sideways or a backward push, when the robot ran forward on its own: runs 11 and
 34, both falls) and gained 1.
@@ -47,7 +47,9 @@ import math
 import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from drake_estop.planning import lipm
 from drake_estop.planning.plan import PHASES
+from drake_estop.systems.ik import quaternion_to_matrix, yaw_of
 from drake_estop.timing import timed
 
 #: The default humanoid's hip strategy: trigger [m], least push rate [m/s], amplitude [rad], rise / hold /
@@ -59,17 +61,14 @@ RATE_TICKS = 4
 
 _WALKING = PHASES.index("walking")
 _STOPPED = PHASES.index("stopped")
-_SMOOTHER_PEAK = 1.875  # the largest slope of 6 s^5 - 15 s^4 + 10 s^3 on [0, 1]
+_SMOOTHER_PEAK = float(lipm.poly_eval(lipm.SMOOTHSTEP, 0.5, 1))  # the smootherstep's largest slope, 1.875
 
 
 def _smootherstep(s: float) -> tuple[float, float]:
-    """``6 s^5 - 15 s^4 + 10 s^3`` and its slope at ``s`` clipped to [0, 1] (zero slope and curvature at
-    both ends: the bow starts and stops without a jerk in the joint's acceleration)."""
-    if s <= 0.0:
-        return 0.0, 0.0
-    if s >= 1.0:
-        return 1.0, 0.0
-    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s), 30.0 * s * s * (1.0 - s) ** 2
+    """:data:`~drake_estop.planning.lipm.SMOOTHSTEP` and its slope at ``s`` clipped to [0, 1] (zero slope
+    and curvature at both ends: the bow starts and stops without a jerk in the joint's acceleration)."""
+    s = min(max(s, 0.0), 1.0)
+    return float(lipm.poly_eval(lipm.SMOOTHSTEP, s)), float(lipm.poly_eval(lipm.SMOOTHSTEP, s, 1))
 
 
 def bow_profile(t: float, *, start: float, amplitude: float, rise_time: float, hold_time: float,
@@ -100,8 +99,7 @@ def heading_of(*feet) -> np.ndarray:
     """The unit vector (xy) of the mean heading of sole poses ``[x, y, z, qw, qx, qy, qz]``."""
     total = np.zeros(2)
     for foot in feet:
-        w, x, y, z = foot[3:7]
-        yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        yaw = yaw_of(quaternion_to_matrix(foot[3:7]))
         total += (math.cos(yaw), math.sin(yaw))
     norm = float(np.linalg.norm(total))
     return total / norm if norm > 1e-9 else np.array([1.0, 0.0])
@@ -208,9 +206,11 @@ class HipStrategy(LeafSystem):
 
     def deviation(self, context) -> float:
         """The estimated DCM ahead of the reference's [m] along the feet's heading (negative: behind)."""
-        measured = self._dcm(context, self.measured_com_port, self.measured_com_vel_port)
-        reference = self._dcm(context, self.com_port, self.com_vel_port)
-        value = float(self.heading(context) @ (measured - reference))
+        return self._deviation(context, self.heading(context),
+                               self._dcm(context, self.measured_com_port, self.measured_com_vel_port))
+
+    def _deviation(self, context, heading, dcm) -> float:
+        value = float(heading @ (dcm - self._dcm(context, self.com_port, self.com_vel_port)))
         return value if math.isfinite(value) else 0.0
 
     def _update(self, context, discrete_state):
@@ -223,7 +223,7 @@ class HipStrategy(LeafSystem):
         if math.isfinite(start) and t < start + self._duration - 1e-9:
             return EventStatus.Succeeded()  # a bow is under way
         phase = int(round(float(self.phase_port.Eval(context)[0])))
-        deviation = self.deviation(context)
+        deviation = self._deviation(context, heading, dcm)
         if not _WALKING < phase < _STOPPED or abs(deviation) <= self._trigger or (deviation < 0 and not self._backward):
             return EventStatus.Succeeded()
         push = push_rate(history, RATE_TICKS * self._servo_period,
