@@ -237,7 +237,7 @@ def plan_from(pattern: NominalPattern, state: PatternState, params: StopParamete
     the landing also allowed at the nominal touchdown where that is sooner than ``min_landing_time``, then
     with the slowdown ZMP at the landing ankle (the paper's eq. 20, where ``landing_zmp_offset`` is not 0: a
     walk stepping in place has no forward speed for a ZMP ahead of the ankle to stop), without and with
-    that window."""
+    that window; in double support with the paper's J_ds weight (eq. 30) where ``a_ds`` is another."""
     def plan(limits):
         return solve_turned(lambda view, local: _plan_local(view, local, limits, signal_time, case, zmp_region),
                             pattern, state)

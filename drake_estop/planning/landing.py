@@ -124,10 +124,19 @@ def rear_lateral_reach(pattern, state: PatternState, params: StopParameters) -> 
     return replace(params, max_rear_reach=_sideways_reach(params.max_rear_reach, allowed, lateral))
 
 
+#: J_ds's ZMP weight (eq. 30) as the paper has it: the double-support retry of :func:`retry_limits`.
+PAPER_A_DS = StopParameters().a_ds
+
+
 def retry_limits(pattern: NominalPattern, state: PatternState, params: StopParameters):
     """The limits :func:`drake_estop.planning.assembly.plan_from` tries, in order, after the given ones
-    found no stop (single support)."""
+    found no stop. Double support: J_ds with the paper's ZMP weight (:data:`PAPER_A_DS`) where ``a_ds``
+    is another (a heavier weight takes a longer, gentler stop whose halt may not fit the margin where the
+    paper's quick one does). Single support: the nominal landing window, then the slowdown ZMP at the
+    landing ankle (eq. 20), without and with that window."""
     if state.support != "single":
+        if params.a_ds != PAPER_A_DS:
+            yield replace(params, a_ds=PAPER_A_DS)
         return
     window = _nominal_landing_window(pattern, state, params)
     if window is not None:
