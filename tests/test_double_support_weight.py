@@ -1,0 +1,78 @@
+"""The online controller's J_ds ZMP weight (eq. 30): ``a_ds`` 1000 /m^2, and the paper's 50 as a retry.
+
+With the paper's 50 a double-support stop takes the shortest transition and a ZMP near the fore toe; the
+COG stops far behind that ZMP, and the halt (eq. 27-28) swings the ZMP back onto the rear foot while the
+COG runs backwards. On the physics robot that rocks it from the fore toe to the rear heel. The heavier
+weight stops the COG nearer its ZMP; where its longer stop's halt finds no room, the planner solves again
+with the paper's weight rather than fall back to the next step (III.C).
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from checks import plan_lipm_error
+
+from drake_estop.physics.online import controller_stop_parameters
+from drake_estop.planning.landing import PAPER_A_DS, retry_limits
+from drake_estop.planning.planner import StopParameters, plan_stop
+
+
+def _halt_reversal(plan):
+    """(ZMP ahead of the COG at the slowdown end [m], the COG's largest backward speed in the halt [m/s])."""
+    times = np.arange(plan.slowdown_end, plan.halt_end, plan.params.servo_period)
+    pos, vel, _, zmp = plan.com(times)
+    return zmp[0, 0] - pos[0, 0], -vel[:, 0].min()
+
+
+def _slowed_state(pattern, t, share):
+    """The walk's COG at ``t`` moving at ``share`` of its speed: what a double-support re-plan measures after
+    a landing that took speed out of the robot."""
+    state = pattern.state(t)
+    return np.array(state.com), np.array(state.com_vel) * share
+
+
+def test_the_controller_weighs_the_zmp_displacement_and_keeps_a_heavier_one():
+    assert StopParameters().a_ds == PAPER_A_DS == 50.0
+    assert controller_stop_parameters().a_ds == 1000.0
+    assert controller_stop_parameters(StopParameters(a_ds=5000.0)).a_ds == 5000.0
+
+
+@pytest.mark.parametrize("signal", [3.5, 3.6])
+def test_a_slowed_double_support_stop_ends_its_slowdown_nearer_its_zmp(pattern, signal):
+    params = controller_stop_parameters()
+    measured = _slowed_state(pattern, signal, 0.5)
+    paper = plan_stop(pattern, signal, replace(params, a_ds=PAPER_A_DS), measured=measured)
+    heavier = plan_stop(pattern, signal, params, measured=measured)
+    assert paper.support == heavier.support == "double"
+    assert paper.case == heavier.case == "one-step"
+    (paper_gap, paper_back), (gap, back) = _halt_reversal(paper), _halt_reversal(heavier)
+    # 3.5 s: ZMP 26.3 cm ahead of the stopped COG with the paper's weight, 14.2 with the controller's; the
+    # halt's backward COG speed 0.137 against 0.074 m/s
+    assert gap < paper_gap - 0.05
+    assert back < 0.8 * paper_back
+    assert back < 0.1
+    # still the paper's stop: LIPM-consistent, at rest between the feet at the halt's end
+    assert plan_lipm_error(heavier, after_halt=0.5, lead=0.0) < 1e-3
+    _, vel, _, _ = heavier.com([heavier.halt_end])
+    assert np.linalg.norm(vel[0]) < 1e-6
+
+
+def test_where_the_heavier_weight_finds_no_halt_the_paper_weight_stops_in_one_step(pattern):
+    """At 3.55 s the heavier weight's stop leaves its halt 21.6 mm from the polygon's edge (3 cm wanted):
+    the retry with the paper's weight keeps the stop within one step, as every tick of the stride is."""
+    params = controller_stop_parameters()
+    plan = plan_stop(pattern, 3.55, params)
+    assert plan.support == "double" and plan.case == "one-step"
+    assert plan.params.a_ds == params.a_ds  # the plan keeps its own limits
+    no_retry = replace(params, a_ds=params.a_ds)
+    state = pattern.state(3.55)
+    assert [limits.a_ds for limits in retry_limits(pattern, state, no_retry)] == [PAPER_A_DS]
+    assert list(retry_limits(pattern, state, replace(params, a_ds=PAPER_A_DS))) == []
+
+
+def test_the_controller_stops_every_tick_of_the_stride_in_one_step(pattern, stride_times):
+    params = controller_stop_parameters()
+    cases = [plan_stop(pattern, float(t), params).case for t in stride_times]
+    assert len(cases) == 160
+    assert cases.count("one-step") == 160
