@@ -260,12 +260,15 @@ def test_the_default_robot_keeps_the_controller_s_settings():
 def test_the_g1_controller_settings_come_from_its_description():
     """The G1's description sets its stop plan's ZMP margin, the swing-tilt dead band and the foot-edge band
     (its soles are 0.056 m wide against the default's 0.136 m); TALOS keeps the controller's."""
-    from drake_estop.physics.online import FOOT_EDGE_COMPLIANCE, SWING_TILT_COMPENSATION
+    from drake_estop.physics.online import FOOT_EDGE_COMPLIANCE, SWING_TILT_COMPENSATION, controller_stop_parameters
 
     robot = load_robot("g1")
     assert robot.stop_zmp_margin is not None and robot.stop_zmp_margin < min(robot.sole().inner, robot.sole().outer)
     assert robot_stop_parameters(robot).zmp_margin == robot.stop_zmp_margin
     assert robot_stop_parameters("talos").zmp_margin == 0.03
+    # and J_ds's ZMP weight: the paper's on the G1, the controller's on TALOS
+    assert robot_stop_parameters(robot).a_ds == robot.stop_zmp_weight == 50.0
+    assert robot_stop_parameters("talos").a_ds == controller_stop_parameters().a_ds == 1000.0
     handles = build_online_diagram(NominalPattern(gait_parameters(robot)), robot_stop_parameters(robot), 1.5,
                                    robot=robot)
     assert handles.swing_tilt._deadband == robot.swing_tilt_deadband != SWING_TILT_COMPENSATION["deadband"]

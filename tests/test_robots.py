@@ -336,6 +336,7 @@ def _load(document, tmp_path):
     (lambda d: d.update(max_step_width=0.12), r"min_step_width \(0.15 m\) must be below max_step_width"),
     (lambda d: d.update(min_step_width=0.1), r"min_step_width \(0.1 m\) overlaps the soles"),
     (lambda d: d.update(max_step_width=-0.3), "max_step_width must be a positive"),
+    (lambda d: d.update(stop_zmp_weight=0.0), "stop_zmp_weight must be a positive"),
     (lambda d: d.update(servo_gains=[{"key": "hip", "kp": 1.0, "kd": 1.0}]), "servo_gains: no gain .*'l_knee'"),
     (lambda d: d.update(torso=["chest_yaw", "l_knee"]), r"torso\[1\]: joint 'l_knee' is also in left_leg.knee"),
     (lambda d: d.pop("left_leg"), "left_leg is missing"),

@@ -269,8 +269,9 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
     braked_landing : bool, optional
         Add the braked landing (15 m/s^2 swing braking, approach slope 0.6, dimensionless); default True.
     robot : RobotDescription or str, optional
-        A robot whose description gives its own ``stop_zmp_margin`` [m]: that margin replaces the
-        controller's (a robot with smaller soles than the default humanoid's: :func:`controller_settings`).
+        A robot whose description gives its own ``stop_zmp_margin`` [m] or ``stop_zmp_weight`` [1/m^2]: that
+        replaces the controller's (a robot with smaller soles than the default humanoid's, a weight measured on
+        another robot: :func:`controller_settings`).
         Default None: the default humanoid, the controller's margin.
 
     Returns
@@ -280,19 +281,24 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
         (1.0, 1.2, 1.5) [s], earliest landing 0.05 [s].
     """
     params = _controller_stop_parameters(params, braked_landing)
-    margin = controller_settings(robot)["zmp_margin"]
-    return params if margin is None else replace(params, zmp_margin=margin)
+    own = controller_settings(robot)
+    for field, name in (("zmp_margin", "zmp_margin"), ("a_ds", "zmp_weight")):
+        if own[name] is not None:
+            params = replace(params, **{field: own[name]})
+    return params
 
 
 def controller_settings(robot=None) -> dict:
     """The robot's own settings of the physics controller, each None where it keeps the controller's:
-    ``zmp_margin`` (the stop plan's, [m]), ``swing_tilt_deadband`` ([rad]: :data:`SWING_TILT_COMPENSATION`)
-    and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its description's ``stop_zmp_margin``,
-    ``swing_tilt_deadband`` and ``foot_edge_margin``; ``foot_force_damping`` ([N s/m]: the feet's force
-    difference control, :data:`FOOT_FORCE_CONTROL`, only for a robot that gives it) and
-    ``foot_force_engage_time`` ([s]: how long both soles stand before that control acts)."""
+    ``zmp_margin`` (the stop plan's, [m]), ``zmp_weight`` (its J_ds ``a_ds``, [1/m^2]), ``swing_tilt_deadband``
+    ([rad]: :data:`SWING_TILT_COMPENSATION`) and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its
+    description's ``stop_zmp_margin``, ``stop_zmp_weight``, ``swing_tilt_deadband`` and ``foot_edge_margin``;
+    ``foot_force_damping`` ([N s/m]: the feet's force difference control, :data:`FOOT_FORCE_CONTROL`, only for a
+    robot that gives it) and ``foot_force_engage_time`` ([s]: how long both soles stand before that control
+    acts)."""
     description = as_robot(robot)
-    return {"zmp_margin": description.stop_zmp_margin, "swing_tilt_deadband": description.swing_tilt_deadband,
+    return {"zmp_margin": description.stop_zmp_margin, "zmp_weight": description.stop_zmp_weight,
+            "swing_tilt_deadband": description.swing_tilt_deadband,
             "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping,
             "foot_force_engage_time": description.foot_force_engage_time}
 

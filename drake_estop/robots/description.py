@@ -334,6 +334,10 @@ class RobotDescription:
         support [m], the swing-foot tilt compensation's dead band [rad] and the foot-edge
         compliance's edge band [m]; None (default): the controller's own
         (:mod:`drake_estop.physics.online`, measured on the default humanoid's 0.24 x 0.136 m soles).
+    stop_zmp_weight : float or None
+        The physics controller's J_ds ZMP-displacement weight ``a_ds`` (eq. 30) for this robot [1/m^2];
+        None (default): the controller's (:data:`drake_estop.physics.online.CONTROLLER_STOP_PARAMETERS`,
+        measured on the default humanoid's campaign).
     foot_force_damping : float or None
         The physics controller's foot force difference control for this robot, its damping [N s/m]
         (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`); None (default): off.
@@ -385,6 +389,7 @@ class RobotDescription:
     height: float | None = None
     min_knee_bend: float = 0.0
     stop_zmp_margin: float | None = None
+    stop_zmp_weight: float | None = None
     swing_tilt_deadband: float | None = None
     foot_edge_margin: float | None = None
     walking_zmp_offset: float | None = None
@@ -402,8 +407,8 @@ class RobotDescription:
         _check_positive("sole_thickness", self.sole_thickness)
         for name in ("hip_half_width", "step_length", "step_width", "step_time", "max_fore_reach",
                      "max_rear_reach", "min_step_width", "max_step_width", "lift_height", "crouch_depth",
-                     "lowest_com_height", "height",
-                     "stop_zmp_margin", "swing_tilt_deadband", "foot_edge_margin", "walking_zmp_offset",
+                     "lowest_com_height", "height", "stop_zmp_margin", "stop_zmp_weight",
+                     "swing_tilt_deadband", "foot_edge_margin", "walking_zmp_offset",
                      "foot_force_damping", "foot_force_engage_time"):
             if getattr(self, name) is not None:
                 _check_positive(name, getattr(self, name))
