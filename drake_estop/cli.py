@@ -111,7 +111,7 @@ def _add_gait_and_stop(p, scenario: Scenario, *, estop=True):
     s.add_argument("--a-ss", type=positive_float, default=_STOP.a_ss, help="J_ss swing-speed weight (eq. 24)")
     s.add_argument("--b-ss", type=positive_float, default=_STOP.b_ss, help="J_ss double-support-time weight (eq. 24)")
     s.add_argument("--a-ds", type=positive_float, default=_STOP.a_ds,
-                   help="J_ds ZMP-displacement weight (eq. 30; --physics: at least 1000)")
+                   help="J_ds ZMP-displacement weight (eq. 30; --physics: the robot's own if it gives one)")
     s.add_argument("--b-ds", type=positive_float, default=_STOP.b_ds, help="J_ds double-support-time weight (eq. 30)")
     s.add_argument("--max-step-length", type=positive_float, default=_STOP.max_step_length,
                    help="longest landing step from the support ankle [m] (default %(default)s)")

@@ -1,4 +1,4 @@
-"""The online controller's J_ds ZMP weight (eq. 30): ``a_ds`` 1000 /m^2, and the paper's 50 as a retry.
+"""The default humanoid's J_ds ZMP weight in physics (eq. 30): ``a_ds`` 1000 /m^2, and the paper's 50 as a retry.
 
 With the paper's 50 a double-support stop takes the shortest transition and a ZMP near the fore toe; the
 COG stops far behind that ZMP, and the halt (eq. 27-28) swings the ZMP back onto the rear foot while the
@@ -16,6 +16,7 @@ from checks import plan_lipm_error
 from drake_estop.physics.online import controller_stop_parameters
 from drake_estop.planning.landing import PAPER_A_DS, retry_limits
 from drake_estop.planning.planner import StopParameters, plan_stop
+from drake_estop.robots.parameters import default_robot
 
 
 def _halt_reversal(plan):
@@ -32,10 +33,14 @@ def _slowed_state(pattern, t, share):
     return np.array(state.com), np.array(state.com_vel) * share
 
 
-def test_the_controller_weighs_the_zmp_displacement_and_keeps_a_heavier_one():
+def test_the_default_humanoid_gives_its_own_weight_and_other_robots_keep_the_given_one():
+    robot = default_robot()
     assert StopParameters().a_ds == PAPER_A_DS == 50.0
-    assert controller_stop_parameters().a_ds == 1000.0
-    assert controller_stop_parameters(StopParameters(a_ds=5000.0)).a_ds == 5000.0
+    assert robot.stop_zmp_weight == controller_stop_parameters().a_ds == 1000.0
+    assert controller_stop_parameters(StopParameters(a_ds=5000.0)).a_ds == 1000.0  # the robot's own replaces it
+    other = replace(robot, stop_zmp_weight=None)
+    assert controller_stop_parameters(robot=other).a_ds == PAPER_A_DS
+    assert controller_stop_parameters(StopParameters(a_ds=5000.0), robot=other).a_ds == 5000.0
 
 
 @pytest.mark.parametrize("signal", [3.5, 3.6])

@@ -246,12 +246,12 @@ def test_g1_walks_and_stops_in_its_third_step(estop_time, support):
 def test_the_default_robot_keeps_the_controller_s_settings():
     """The default humanoid's stop parameters and the controller blocks' settings are the controller's
     constants and its gait's ZMP is at the ankle; its only settings of its own are the feet's force control
-    (its damping and engage time)."""
+    (its damping and engage time) and J_ds's ZMP weight."""
     from drake_estop.physics.online import controller_settings, controller_stop_parameters
     from drake_estop.robots.parameters import default_robot
 
     own = {name: value for name, value in controller_settings().items() if value is not None}
-    assert own == {"foot_force_damping": 80000.0, "foot_force_engage_time": 0.2}
+    assert own == {"foot_force_damping": 80000.0, "foot_force_engage_time": 0.2, "zmp_weight": 1000.0}
     assert gait_parameters(default_robot()).zmp_offset == 0.0
     assert robot_stop_parameters() == controller_stop_parameters() == controller_stop_parameters(robot="default")
 
@@ -266,9 +266,9 @@ def test_the_g1_controller_settings_come_from_its_description():
     assert robot.stop_zmp_margin is not None and robot.stop_zmp_margin < min(robot.sole().inner, robot.sole().outer)
     assert robot_stop_parameters(robot).zmp_margin == robot.stop_zmp_margin
     assert robot_stop_parameters("talos").zmp_margin == 0.03
-    # and J_ds's ZMP weight: the paper's on the G1, the controller's on TALOS
-    assert robot_stop_parameters(robot).a_ds == robot.stop_zmp_weight == 50.0
-    assert robot_stop_parameters("talos").a_ds == controller_stop_parameters().a_ds == 1000.0
+    # J_ds's ZMP weight: the default humanoid's own, the paper's on the G1 and TALOS
+    assert robot.stop_zmp_weight is None and robot_stop_parameters(robot).a_ds == 50.0
+    assert robot_stop_parameters("talos").a_ds == 50.0 != controller_stop_parameters().a_ds
     handles = build_online_diagram(NominalPattern(gait_parameters(robot)), robot_stop_parameters(robot), 1.5,
                                    robot=robot)
     assert handles.swing_tilt._deadband == robot.swing_tilt_deadband != SWING_TILT_COMPENSATION["deadband"]

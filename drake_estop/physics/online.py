@@ -204,15 +204,10 @@ from drake_estop.timing import TickTimer
 #: landing ankle (the paper's eq. 20). With the kinematic default's 5 cm ahead of it, the robustness benchmark's
 #: 17 N s push to the right early and mid single support left the CoP 10.4 and 1.6 mm outside its support, and
 #: the 29 N s forward push in double support fell; at the ankle all three stop.
-#: J_ds's ZMP weight ``a_ds`` (eq. 30) is 1000 /m^2, the paper's 50 times 20: a double-support stop (a signal
-#: there, a re-plan after the landing) then weighs 0.1 m of ZMP displacement as 0.1 s of double support. With 50
-#: it takes the shortest transition (0.1 s) and a ZMP near the fore toe, the COG stops 16-21 cm behind that ZMP
-#: and the halt swings it back onto the rear foot: the robot rocked from the fore toe to the rear heel, the other
-#: sole lifting, and its CoP left the support (campaign: a 4.2 N s push in double support, 0.3 mm out). Measured
-#: on the campaign's 85 runs that failed on the CoP without falling: 10 stop with 1000 (12 with 3000; with the
-#: double-support time weights b_ss, b_ds 300 too 15, but 5 of them fell, against 1 with 1000 alone).
+#: J_ds's ZMP weight ``a_ds`` (eq. 30) is the paper's unless the robot's description gives its own
+#: (``stop_zmp_weight``: the default humanoid's 1000, drake_estop/robots/default.yaml says why).
 CONTROLLER_STOP_PARAMETERS = StopParameters(zmp_margin=0.03, halt_durations=(1.0, 1.2, 1.5), max_early_landing=0.05,
-                                            max_landing_shift_per_height=10.0, landing_zmp_offset=0.0, a_ds=1000.0)
+                                            max_landing_shift_per_height=10.0, landing_zmp_offset=0.0)
 
 
 #: The controller's braked landing (on by default; ``braked_landing=False`` in
@@ -255,10 +250,10 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
                                robot=None) -> StopParameters:
     """The stop parameters the online controller plans with.
 
-    ``params`` (default: the paper's) with the controller's ZMP margin, J_ds ZMP weight, halt durations, earliest
+    ``params`` (default: the paper's) with the controller's ZMP margin, halt durations, earliest
     landing, landing-shift limit and slowdown ZMP (:data:`CONTROLLER_STOP_PARAMETERS`), and with ``braked_landing`` the
     braked landing (:data:`BRAKED_LANDING`: its approach slope only on swings whose landing the braking limit bounds,
-    unless ``params`` gives a slope of its own, which then shapes every swing); a larger margin or ZMP weight, a later
+    unless ``params`` gives a slope of its own, which then shapes every swing); a larger margin, a later
     landing, a tighter shift or swing-acceleration limit, a slowdown ZMP further back or a steeper approach
     in ``params`` is kept.
 
@@ -270,15 +265,15 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
         Add the braked landing (15 m/s^2 swing braking, approach slope 0.6, dimensionless); default True.
     robot : RobotDescription or str, optional
         A robot whose description gives its own ``stop_zmp_margin`` [m] or ``stop_zmp_weight`` [1/m^2]: that
-        replaces the controller's (a robot with smaller soles than the default humanoid's, a weight measured on
-        another robot: :func:`controller_settings`).
-        Default None: the default humanoid, the controller's margin.
+        replaces the controller's margin (a robot with smaller soles than the default humanoid's) or the given
+        ``a_ds`` (:func:`controller_settings`). Default None: the default humanoid (the controller's margin,
+        its own weight).
 
     Returns
     -------
     StopParameters
-        ZMP margin at least 0.03 [m] (or the robot's own), ``a_ds`` at least 1000 [1/m^2], halt durations
-        (1.0, 1.2, 1.5) [s], earliest landing 0.05 [s].
+        ZMP margin at least 0.03 [m] (or the robot's own), J_ds's ``a_ds`` the robot's own where it gives one
+        [1/m^2] (the default humanoid: 1000), halt durations (1.0, 1.2, 1.5) [s], earliest landing 0.05 [s].
     """
     params = _controller_stop_parameters(params, braked_landing)
     own = controller_settings(robot)
@@ -313,7 +308,6 @@ def _controller_stop_parameters(params, braked_landing):
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
     params = replace(base, zmp_margin=max(base.zmp_margin, controller.zmp_margin),
-                     a_ds=max(base.a_ds, controller.a_ds),
                      halt_durations=controller.halt_durations,
                      max_early_landing=min(base.max_early_landing, controller.max_early_landing),
                      max_landing_shift_per_height=min(base.max_landing_shift_per_height,

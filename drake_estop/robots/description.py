@@ -336,8 +336,8 @@ class RobotDescription:
         (:mod:`drake_estop.physics.online`, measured on the default humanoid's 0.24 x 0.136 m soles).
     stop_zmp_weight : float or None
         The physics controller's J_ds ZMP-displacement weight ``a_ds`` (eq. 30) for this robot [1/m^2];
-        None (default): the controller's (:data:`drake_estop.physics.online.CONTROLLER_STOP_PARAMETERS`,
-        measured on the default humanoid's campaign).
+        None (default): the given stop parameters' (the paper's 50). The default humanoid's description gives
+        1000 (measured on its campaign).
     foot_force_damping : float or None
         The physics controller's foot force difference control for this robot, its damping [N s/m]
         (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`); None (default): off.
