@@ -381,7 +381,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controlle
     summary = {"controller": controller.kind, "success": result.success,
                "criteria": {k: bool(v) for k, v in result.criteria.items()}, **online,
                "physics": {"criteria": {k: bool(v) for k, v in result.criteria.items()},
-                           "success": result.success, "numbers": result.numbers()}}
+                           "success": result.success, "numbers": result.numbers(), "cop_exit": result.cop_exit()}}
     return result.plan, columns, summary
 
 

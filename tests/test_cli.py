@@ -153,7 +153,7 @@ def test_physics_run_logs_measurements_and_criteria(tmp_path):
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z"):
         assert column in rows[0]
     assert float(rows[-1]["t"]) >= data["phase_times"]["halt_end"] + 2.5 - 1e-9
-    assert data["physics"]["success"]
+    assert data["physics"]["success"] and data["physics"]["cop_exit"] is None
 
 
 @pytest.mark.slow

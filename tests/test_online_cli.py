@@ -205,4 +205,9 @@ def test_a_push_no_stop_catches_at_the_signal_still_runs_the_stop_from_the_refer
     assert "planned from the reference" in capsys.readouterr().out
     assert set(data["physics"]["criteria"]) == set(CRITERIA)
     assert data["replans"] >= 1
+    # where the CoP left the planned soles (it did: the robot fell), at the least margin the summary gives
+    exit_ = data["physics"]["cop_exit"]
+    assert not data["physics"]["criteria"]["cop_in_support"]
+    assert exit_["margin"] == data["physics"]["numbers"]["cop_margin_plan_min_m"] < 0
+    assert exit_["phase"] in ("landing", "transition", "slowdown", "halt", "stopped") and exit_["edge"]
 

@@ -145,6 +145,8 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     heavier = run_online(estop_time=3.45, pattern=pattern)
     assert heavier.criteria["no_fall"] and heavier.criteria["comes_to_rest"], heavier.criteria
     assert heavier.numbers()["cop_margin_plan_min_m"] > -0.005
+    assert heavier.cop_exit()["margin"] == heavier.numbers()["cop_margin_plan_min_m"]
+    assert limited.cop_exit() is None and rescued.cop_exit() is None
 
 
 @pytest.mark.slow

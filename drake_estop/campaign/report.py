@@ -4,6 +4,9 @@
 * ``success_vs_phase.png``: success rate over the signal's phase in the stride.
 * ``success_vs_model_error.png``: success rate over each model error, the friction, latency and noise.
 
+The page also tables where the runs that stayed up let the centre of pressure leave the planned support
+(:func:`cop_exit_counts`: the stop's phase and the loaded sole's edge), and lists each failure's command.
+
 Rates count every run: an error or timeout row is not a success. Error
 bars and the headline interval are 95 % Wilson score intervals.
 """
@@ -42,7 +45,7 @@ def _columns(table) -> dict:
     data = {}
     for name in table.column_names:
         values = table.column(name).to_pylist()
-        if name in ("outcome", "error", "case", "support", "command"):
+        if name in ("outcome", "error", "case", "support", "command", "cop_exit_phase", "cop_exit_edge"):
             data[name] = np.array(["" if v is None else v for v in values], dtype=object)
         else:
             data[name] = np.array([np.nan if v is None else float(v) for v in values])
@@ -177,6 +180,36 @@ def _failure_rows(table) -> str:
     return "\n".join(rows)
 
 
+#: The stop's phases in the order of :meth:`drake_estop.planning.planner.StopPlan.phase`.
+PHASES = ("walking", "landing", "transition", "slowdown", "halt", "stopped")
+
+
+def cop_exit_counts(data: dict) -> dict:
+    """Runs that stayed up but whose CoP left the planned support, counted by where: {(phase, edge): n}
+    (phase of the stop and sole edge, :meth:`drake_estop.physics.criteria.PhysicsResult.cop_exit`); empty
+    for a table without those columns."""
+    if "cop_exit_phase" not in data:
+        return {}
+    counts = {}
+    upright = (data["no_fall"] == 1.0) & (data["cop_in_support"] == 0.0)
+    for phase, edge in zip(data["cop_exit_phase"][upright], data["cop_exit_edge"][upright]):
+        if phase:
+            counts[(phase, edge)] = counts.get((phase, edge), 0) + 1
+    return counts
+
+
+def _cop_exit_table(data: dict) -> str:
+    counts = cop_exit_counts(data)
+    if not counts:
+        return "<p>No run that stayed up left its support (or the table predates these columns).</p>"
+    phases = [p for p in PHASES if any(key[0] == p for key in counts)]
+    edges = sorted({edge for _, edge in counts}, key=lambda e: -sum(n for (_, x), n in counts.items() if x == e))
+    head = "<tr><th>phase / edge</th>" + "".join(f"<th>{html.escape(e)}</th>" for e in edges) + "<th>all</th></tr>"
+    rows = [f"<tr><td>{p}</td>" + "".join(f"<td>{counts.get((p, e), '')}</td>" for e in edges)
+            + f"<td>{sum(n for (q, _), n in counts.items() if q == p)}</td></tr>" for p in phases]
+    return "<table>" + head + "".join(rows) + "</table>"
+
+
 def _summary_lines(data: dict) -> list:
     n, wins = len(data["success"]), int(data["success"].sum())
     low, high = wilson(wins, n)
@@ -234,6 +267,10 @@ def write_report(table, folder, *, manifest: dict | None = None) -> Path:
         "<h2>Push recovery map</h2>", *(_image(p) for p in paths[:1] if p.exists()),
         "<h2>Signal phase in the stride</h2>", *(_image(p) for p in paths[1:2] if p.exists()),
         "<h2>Model error</h2>", *(_image(p) for p in paths[2:] if p.exists()),
+        "<h2>Where the CoP left the support</h2>",
+        "<p>Runs that did not fall but whose centre of pressure left the planned support, by the stop's phase "
+        "and the loaded sole's edge at the least margin (within 1 cm of it or past it; \"inside\": more than "
+        "1 cm inside the measured sole, outside the planned one).</p>", _cop_exit_table(data),
         "<h2>Failures and how to reproduce them</h2>",
         "<table><tr><th>run</th><th>seed</th><th>phase</th><th>impulse [N s]</th><th>direction [deg]</th>"
         "<th>case</th><th>missed</th><th>reproduce</th></tr>", _failure_rows(table), "</table>",

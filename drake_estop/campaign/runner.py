@@ -180,8 +180,16 @@ def outcome_from_reply(reply: dict) -> dict:
         "steps": summary["steps_after_signal"], "capture_landings": summary.get("capture_landings", 0),
         "recovery_steps": summary.get("recovery_steps", 0),
         "joint_velocity_violations": summary["joint_velocity_violations"],
+        **_cop_exit_columns(summary["physics"].get("cop_exit")),
         "tick_p99": summary["tick_compute"]["p99"], "realtime_factor": numbers["realtime_factor"],
     }
+
+
+def _cop_exit_columns(cop_exit: dict | None) -> dict:
+    """``cop_exit_phase`` and ``cop_exit_edge`` of a summary's ``cop_exit`` (None where the CoP stayed in)."""
+    if cop_exit is None:
+        return {"cop_exit_phase": None, "cop_exit_edge": None}
+    return {"cop_exit_phase": cop_exit["phase"], "cop_exit_edge": cop_exit["edge"]}
 
 
 def simulate_run(params: RunParameters, timeout: float) -> dict:

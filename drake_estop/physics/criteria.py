@@ -86,6 +86,8 @@ class PhysicsResult:
     reference: JointReference | None = None
     #: the online controller's own figures (:func:`drake_estop.physics.online.run_online`), else None
     online: dict | None = None
+    #: side -> (n,) measured sole yaw [rad] (None: level, unturned soles)
+    feet_yaw_meas: dict | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -99,6 +101,28 @@ class PhysicsResult:
     @property
     def success(self) -> bool:
         return all(self.criteria.values())
+
+    def cop_exit(self) -> dict | None:
+        """Where the CoP left the planned support, None where it never did (``cop_in_support`` met).
+
+        At the tick of the least planned-support margin: ``time`` [s], ``margin`` [m] (negative), the stop's
+        ``phase`` there (:meth:`drake_estop.planning.planner.StopPlan.phase`), the ``soles`` carrying load
+        ("left", "right" or "both": over :data:`LOADED_SHARE` of the normal force) and the ``edge`` of the
+        loaded sole nearest the CoP that it is past or within :data:`EDGE_BAND` of (:func:`sole_edge`).
+        """
+        margins = self.cop_margin_plan[1:]  # the first sample precedes the first contact solve
+        if not np.any(np.isfinite(margins)) or np.nanmin(margins) >= -self.params.cop_tolerance:
+            return None
+        i = 1 + int(np.nanargmin(margins))
+        t, cop, total = float(self.times[i]), np.array([self.cop_x[i], self.cop_y[i]]), float(self.normal_force[i])
+        loaded = [s for s in SIDES if total > 0 and self.foot_forces[s][i] > LOADED_SHARE * total] or list(SIDES)
+        sole = self.plan.pattern.params.sole
+        local = {s: _sole_local(cop, self.feet_meas[s][i][:2],
+                                0.0 if self.feet_yaw_meas is None else float(self.feet_yaw_meas[s][i]))
+                 for s in loaded}
+        nearest = min(loaded, key=lambda s: -SupportPolygon(sole.corners(np.zeros(2), s)).margin(local[s])[0])
+        return {"time": t, "margin": float(margins[i - 1]), "phase": self.plan.phase(t),
+                "soles": loaded[0] if len(loaded) == 1 else "both", "edge": sole_edge(local[nearest], nearest, sole)}
 
     def numbers(self) -> dict:
         """The raw numbers behind each criterion."""
@@ -124,6 +148,31 @@ class PhysicsResult:
             "reference_zmp_error_max_m": _max_abs(self.reference, "zmp_error"),
             "realtime_factor": self.realtime_factor,
         }
+
+
+#: Share of the total normal force above which a sole counts as loaded in :meth:`PhysicsResult.cop_exit`.
+LOADED_SHARE = 0.05
+#: Distance [m] from a sole edge within which :func:`sole_edge` names that edge.
+EDGE_BAND = 0.01
+
+
+def sole_edge(local_xy, side: str, sole, band: float = EDGE_BAND) -> str:
+    """The edges of the ``side`` ('left'/'right') ``sole`` (a :class:`drake_estop.planning.gait.Sole`) that a
+    point ``local_xy`` in the sole's frame (x forward, y left, from the ankle) [m] lies past or within ``band``
+    [m] of: "toe" or "heel", then "inner" or "outer", joined by "-" ("toe-outer"); "inside" if none."""
+    x, y = (float(v) for v in local_xy)
+    outward = y if side == "left" else -y
+    names = [name for name, near in (("toe", x > sole.toe - band), ("heel", x < -sole.heel + band),
+                                     ("inner", outward < -sole.inner + band), ("outer", outward > sole.outer - band))
+             if near]
+    return "-".join(names) or "inside"
+
+
+def _sole_local(point, ankle, yaw: float) -> np.ndarray:
+    """``point`` (x, y) in the frame of a sole at ``ankle`` (x, y) turned by ``yaw`` [rad]."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = np.asarray(point, float) - np.asarray(ankle, float)
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
 
 
 def _planned_support(plan: StopPlan, t: float):
@@ -241,7 +290,8 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         final_offset_plan=float(np.linalg.norm(com[-1, :2] - mid_plan)), cog_travel=travel,
         criteria=criteria, ik_failures=reference.failures,
         ik_max_com_error=float(reference.com_error.max()), sim_time=float(times[-1] - times[0]),
-        sim_wall_time=wall_time, ik_wall_time=reference.wall_time, params=physics, reference=reference)
+        sim_wall_time=wall_time, ik_wall_time=reference.wall_time, params=physics, reference=reference,
+        feet_yaw_meas=feet_yaw)
 
 
 CRITERIA = ("no_fall", "no_slip", "comes_to_rest", "rests_at_midpoint", "cop_in_support", "joint_speed_within_limits")
