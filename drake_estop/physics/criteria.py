@@ -2,7 +2,8 @@
 
 :func:`analyse` turns the 5 ms logs of a run into a :class:`PhysicsResult`:
 no fall (pelvis height, torso tilt), no slip, comes to rest, rests at the
-feet's midpoint, centre of pressure inside the support (:data:`CRITERIA`).
+feet's midpoint, centre of pressure inside the support (:data:`CRITERIA`);
+:meth:`PhysicsResult.cop_exit` says where the centre of pressure left it.
 :func:`multibody_zmp` is the whole-body ZMP of a joint trajectory.
 """
 
