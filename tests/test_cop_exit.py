@@ -8,7 +8,7 @@ import pytest
 from campaign_helpers import fake_run
 
 from drake_estop.campaign.config import default_config, run_seed, sample_run
-from drake_estop.campaign.report import cop_exit_counts, write_report
+from drake_estop.campaign.report import _columns, cop_exit_counts, write_report
 from drake_estop.campaign.runner import guarded_run, outcome_from_reply
 from drake_estop.campaign.storage import CRITERIA, ResultStore
 from drake_estop.physics.criteria import EDGE_BAND, PhysicsResult, sole_edge
@@ -111,8 +111,6 @@ def test_the_report_tables_where_the_upright_runs_left_their_support(tmp_path):
         store.write({**row, "error": None, "outcome": "failure", "success": False, "no_fall": i != 4,
                      "cop_in_support": phase is None, "cop_exit_phase": phase, "cop_exit_edge": edge})
     table = store.read()
-    from drake_estop.campaign.report import _columns
-
     assert cop_exit_counts(_columns(table)) == {("halt", "heel"): 2, ("transition", "toe-outer"): 1}
     text = write_report(table, store.folder, manifest={"seed": 5, "config": {}, "sessions": []}).read_text()
     section = text.split("Where the CoP left the support")[1].split("<h2>")[0]
