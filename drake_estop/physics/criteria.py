@@ -23,6 +23,7 @@ from drake_estop.physics.plant import (
     actuated_indices,
     sole_frames,
 )
+from drake_estop.planning.gait import rotation
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.lipm import GRAVITY  # the one gravity value
 from drake_estop.planning.planner import StopPlan
@@ -121,7 +122,7 @@ class PhysicsResult:
         local = {s: _sole_local(cop, self.feet_meas[s][i][:2],
                                 0.0 if self.feet_yaw_meas is None else float(self.feet_yaw_meas[s][i]))
                  for s in loaded}
-        nearest = min(loaded, key=lambda s: -SupportPolygon(sole.corners(np.zeros(2), s)).margin(local[s])[0])
+        nearest = max(loaded, key=lambda s: SupportPolygon(sole.corners(np.zeros(2), s)).margin(local[s])[0])
         return {"time": t, "margin": float(margins[i - 1]), "phase": self.plan.phase(t),
                 "soles": loaded[0] if len(loaded) == 1 else "both", "edge": sole_edge(local[nearest], nearest, sole)}
 
@@ -171,9 +172,7 @@ def sole_edge(local_xy, side: str, sole, band: float = EDGE_BAND) -> str:
 
 def _sole_local(point, ankle, yaw: float) -> np.ndarray:
     """``point`` (x, y) in the frame of a sole at ``ankle`` (x, y) turned by ``yaw`` [rad]."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    d = np.asarray(point, float) - np.asarray(ankle, float)
-    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+    return rotation(yaw).T @ (np.asarray(point, float) - np.asarray(ankle, float))
 
 
 def _planned_support(plan: StopPlan, t: float):
