@@ -306,6 +306,11 @@ class StopPlan:
     recovery_step : bool
         A re-plan's step of the rear foot out of a double-support stop
         (:func:`drake_estop.planning.replan.replan_stop`).
+    next_step : StopPlan or None
+        A capture landing that does not stop the robot on its own (N-step capture,
+        :func:`drake_estop.planning.replan.capture_step`): the recovery step planned from its touchdown,
+        whose COG and ZMP this plan follows after the landing; the online controller re-plans there
+        from the measured state and takes this one where that finds no stop.
     capture_landing : bool
         A re-plan's landing made sooner, at the widest step, for a lateral DCM that would pass it before
         the touchdown (:func:`drake_estop.planning.replan.replan_stop`).
@@ -352,6 +357,9 @@ class StopPlan:
     final_yaw: dict = field(default_factory=lambda: {"left": 0.0, "right": 0.0})  # side -> heading at rest [rad]
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
+    # a capture landing that does not stop on its own: the recovery step planned from its touchdown
+    # (replan.capture_step), which the controller takes there (re-planned from the measured state first)
+    next_step: StopPlan | None = None
     capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.replan_stop)
     braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace

@@ -23,6 +23,7 @@ from drake_estop.planning.capture import MAX_STEP_WIDTH, capture_time
 from drake_estop.planning.gait import SIDES, rotation
 from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan, snap_to_tick
 from drake_estop.planning.problems import descent_time
+from drake_estop.planning.zmp_check import start_polygon
 
 #: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
 #: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone, then the capture
@@ -196,7 +197,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
             if name == "recovery step":
                 return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
             if name == "capture":
-                return _capture_landing(start, capture, failure)
+                return _capture_landing(start, capture, failure, two_steps=recovery_step)
             return start.solve(stance_zmp=stance_zmp)
         except InfeasibleStop as error:
             failure = error
@@ -222,7 +223,7 @@ CAPTURE_DESCENT_SPEED = 0.6
 CAPTURE_SWING_ACCELERATION = 20.0
 
 
-def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop) -> StopPlan:
+def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop, two_steps: bool = False) -> StopPlan:
     """The single-support re-plan's last try: land sooner and nearer, by the lateral DCM's deadline.
 
     After a sideways push towards the swing foot's side, the lateral DCM diverges from the support ZMP
@@ -234,8 +235,9 @@ def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop)
     and the robot stops (:func:`capture_setup` says how the landing is chosen).
 
     The stop is solved (III.A, eq. 21-26) from ``setup`` (:func:`capture_setup`'s) with the landing time
-    in that tick and the step within the reachable landings; :class:`InfeasibleStop` (after ``failure``'s
-    message) where it finds none.
+    in that tick and the step within the reachable landings. Where it finds none, ``two_steps`` tries the
+    landing followed by a recovery step (:func:`capture_step`); :class:`InfeasibleStop` (after
+    ``failure``'s message) where that finds none either.
     """
     state, limits, params = setup
     wall = time.perf_counter()
@@ -243,10 +245,92 @@ def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop)
     try:
         new = plan_from(plan.pattern, state, limits, plan.signal_time, plan.case)
     except InfeasibleStop as error:
-        raise InfeasibleStop(f"{failure}; capture landing: {error}") from error
+        failure = InfeasibleStop(f"{failure}; capture landing: {error}")
+        if not two_steps:
+            raise failure from error
+        return capture_step(start, setup, failure)
     new.braked_swing = new.capture_landing = True
     new.params = params  # the re-plan's own limits, with the capture landing's margin (as a recovery step's)
     new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    return with_compute_time(new, wall)
+
+
+#: How far [m] past the landed ankle a two-step capture (:func:`capture_step`) aims the DCM at its touchdown:
+#: the recovery step that follows needs it :func:`recovery_dcm_ahead` past at least; the forward pushes the
+#: recovery steps caught had it 6.8-8.2 cm past.
+CAPTURE_STEP_DCM_AHEAD = 0.07
+#: How far [m] inside the recovery step's lateral bound (the landed sole's inner edge less its margin) a
+#: two-step capture keeps the DCM at its touchdown (the landing's width is chosen for it).
+CAPTURE_STEP_INNER_ROOM = 0.005
+
+
+def capture_step(start: _ReplanStart, setup: tuple, failure: InfeasibleStop) -> StopPlan:
+    """N-step capture: the capture landing followed by a recovery step, where no landing stops the robot.
+
+    A forward push can send the DCM further than one step reaches in the time the swing needs: the
+    stop condition (eq. 22) then asks for a step past ``max_step_length`` at every landing time. Two
+    steps catch what one cannot (Koolen et al. 2012): the swing foot lands as soon as it can
+    (:func:`capture_setup`'s touchdown, on the servo grid), at the reachable landing point nearest
+    :data:`CAPTURE_STEP_DCM_AHEAD` behind the DCM there, the support ZMP held meanwhile (eq. 6-9 give
+    the COG at the touchdown); then the old support foot steps ahead out of double support, planned as
+    the recovery step (:func:`_recovery_step`, III.A) from that state. The plan returned lands once and
+    follows the recovery step's COG and ZMP after its touchdown; :attr:`StopPlan.next_step` holds the
+    recovery step, which the online controller takes there (re-planned from the measured state first).
+
+    Raises :class:`InfeasibleStop` (after ``failure``'s message) where the recovery step finds no stop.
+    """
+    state, limits, params = setup
+    plan, wall = start.plan, time.perf_counter()
+    swing = plan.landing_foot
+    support = next(side for side in SIDES if side != swing)
+    w, dt = plan.pattern.w, params.servo_period
+    t = float(state.time)
+    touchdown = t + snap_to_tick(limits.max_landing_time, dt)
+    duration = touchdown - t
+    ankle = np.asarray(state.feet[support][:2], float)
+    turn = rotation(float(state.feet_yaw[support]))
+    zmp = np.asarray(state.zmp, float)[:2]
+    # the COG at the touchdown with the support ZMP held (eq. 6-9)
+    grow_c, grow_s = math.cosh(w * duration), math.sinh(w * duration)
+    offset = np.asarray(state.com, float)[:2] - zmp
+    velocity = np.asarray(state.com_vel, float)[:2]
+    com = zmp + offset * grow_c + velocity / w * grow_s
+    vel = offset * w * grow_s + velocity * grow_c
+    dcm_local = turn.T @ (com + vel / w - ankle)
+    zmp_local = turn.T @ (zmp - ankle)
+    low, high = zmp_local[0] + limits.min_step_length, zmp_local[0] + limits.max_step_length
+    lateral = float((turn.T @ (np.asarray(state.next_landing, float)[:2] - ankle))[1])
+    # narrower where the lateral DCM would lie past the landed sole's inner edge less the margin: the
+    # recovery step lifts the foot on that side (the walk's sway heads the DCM for the midline)
+    toward = math.copysign(1.0, lateral)
+    inner = plan.pattern.params.sole.inner - min(params.zmp_margin, RECOVERY_ZMP_MARGIN) - CAPTURE_STEP_INNER_ROOM
+    width = min(abs(lateral), max(toward * float(dcm_local[1]) + inner, params.min_step_width))
+    landing = ankle + turn @ np.array([float(np.clip(dcm_local[0] - CAPTURE_STEP_DCM_AHEAD, low, high)),
+                                       toward * width])
+    footholds = {support: ankle, swing: landing}
+    recovery_params = replace(params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
+    try:
+        step = _recovery_step(plan, touchdown, com, vel, recovery_params, footholds, failure)
+    except InfeasibleStop as error:
+        raise InfeasibleStop(f"{failure}; capture step: {error}") from error
+    x, y = (lipm.LipmTrajectory.from_zmp(t, [duration, *np.diff(traj.breaks)],
+                                         [lipm.pad([float(zmp[axis])]), *traj.zmp],
+                                         float(state.com[axis]), float(state.com_vel[axis]), w, rest_tail=True)
+            for axis, traj in enumerate((step.x, step.y)))
+    final_yaw = {support: float(state.feet_yaw[support]), swing: float(state.next_landing_yaw)}
+    new = StopPlan(
+        signal_time=plan.signal_time, start_time=t, case=plan.case, support=plan.support, start_support="single",
+        landing_time=touchdown, transition_end=step.transition_end, slowdown_end=step.slowdown_end,
+        halt_end=step.halt_end, step_length=float((turn.T @ (landing - ankle))[0]), zmp_max=None,
+        landing_foot=swing, landing_position=landing, final_feet={support: ankle.copy(), swing: landing},
+        x=x, y=y, pattern=plan.pattern, params=params, start_state=replace(state, next_landing=landing),
+        final_yaw=final_yaw, heading=float(state.feet_yaw[support]), capture_landing=True, braked_swing=True,
+        next_step=step)
+    new.swing_start = {"pos": state.feet[swing], "vel": state.feet_vel[swing], "acc": state.feet_acc[swing]}
+    new.upper_body_peak = state.upper_body + state.upper_body_rate * (new.slowdown_end - t) / 3.0  # eq. 33
+    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
+    # until the touchdown the ZMP stands still on the support sole; after it the recovery step's own margin
+    new.min_zmp_margin = min(float(start_polygon(new).margin(zmp[None, :])[0]), step.min_zmp_margin)
     return with_compute_time(new, wall)
 
 
@@ -286,13 +370,26 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     toward = 1.0 if swing_local[1] > 0 else -1.0  # the swing foot's side
     dcm = turn.T @ (np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w - ankle)
     held = turn.T @ (np.asarray(changes["zmp"], float)[:2] - ankle)
+    remaining = plan.landing_time - float(changes["time"])
     # the support ZMP at the sole's edge towards the swing side slows a DCM heading there
-    zmp_local = np.array([held[0], toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)])
+    edge_zmp = toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)
     widest = toward * params.max_step_width
-    deadline = _capture_deadline(float(dcm[1]), float(zmp_local[1]), widest + toward * CAPTURE_DCM_PAST_ANKLE,
-                                 widest, plan.landing_time - float(changes["time"]), w)
-    if deadline is None:
-        return None  # the DCM does not head past the widest landing before the plan's own touchdown
+    lateral_deadline = _capture_deadline(float(dcm[1]), edge_zmp, widest + toward * CAPTURE_DCM_PAST_ANKLE,
+                                         widest, remaining, w)
+    # sagittally the ZMP on the toe slows a DCM running past the farthest landing ankle (N-step capture: a
+    # landing that does not stop the robot is followed by the recovery step)
+    farthest = params.max_step_length
+    sagittal_deadline = _capture_deadline(float(dcm[0]), sole.toe - margin, farthest + CAPTURE_DCM_PAST_ANKLE,
+                                          farthest, remaining, w)
+    deadlines = [d for d in (lateral_deadline, sagittal_deadline) if d is not None]
+    if not deadlines:
+        return None  # the DCM does not head past the widest or the farthest landing before the plan's touchdown
+    deadline = min(deadlines)
+    if lateral_deadline is None:  # a forward push alone: the landing keeps the plan's lateral place
+        widest = float((turn.T @ (np.asarray(plan.landing_position, float)[:2] - ankle))[1])
+        zmp_local = np.array([held[0], held[1]])
+    else:
+        zmp_local = np.array([held[0], edge_zmp])
     # no sooner than the swing's descent and the planner's shortest landing (the braked landing's own
     # bound, to the plan's far landing point, is what this try replaces)
     soonest = max(min(params.min_landing_time, _SHORTEST_LANDING),

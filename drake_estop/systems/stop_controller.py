@@ -38,6 +38,7 @@ from drake_estop.planning.planner import (
 )
 from drake_estop.planning.replan import (
     MAX_REPLAN_SOLVES,
+    REPLAN_TRIES,
     ReplanPending,
     check_solve_bound,
     replan_stop,
@@ -563,6 +564,8 @@ class StopPlannerSystem(ReferenceSystem):
             return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
+        if plan.next_step is not None and t >= plan.landing_time - 1e-9:
+            return self._take_next_step(context, state, handle, measured)
         landed = plan.landing_foot is None or t >= plan.landing_time - shortest_replanned_landing(plan)
         # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
         # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
@@ -606,6 +609,28 @@ class StopPlannerSystem(ReferenceSystem):
             history=handle.history + ((new,) if new is not None else ()),
             last_try=handle.last_try if pending else t,  # a resumed sequence keeps its first tick
             footholds_of=landing if landing is not None else handle.footholds_of, pending=left)
+        state.get_mutable_abstract_state(self._plan_state).set_value(updated)
+        return EventStatus.Succeeded()
+
+    def _take_next_step(self, context, state, handle, measured):
+        """At the touchdown of a two-step capture (a plan with a ``next_step``,
+        :func:`~drake_estop.planning.replan.capture_step`): the recovery step re-planned from the measured
+        state, or the one planned with the capture landing where that finds none. (A double-support stop is
+        not tried here: the LIPM's DCM misses the body's pitch about the support toe, and on a 35 N s forward
+        push such a stop, feasible on the model, fell.)"""
+        t, plan = context.get_time(), handle.plan
+        start = time.perf_counter()
+        try:
+            new = replan_stop(plan, t, *measured, recovery_step=True, capture_landing=self._capture_landing,
+                              first_try=REPLAN_TRIES["double"].index("recovery step"))
+        except InfeasibleStop:
+            new = None
+        if new is None:  # the recovery step as planned at the capture landing's re-plan
+            new = plan.next_step
+        wall = time.perf_counter() - start
+        updated = handle.replaced(
+            plan=new, wall_time=wall, replans=handle.replans + 1, max_wall_time=max(handle.max_wall_time, wall),
+            blend=self._blend_into(context, new), history=handle.history + (new,), last_try=t, pending=None)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
