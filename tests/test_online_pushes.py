@@ -327,3 +327,22 @@ def test_the_hip_strategy_stops_a_forward_push_in_double_support_in_one_recovery
     assert upright.plan.summary()["recovery_steps"] == 2
     assert not upright.criteria["no_slip"] and max(upright.slip.values()) > 0.012
     assert upright.online["hip_strategy_bow_max"] == 0.0
+
+
+@pytest.mark.slow
+def test_a_forward_push_no_single_landing_stops_takes_a_second_step():
+    """35 N s forward at 2.95 s (0.6 m/s, early in single support): no landing the swing reaches stops the
+    robot (the stop condition asks for a step past the reach at every landing time) and the CoP sits on the
+    support toe. N-step capture (planning.replan.capture_step): the swing foot lands as soon as it can,
+    the old support foot steps past it, and the stop meets every criterion. Without the second step (no
+    recovery step) the plan keeps its one landing, 0.57 s after the push, and the robot falls over the toe
+    of the landed foot."""
+    push = Perturbations(pushes=(Push(2.95, 350.0, 0.0, 0.1),))
+    stepped = run_online(estop_time=2.95, perturbations=push)
+    assert stepped.success, [name for name, ok in stepped.criteria.items() if not ok]
+    summary = stepped.plan.summary()
+    assert [step["kind"] for step in summary["steps"]] == ["capture landing", "recovery step"]
+    assert summary["steps_after_signal"] == 2
+    assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the old support foot leads
+    fell = run_online(estop_time=2.95, perturbations=push, controller=ControllerOptions(recovery_step=False))
+    assert not fell.criteria["no_fall"]

@@ -271,3 +271,48 @@ def test_every_replan_after_a_landing_stands_on_the_measured_feet(pattern, param
     assert planner.replans(context) == (2, 0)
     assert planner.plan(context).landing_foot is None
     assert planner.plan(context).final_feet[fore][0] == pytest.approx(first.final_feet[fore][0] + 0.009)
+
+
+def _two_step_planner(measure_at_touchdown: bool):
+    """StopPlannerSystem latched at 2.95 s from the reference (the online controller's parameters), given
+    at 3.1 s the state measured after a 35 N s forward push (no landing stops it: the capture landing and a
+    recovery step, planning.replan.capture_step), then no measurement until the touchdown; there the
+    composite plan's own COG if ``measure_at_touchdown``, else none. Returns the planner, its context and
+    the two-step plan."""
+    from drake_estop.physics.online import controller_stop_parameters
+    from drake_estop.planning.gait import NominalPattern
+
+    pattern = NominalPattern()
+    planner, context, simulator, _ = latched_stop_planner(pattern, controller_stop_parameters(), t0=2.95,
+                                                          max_replan_solves=None)  # every try at 3.1 s
+    simulator.AdvanceTo(3.1 - DT / 2)
+    planner.measured_com_port.FixValue(context, [0.62063178, 0.04679833, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [0.66055078, 0.01980075, 0.0])
+    simulator.AdvanceTo(3.1 + DT / 2)
+    caught = planner.plan(context)
+    assert caught.next_step is not None and caught.start_time == pytest.approx(3.1)
+    planner.measured_com_port.FixValue(context, [np.nan] * 3)
+    simulator.AdvanceTo(caught.landing_time - DT / 2)
+    assert planner.plan(context) is caught  # no measurement: the swing lands as planned
+    if measure_at_touchdown:
+        pos, vel, _, _ = caught.com([caught.landing_time])
+        planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
+        planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
+    simulator.AdvanceTo(caught.landing_time + DT / 2)
+    return planner, context, caught
+
+
+def test_planner_takes_the_second_step_of_a_two_step_capture_at_its_touchdown():
+    """At the capture landing's touchdown the planner steps on: the recovery step re-planned from the
+    measured state (here the plan's own, so it lands where the planned one does), or without a measurement
+    the one planned with the capture landing; the summary counts both steps."""
+    planner, context, caught = _two_step_planner(measure_at_touchdown=True)
+    step = planner.plan(context)
+    assert step.recovery_step and step is not caught.next_step
+    assert step.start_time == pytest.approx(caught.landing_time) and step.landing_foot == "left"
+    np.testing.assert_allclose(step.landing_position, caught.next_step.landing_position, atol=1e-4)
+    assert step.landing_time == pytest.approx(caught.next_step.landing_time, abs=0.02)  # the solve's ticks
+    summary = planner.plans(context).summary()
+    assert [s["kind"] for s in summary["steps"]] == ["capture landing", "recovery step"]
+    planner, context, caught = _two_step_planner(measure_at_touchdown=False)
+    assert planner.plan(context) is caught.next_step

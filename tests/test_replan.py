@@ -591,3 +591,68 @@ def test_swing_reach_is_the_grid_search_of_the_braking_limit():
         assert reach == grid_search(*args)
         found += reach is not None
     assert 500 < found < 1500  # both outcomes are exercised
+
+
+# -- N-step capture: the capture landing and a recovery step ------------------------------------------------
+
+def _forward_push_state():
+    """The 2.95 s plan and the state the robot measured at 3.1 s after a 35 N s (0.6 m/s) forward push at
+    2.95 s (a physics run): the left foot supports with its CoP on the toe, the DCM 0.21 m past its ankle."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.1, np.array([0.62063178, 0.04679833]), np.array([0.66055078, 0.01980075])
+
+
+def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
+    """No landing stops this state (the stop condition, eq. 22, asks for a step past the reach at every
+    landing time): one step alone raises; with the recovery step the swing lands as soon as it can and the
+    old support foot steps past it out of double support. The plan is one LIPM motion: the support ZMP held
+    until the touchdown (eq. 19), then the recovery step's, continuous there and at rest at the end."""
+    from drake_estop.planning import replan
+
+    plan, t, com, vel = _forward_push_state()
+    with pytest.raises(InfeasibleStop, match="capture landing"):
+        replan_stop(plan, t, com, vel)  # one landing only
+    caught = replan_stop(plan, t, com, vel, recovery_step=True)
+    step = caught.next_step
+    assert caught.capture_landing and caught.landing_foot == "right" and step is not None
+    assert step.recovery_step and step.landing_foot == "left"
+    assert caught.landing_time < plan.landing_time - 0.05  # 3.395 s against 3.455 s
+    assert step.start_time == pytest.approx(caught.landing_time)
+    support_x = 0.6
+    assert 0.0 < caught.landing_position[0] - support_x <= caught.params.max_step_length + 1e-9
+    assert step.landing_position[0] > caught.landing_position[0]  # the rear foot steps past the landed one
+    w = plan.pattern.w
+    # the support ZMP stands still on the support sole until the touchdown (eq. 19; then it steps onto the
+    # landed sole, under the DCM: the recovery step's)
+    times = np.linspace(t, caught.landing_time - 1e-9, 7)
+    pos, speed, accel, zmp = caught.com(times)
+    assert zmp[0][0] == pytest.approx(support_x + plan.pattern.params.sole.toe - replan.RECOVERY_ZMP_MARGIN)  # the toe
+    np.testing.assert_allclose(zmp, np.repeat(zmp[:1], len(times), axis=0), atol=1e-12)
+    np.testing.assert_allclose(accel, w**2 * (pos - zmp), atol=1e-9)  # the LIPM (eq. 4)
+    # the DCM at the touchdown lies CAPTURE_STEP_DCM_AHEAD past the landed ankle (the reach allowed it)
+    dcm = pos[-1] + speed[-1] / w
+    assert dcm[0] - caught.landing_position[0] == pytest.approx(replan.CAPTURE_STEP_DCM_AHEAD, abs=1e-6)
+    # ... and laterally inside the landed sole's inner edge less the margin: the recovery step lifts the
+    # other foot (the landing is narrower than the walk's 0.19 m for it)
+    inner = plan.pattern.params.sole.inner - replan.RECOVERY_ZMP_MARGIN
+    assert dcm[1] - caught.landing_position[1] <= inner + 1e-9
+    assert 0.15 - 1e-9 <= 0.095 - caught.landing_position[1] < 0.19
+    # after the touchdown the plan is the recovery step's motion, continuous at the touchdown
+    after = np.linspace(caught.landing_time, step.halt_end + 0.5, 40)
+    for mine, its in zip(caught.com(after), step.com(after)):
+        np.testing.assert_allclose(mine, its, atol=1e-9)
+    before = caught.com([caught.landing_time - 1e-6])
+    np.testing.assert_allclose(before[0][0], step.com([caught.landing_time])[0][0], atol=1e-6)
+    np.testing.assert_allclose(before[1][0], step.com([caught.landing_time])[1][0], atol=1e-5)
+    _, rest, _, _ = step.com([step.halt_end + 0.5])
+    assert np.max(np.abs(rest)) < 1e-6
+    assert min(caught.min_zmp_margin, step.min_zmp_margin) >= caught.params.zmp_margin - 1e-9
+    summary = PlanSequence([plan, caught, step]).summary()
+    assert [s["kind"] for s in summary["steps"]] == ["capture landing", "recovery step"]
+    assert summary["steps_after_signal"] == 2 and summary["capture_landings"] == 1
+    # without the recovery step's stop the two steps are not planned
+    monkeypatch.setattr(replan, "_recovery_step", lambda *args: (_ for _ in ()).throw(args[-1]))
+    with pytest.raises(InfeasibleStop, match="capture step"):
+        replan_stop(plan, t, com, vel, recovery_step=True)

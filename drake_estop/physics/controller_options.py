@@ -53,8 +53,10 @@ class ControllerOptions:
         A sole that lost contact after the landing and landed again off the plan's foothold re-plans the
         stop where it stands (default on; off for comparison).
     recovery_step : bool
-        A re-plan after the landing that finds no double-support stop steps the rear foot forward (default
-        on; off keeps the plan, for comparison).
+        A re-plan after the landing that finds no double-support stop steps the rear foot forward; and a
+        single-support re-plan whose capture landing does not stop the robot takes that step right after
+        its touchdown (N-step capture, :func:`drake_estop.planning.replan.capture_step`; default on; off
+        keeps the plan, for comparison).
     capture_landing : bool
         A single-support re-plan whose other tries find no stop lands sooner, at the widest step, where a
         sideways push sends the lateral DCM past it before the plan's touchdown

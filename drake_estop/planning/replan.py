@@ -2,8 +2,9 @@
 
 :func:`replan_stop` solves the stop again at a servo tick from the measured COG (eq. 10-11) and
 the current plan's ZMP (eq. 12-13): before the landing a new landing (III.A), with the ankle
-strategy (:func:`ankle_zmp`) where the held ZMP finds none; after it a double-support stop
-(III.B) on the landed or measured feet, and where none exists the recovery step.
+strategy (:func:`ankle_zmp`) where the held ZMP finds none, and where no landing stops the robot
+two steps (:func:`capture_step`: N-step capture); after it a double-support stop (III.B) on the
+landed or measured feet, and where none exists the recovery step.
 :func:`replan_support` says which applies, :data:`REPLAN_TRIES` lists the tries in order and
 :class:`ReplanPending` resumes a call bounded by ``max_solves`` on a later tick.
 :func:`swing_braking_time` bounds how soon a moving swing foot can land.
@@ -27,7 +28,8 @@ from drake_estop.planning.zmp_check import start_polygon
 
 #: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
 #: then the ankle strategy's stance ZMP, its lateral part alone, its sagittal part alone, then the capture
-#: landing (:func:`_capture_landing`: sooner and nearer, by the lateral DCM's deadline); double support
+#: landing (:func:`_capture_landing`: sooner and nearer, by the DCM's deadline; with the recovery step, two
+#: steps where one does not stop: :func:`capture_step`); double support
 #: (III.B) holds the plan's ZMP, then takes the recovery step. ``replan_stop(first_try=k)`` starts at the k-th.
 REPLAN_TRIES = {"single": ("held", "ankle", "ankle lateral", "ankle sagittal", "capture"),
                 "double": ("held", "recovery step")}
@@ -136,9 +138,12 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     :func:`drake_estop.planning.capture.step_out_gain`).
 
     **Capture landing** (``capture_landing=True``, the default; before the landing only). Where a
-    sideways push sends the lateral DCM past the widest landing before the plan's touchdown, the last
-    single-support try lands sooner, at the widest step, where the swing can still brake
-    (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for comparison.
+    sideways push sends the lateral DCM past the widest landing, or a forward push the sagittal DCM past
+    the farthest one, before the plan's touchdown, the last single-support try lands sooner, where the
+    swing can still brake (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for
+    comparison. Where that landing does not stop the robot either and ``recovery_step`` is set, it is
+    followed by a recovery step of the old support foot (N-step capture, :func:`capture_step`: the plan
+    lands once, and its :attr:`~drake_estop.planning.plan.StopPlan.next_step` is the second step).
 
     **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to five solves in
     single support, two in double support) run in order until one gives a
@@ -342,7 +347,9 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
       (at most :data:`RECOVERY_ZMP_MARGIN`): the ankle strategy slows the lateral DCM;
     * the touchdown: the latest at which the lateral DCM has not come nearer than
       :data:`CAPTURE_DCM_PAST_ANKLE` to the outer side of the widest landing ankle
-      (:func:`~drake_estop.planning.capture.capture_time`, eq. 6-9), on the servo grid, no sooner than
+      (:func:`~drake_estop.planning.capture.capture_time`, eq. 6-9), or the sagittal DCM (the ZMP on the
+      toe) to the farthest landing ankle (``max_step_length``), whichever comes first (a forward push
+      alone keeps the plan's lateral landing and ZMP), on the servo grid, no sooner than
       the swing's descent at :data:`CAPTURE_DESCENT_SPEED`, and later (up to the plan's landing) where
       the swing cannot brake onto any landing point by then at :data:`CAPTURE_SWING_ACCELERATION`
       (:func:`swing_reach`);
@@ -351,10 +358,10 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
       and the step length is bounded to the reachable landings; laterally the landing is the capture
       rule's (:func:`~drake_estop.planning.capture.capture_landing_y`).
 
-    None where the plan has no landing ahead, the lateral DCM does not pass the widest landing ankle
-    before the plan's touchdown (a push towards the support foot: that needs a crossover step, which
-    this does not plan), or no landing sooner than the plan's reaches :data:`CAPTURE_LANDING_SPAN` of
-    landing points.
+    None where the plan has no landing ahead, neither the lateral DCM passes the widest landing ankle
+    nor the sagittal DCM the farthest one before the plan's touchdown (a push towards the support foot:
+    that needs a crossover step, which this does not plan), or no landing sooner than the plan's reaches
+    :data:`CAPTURE_LANDING_SPAN` of landing points.
     """
     plan, changes = start.plan, start.changes
     params = replace(start.params, zmp_margin=min(start.params.zmp_margin, RECOVERY_ZMP_MARGIN),

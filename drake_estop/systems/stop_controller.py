@@ -164,7 +164,12 @@ class StopPlannerSystem(ReferenceSystem):
     (:func:`drake_estop.planning.planner.replan_stop`). The step is not
     re-planned before its touchdown (a re-plan that hurried it struck the
     floor at 2.3 kN and the robot bounced for 75 ms); after it the re-plans
-    are double-support stops on the measured feet again.
+    are double-support stops on the measured feet again. With it, a
+    single-support re-plan whose capture landing stops nothing takes two
+    steps (N-step capture, :func:`drake_estop.planning.replan.capture_step`):
+    at that landing's touchdown tick the planner takes the second step at
+    once, re-planned from the measured state, or as planned with the landing
+    where that finds none (:meth:`_take_next_step`).
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
@@ -560,12 +565,12 @@ class StopPlannerSystem(ReferenceSystem):
         return relanded, fresh
 
     def _maybe_replan(self, context, state, handle, measured, relanded=None, fresh=False):
-        if measured is None:
-            return EventStatus.DidNothing()
         t = context.get_time()
         plan = handle.plan
         if plan.next_step is not None and t >= plan.landing_time - 1e-9:
             return self._take_next_step(context, state, handle, measured)
+        if measured is None:
+            return EventStatus.DidNothing()
         landed = plan.landing_foot is None or t >= plan.landing_time - shortest_replanned_landing(plan)
         # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
         # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
@@ -615,14 +620,15 @@ class StopPlannerSystem(ReferenceSystem):
     def _take_next_step(self, context, state, handle, measured):
         """At the touchdown of a two-step capture (a plan with a ``next_step``,
         :func:`~drake_estop.planning.replan.capture_step`): the recovery step re-planned from the measured
-        state, or the one planned with the capture landing where that finds none. (A double-support stop is
-        not tried here: the LIPM's DCM misses the body's pitch about the support toe, and on a 35 N s forward
-        push such a stop, feasible on the model, fell.)"""
+        state, or the one planned with the capture landing where that finds none or nothing is measured.
+        (A double-support stop is not tried here: the LIPM's DCM misses the body's pitch about the support
+        toe, and on a 35 N s forward push such a stop, feasible on the model, fell.)"""
         t, plan = context.get_time(), handle.plan
         start = time.perf_counter()
         try:
-            new = replan_stop(plan, t, *measured, recovery_step=True, capture_landing=self._capture_landing,
-                              first_try=REPLAN_TRIES["double"].index("recovery step"))
+            new = None if measured is None else replan_stop(
+                plan, t, *measured, recovery_step=True, capture_landing=self._capture_landing,
+                first_try=REPLAN_TRIES["double"].index("recovery step"))
         except InfeasibleStop:
             new = None
         if new is None:  # the recovery step as planned at the capture landing's re-plan
