@@ -56,6 +56,16 @@ def left_push_state():
     return plan, 3.175, np.array([0.60612853, 0.0693894]), np.array([0.23707723, 0.11288797])
 
 
+def forward_push_state():
+    """The plan of a signal at 2.95 s (the online controller's settings) and the state the robot measured at
+    3.1 s after a 35 N s (0.6 m/s) forward push at 2.95 s (a physics run): the left foot supports with its
+    CoP on the toe, the DCM 0.21 m past its ankle; no landing stops it (planning.replan.capture_step)."""
+    from drake_estop.physics.online import controller_stop_parameters
+
+    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
+    return plan, 3.1, np.array([0.62063178, 0.04679833]), np.array([0.66055078, 0.01980075])
+
+
 def count_solves(monkeypatch):
     """A list that grows by one for every stop a re-plan solves (``plan_from``)."""
     from drake_estop.planning import replan

@@ -3,10 +3,11 @@ forward (planner.replan_stop(recovery_step=True), StopPlannerSystem(recovery_ste
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from planner_helpers import latched_stop_planner
+from planner_helpers import forward_push_state, latched_stop_planner
 from pydrake.systems.analysis import Simulator
 
 from drake_estop.planning.capture import MAX_STEP_WIDTH
@@ -273,22 +274,28 @@ def test_every_replan_after_a_landing_stands_on_the_measured_feet(pattern, param
     assert planner.plan(context).final_feet[fore][0] == pytest.approx(first.final_feet[fore][0] + 0.009)
 
 
-def _two_step_planner(measure_at_touchdown: bool):
-    """StopPlannerSystem latched at 2.95 s from the reference (the online controller's parameters), given
-    at 3.1 s the state measured after a 35 N s forward push (no landing stops it: the capture landing and a
-    recovery step, planning.replan.capture_step), then no measurement until the touchdown; there the
-    composite plan's own COG if ``measure_at_touchdown``, else none. Returns the planner, its context and
-    the two-step plan."""
+def _pushed_forward_at_3_1(**kwargs):
+    """StopPlannerSystem (``kwargs`` over the defaults) latched at 2.95 s from the reference (the online
+    controller's parameters), given at 3.1 s the state measured after a 35 N s forward push (no landing
+    stops it: planning.replan.capture_step). Returns the planner, its context and simulator."""
     from drake_estop.physics.online import controller_stop_parameters
     from drake_estop.planning.gait import NominalPattern
 
-    pattern = NominalPattern()
-    planner, context, simulator, _ = latched_stop_planner(pattern, controller_stop_parameters(), t0=2.95,
-                                                          max_replan_solves=None)  # every try at 3.1 s
+    planner, context, simulator, _ = latched_stop_planner(NominalPattern(), controller_stop_parameters(), t0=2.95,
+                                                          max_replan_solves=None, **kwargs)  # every try at 3.1 s
     simulator.AdvanceTo(3.1 - DT / 2)
-    planner.measured_com_port.FixValue(context, [0.62063178, 0.04679833, 0.8])
-    planner.measured_com_vel_port.FixValue(context, [0.66055078, 0.01980075, 0.0])
-    simulator.AdvanceTo(3.1 + DT / 2)
+    _, t, com, vel = forward_push_state()
+    planner.measured_com_port.FixValue(context, [*com, 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    simulator.AdvanceTo(t + DT / 2)
+    return planner, context, simulator
+
+
+def _two_step_planner(measure_at_touchdown: bool):
+    """:func:`_pushed_forward_at_3_1`'s planner (the capture landing and a recovery step), then no
+    measurement until the touchdown; there the composite plan's own COG if ``measure_at_touchdown``, else
+    none. Returns the planner, its context and the two-step plan."""
+    planner, context, simulator = _pushed_forward_at_3_1()
     caught = planner.plan(context)
     assert caught.next_step is not None and caught.start_time == pytest.approx(3.1)
     planner.measured_com_port.FixValue(context, [np.nan] * 3)
@@ -316,3 +323,40 @@ def test_planner_takes_the_second_step_of_a_two_step_capture_at_its_touchdown():
     assert [s["kind"] for s in summary["steps"]] == ["capture landing", "recovery step"]
     planner, context, caught = _two_step_planner(measure_at_touchdown=False)
     assert planner.plan(context) is caught.next_step
+
+
+def test_a_stop_takes_no_more_steps_than_max_steps():
+    """``max_steps`` bounds the landings after the signal: with one, the forward push's re-plan may not plan
+    a second step (the capture landing alone stops nothing: the plan stays, the re-plan counts as failed);
+    with two it does. Not a positive integer: ValueError naming it."""
+    from drake_estop.physics.online import controller_stop_parameters
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.systems.stop_controller import MAX_STOP_STEPS, StopPlannerSystem
+
+    planner, context, _ = _pushed_forward_at_3_1(max_steps=1)
+    assert planner.plan(context).next_step is None and planner.replans(context) == (0, 1)
+    planner, context, _ = _pushed_forward_at_3_1(max_steps=2)
+    assert planner.plan(context).next_step is not None and planner.replans(context) == (1, 0)
+    assert MAX_STOP_STEPS == 3
+    for bad in (0, 2.0, True):
+        with pytest.raises(ValueError, match="max_steps"):
+            StopPlannerSystem(pattern=NominalPattern(), params=controller_stop_parameters(), max_steps=bad)
+
+
+def test_landings_made_counts_the_touchdowns_by_a_time():
+    """The walk's own landings after the signal and the stop's, each once it has touched down (a landing
+    re-planned before its touchdown is not one)."""
+    from drake_estop.systems.plan_sequence import landings_made
+
+    plan, t, com, vel = forward_push_state()
+    caught = replan_stop(plan, t, com, vel, recovery_step=True)
+    step = caught.next_step
+    history = (plan, caught, step)
+    assert landings_made((), 5.0) == 0
+    assert landings_made(history, caught.landing_time - DT) == 0  # the first plan's landing was re-planned
+    assert landings_made(history, caught.landing_time) == 1
+    assert landings_made(history, step.landing_time) == 2
+    # a stop that starts at the next support phase (III.C): the walk's own landing before it counts
+    late = SimpleNamespace(walk_landings=[{"time": 3.5, "foot": "right", "kind": "walk"}], landing_foot=None,
+                           start_time=3.5)
+    assert [landings_made((late,), t) for t in (3.45, 3.5)] == [0, 1]

@@ -6,7 +6,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from planner_helpers import DT, count_solves, left_push_state, moved_feet, replan_params, sideways_at, state_at
+from planner_helpers import (
+    DT,
+    count_solves,
+    forward_push_state,
+    left_push_state,
+    moved_feet,
+    replan_params,
+    sideways_at,
+    state_at,
+)
 
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.geometry import SupportPolygon
@@ -595,15 +604,6 @@ def test_swing_reach_is_the_grid_search_of_the_braking_limit():
 
 # -- N-step capture: the capture landing and a recovery step ------------------------------------------------
 
-def _forward_push_state():
-    """The 2.95 s plan and the state the robot measured at 3.1 s after a 35 N s (0.6 m/s) forward push at
-    2.95 s (a physics run): the left foot supports with its CoP on the toe, the DCM 0.21 m past its ankle."""
-    from drake_estop.physics.online import controller_stop_parameters
-
-    plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
-    return plan, 3.1, np.array([0.62063178, 0.04679833]), np.array([0.66055078, 0.01980075])
-
-
 def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     """No landing stops this state (the stop condition, eq. 22, asks for a step past the reach at every
     landing time): one step alone raises; with the recovery step the swing lands as soon as it can and the
@@ -611,7 +611,7 @@ def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     until the touchdown (eq. 19), then the recovery step's, continuous there and at rest at the end."""
     from drake_estop.planning import replan
 
-    plan, t, com, vel = _forward_push_state()
+    plan, t, com, vel = forward_push_state()
     with pytest.raises(InfeasibleStop, match="capture landing"):
         replan_stop(plan, t, com, vel)  # one landing only
     caught = replan_stop(plan, t, com, vel, recovery_step=True)

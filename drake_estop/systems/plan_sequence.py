@@ -141,9 +141,7 @@ class PlanSequence:
         # a re-plan after the landing starts in double support: the landing is the last plan that made one
         landed = [p for p in self.plans if p.landing_foot is not None] or self.plans[:1]
         summary["phase_times"]["landing_end"] = landed[-1].landing_time
-        # landings made: a plan's landing counts once no later re-plan replaced it before its touchdown
-        made = [p for p, nxt in zip(self.plans, self.plans[1:] + (None,))
-                if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
+        made = _made(self.plans)
         # every landing after the signal and why: the walk's own before the stop, then the landings made
         summary["steps"] = self.plans[0].walk_landings + [p.stop_landing for p in made]
         summary["steps_after_signal"] = len(summary["steps"])
@@ -154,6 +152,21 @@ class PlanSequence:
                                    "zmp_max": self.plans[0].zmp_max,
                                    "halt_end": self.plans[0].halt_end})
         return summary
+
+
+def _made(plans) -> list:
+    """The plans whose landing is made: once no later re-plan replaced it before its touchdown."""
+    return [p for p, nxt in zip(plans, tuple(plans[1:]) + (None,))
+            if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
+
+
+def landings_made(history, t: float) -> int:
+    """The landings after the signal of a stop's plans ``history`` (oldest first) touched down by ``t`` [s]:
+    the walk's own before the stop and the stop's (as :meth:`PlanSequence.summary` counts them)."""
+    if not history:
+        return 0
+    walk = sum(step["time"] <= t + 1e-9 for step in history[0].walk_landings)
+    return walk + sum(p.landing_time <= t + 1e-9 for p in _made(history))
 
 
 def last_landing(history):

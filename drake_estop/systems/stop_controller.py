@@ -45,7 +45,7 @@ from drake_estop.planning.replan import (
     replan_support,
     shortest_replanned_landing,
 )
-from drake_estop.systems.plan_sequence import AheadPlan, PlanHandle, PlanSequence, last_landing
+from drake_estop.systems.plan_sequence import AheadPlan, PlanHandle, PlanSequence, landings_made, last_landing
 from drake_estop.systems.reference import (
     REFERENCE_SLICES,
     ReferenceLayout,
@@ -72,6 +72,12 @@ from drake_estop.timing import timed
 #: 3 mm (a 17 N s push: both soles within 3 mm); the planned-polygon CoP failures of the robustness
 #: benchmark stood on feet 5-20 mm from the plan's, with the CoP inside the measured soles.
 FOOTHOLD_TOLERANCE = 0.005
+
+
+#: The most landings a stop takes after its signal (``StopPlannerSystem``'s ``max_steps``): the paper's one, a
+#: two-step capture's second and one recovery step more (Koolen et al. 2012: past three steps a capture region
+#: grows little).
+MAX_STOP_STEPS = 3
 
 
 class StopPlannerSystem(ReferenceSystem):
@@ -228,7 +234,12 @@ class StopPlannerSystem(ReferenceSystem):
         Whether a re-plan after the landing that finds no double-support
         stop steps the rear foot forward instead (``replan_stop``'s
         ``recovery_step``; default True, False keeps the plan, for
-        comparison).
+        comparison), and a capture landing that stops nothing steps again.
+    max_steps : int, optional
+        The most landings a stop may take after the signal (default
+        :data:`MAX_STOP_STEPS`): a re-plan takes a recovery step, or two
+        steps, only while they keep within it (the walk's own landings and the
+        stop's landings made so far count).
     capture_landing : bool, optional
         Whether a single-support re-plan whose other tries find no stop lands sooner at the widest step
         where a sideways push sends the lateral DCM past it before the touchdown (``replan_stop``'s
@@ -285,8 +296,8 @@ class StopPlannerSystem(ReferenceSystem):
     ------
     ValueError
         If one of the time constants or thresholds is not positive and finite,
-        or ``foothold_ticks`` or ``max_replan_solves`` is not a positive
-        integer (the message names it).
+        or ``foothold_ticks``, ``max_steps`` or ``max_replan_solves`` is not a
+        positive integer (the message names it).
     """
 
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
@@ -294,7 +305,7 @@ class StopPlannerSystem(ReferenceSystem):
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
                  foothold_ticks: int = 2, foothold_replan: bool = False,
                  foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
-                 capture_landing: bool = True,
+                 capture_landing: bool = True, max_steps: int = MAX_STOP_STEPS,
                  relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
                  max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True,
                  plan_ahead: bool = True, timer=None, layout: ReferenceLayout | None = None):
@@ -310,6 +321,9 @@ class StopPlannerSystem(ReferenceSystem):
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = int(foothold_ticks)
+        if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+        self._max_steps = max_steps
         self._max_replan_solves = check_solve_bound(max_replan_solves, "max_replan_solves")
         self._max_latch_solves = check_solve_bound(max_latch_solves, "max_latch_solves")
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
@@ -594,8 +608,10 @@ class StopPlannerSystem(ReferenceSystem):
         elif not deviated and not self._feet_moved(plan, t, feet):
             return self._drop_pending(state, handle)
         start = time.perf_counter()
+        # the recovery step (in single support: the second of a two-step capture) within max_steps
+        room = self._max_steps - landings_made(handle.history, t) >= (2 if replan_support(plan, t) == "single" else 1)
         try:  # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
-            new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated,
+            new = replan_stop(plan, t, *measured, feet=feet, recovery_step=self._recovery_step and deviated and room,
                               capture_landing=self._capture_landing,
                               first_try=pending[1] if pending else 0, max_solves=self._max_replan_solves)
         except ReplanPending as error:
