@@ -73,7 +73,7 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
 CHANGED = {"true_state": True, "foot_compliance": False, "swing_tilt": False, "measured_footholds": False,
            "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "braked_landing": False,
            "reference_fallback": False, "foothold_replan": True, "foot_force_control": False,
-           "max_replan_solves": None, "whole_body_walk": True, "hip_strategy": True}
+           "max_replan_solves": None, "whole_body_walk": True, "hip_strategy": True, "max_steps": 2}
 
 
 def _controller_text(name, value) -> str:
@@ -123,6 +123,12 @@ def test_the_controller_features_are_not_command_line_options(flag, capsys):
     """They are the scenario's controller section (--scenario-file / --scenario-text)."""
     assert main(["simulate", "--physics", flag]) == 2
     assert "unrecognized arguments" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan", "true"])
+def test_a_bad_max_steps_exits_2_naming_it(value, capsys):
+    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{max_steps: {value}}}}}"]) == 2
+    assert "max_steps" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan"])

@@ -11,14 +11,14 @@ turns each off in turn).
 import dataclasses
 from dataclasses import dataclass
 
-from drake_estop.planning.replan import MAX_REPLAN_SOLVES, check_solve_bound
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, MAX_STOP_STEPS, check_solve_bound
 
 #: The physics controllers: the online controller, and the offline preview filter it is compared with.
 CONTROLLER_KINDS = ("online", "offline-filter")
 
 #: The fields that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` options.
 PLANNER_FEATURES = ("measured_footholds", "relanded_footholds", "recovery_step", "capture_landing",
-                    "reference_fallback", "foothold_replan", "max_replan_solves")
+                    "reference_fallback", "foothold_replan", "max_replan_solves", "max_steps")
 
 
 @dataclass
@@ -83,6 +83,10 @@ class ControllerOptions:
     max_replan_solves : int or None
         Stop solves a re-plan may do in one servo tick, dimensionless (default 2: the tries left go on at
         the next tick, which bounds a tick's work); None puts every try on one tick (for comparison).
+    max_steps : int
+        The most landings a stop takes after its signal, the walk's own included (default
+        :data:`drake_estop.planning.replan.MAX_STOP_STEPS`, 3): a re-plan takes a recovery step, or the two
+        steps of an N-step capture, only within it.
     whole_body_walk : bool
         Walk the pattern with its COG corrected for the limbs' momentum
         (:func:`drake_estop.systems.whole_body_walk.whole_body_pattern`: the whole-body ZMP of the IK's
@@ -117,6 +121,7 @@ class ControllerOptions:
     max_replan_solves: int | None = MAX_REPLAN_SOLVES
     whole_body_walk: bool = False
     hip_strategy: bool = False
+    max_steps: int = MAX_STOP_STEPS
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:
@@ -125,6 +130,8 @@ class ControllerOptions:
             if f.type is bool and not isinstance(getattr(self, f.name), bool):
                 raise ValueError(f"controller.{f.name} must be true or false, got {getattr(self, f.name)!r}")
         check_solve_bound(self.max_replan_solves, "controller.max_replan_solves")
+        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ValueError(f"controller.max_steps must be a positive integer, got {self.max_steps!r}")
 
     def planner_options(self) -> dict:
         """The features that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` keyword

@@ -55,6 +55,11 @@ class ReplanPending(InfeasibleStop):
 #: held and ankle ZMP each fit one tick; the rest go on at the next tick (measured on 27 captured re-plans).
 MAX_REPLAN_SOLVES = 2
 
+#: The most landings a stop takes after its signal (the online controller's ``max_steps``): the paper's one,
+#: a two-step capture's second (:func:`capture_step`) and one recovery step more (Koolen et al. 2012: past
+#: three steps the capture region grows little).
+MAX_STOP_STEPS = 3
+
 def check_solve_bound(value, name: str = "max_solves"):
     """``value`` if it bounds a re-plan's solves (a positive integer, or None: no bound); else ``ValueError``
     naming ``name``."""

@@ -38,6 +38,7 @@ from drake_estop.planning.planner import (
 )
 from drake_estop.planning.replan import (
     MAX_REPLAN_SOLVES,
+    MAX_STOP_STEPS,
     REPLAN_TRIES,
     ReplanPending,
     check_solve_bound,
@@ -72,12 +73,6 @@ from drake_estop.timing import timed
 #: 3 mm (a 17 N s push: both soles within 3 mm); the planned-polygon CoP failures of the robustness
 #: benchmark stood on feet 5-20 mm from the plan's, with the CoP inside the measured soles.
 FOOTHOLD_TOLERANCE = 0.005
-
-
-#: The most landings a stop takes after its signal (``StopPlannerSystem``'s ``max_steps``): the paper's one, a
-#: two-step capture's second and one recovery step more (Koolen et al. 2012: past three steps a capture region
-#: grows little).
-MAX_STOP_STEPS = 3
 
 
 class StopPlannerSystem(ReferenceSystem):
