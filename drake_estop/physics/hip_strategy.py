@@ -31,10 +31,10 @@ landing impacts, which brake the DCM as a push does, and lost runs).
 
 Measured on the default humanoid, with it against without: a 30 N s forward push in double support
 (3.55 s) stops in one recovery step, where without it two are taken and the rear sole slips 12.6 mm
-(tests/test_online_pushes.py); a 35 N s one early in single support (2.95 s) falls without it and with it
-stays up, its torso tilted 0.264 rad (0.12 of it the bow; limit 0.26) and the CoP 3.4 mm out of its
-support. With ``benchmarks/robustness.py --controller-option hip_strategy=true``: the sweep 40/40, the
-matrix 44/44 and every push cell as without it but that 30 N s one. Pushes sideways are not helped: the
+(tests/test_online_pushes.py); a 35 N s one early in single support (2.95 s) stops without it in two steps
+(the N-step capture, :func:`drake_estop.planning.replan.capture_step`) and with it takes three, the rear
+sole slipping and the CoP leaving its support. With ``benchmarks/robustness.py --controller-option
+hip_strategy=true``: the sweep 40/40 and the matrix 44/44. Pushes sideways are not helped: the
 default model's trunk has no roll joint. Off by default (``ControllerOptions.hip_strategy``): on the
 campaign's first 120 runs it lost 2 that stop without it (forward bows after a sideways or a backward
 push, when the robot ran forward on its own: runs 11 and 34, both falls) and gained 1.
