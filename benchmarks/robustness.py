@@ -79,6 +79,7 @@ ABLATION = (
     {"controller": {"max_replan_solves": None}},
     {"controller": {"whole_body_walk": True}},
     {"controller": {"hip_strategy": True}},
+    {"controller": {"max_steps": 1}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.

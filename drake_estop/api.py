@@ -24,7 +24,8 @@ from drake_estop.robots.parameters import as_robot, gait_parameters, stop_parame
 from drake_estop.robots.plant import add_robot
 from drake_estop.systems.diagram import add_meshcat_views, add_port_loggers, initial_configuration, robot_layout
 from drake_estop.systems.ik import WholeBodyIK
-from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
+from drake_estop.systems.reference import connect_reference
+from drake_estop.systems.stop_controller import add_stop_controller
 
 #: Outputs logged once per servo tick by :func:`AddEmergencyStop` (``log=True``).
 LOGGED_PLANNER_OUTPUTS = ("com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "one_step_feasible")

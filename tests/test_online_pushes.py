@@ -16,6 +16,7 @@ from drake_estop.physics.online import (
 )
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.physics.plant import actuated_indices
+from drake_estop.planning.capture import MAX_STEP_WIDTH
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.landing import PAPER_A_DS
 
@@ -298,13 +299,12 @@ def test_a_capture_landing_stops_a_half_metre_per_second_push_towards_the_swing_
     landing (planning/replan.py) brings the swing foot down at the widest step 0.2 s after the push instead
     of at the plan's far landing point 0.44 s after it, and the stop meets every criterion. Without it
     the DCM is 0.12 m past the landed sole at the touchdown and the robot falls."""
-    from drake_estop.planning import replan
 
     push = Perturbations(pushes=(Push(2.95, 0.0, -290.0, 0.1),))
     caught = run_online(estop_time=2.95, perturbations=push)
     assert caught.success, [name for name, ok in caught.criteria.items() if not ok]
     assert caught.plan.landing_foot == "right" and caught.plan.landing_time < 3.4
-    assert caught.plan.landing_position[1] == pytest.approx(0.095 - replan.MAX_STEP_WIDTH)
+    assert caught.plan.landing_position[1] == pytest.approx(0.095 - MAX_STEP_WIDTH)
     assert caught.plan.summary()["steps"][-1]["kind"] == "capture landing"
     fell = run_online(estop_time=2.95, perturbations=push, controller=ControllerOptions(capture_landing=False))
     assert not fell.criteria["no_fall"]

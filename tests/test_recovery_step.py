@@ -14,7 +14,7 @@ from drake_estop.planning.capture import MAX_STEP_WIDTH
 from drake_estop.planning.gait import SIDES
 from drake_estop.planning.plan import landing_swing
 from drake_estop.planning.planner import InfeasibleStop, plan_stop, replan_stop
-from drake_estop.planning.replan import RECOVERY_ZMP_MARGIN, recovery_dcm_ahead, recovery_landing_width
+from drake_estop.planning.recovery import RECOVERY_ZMP_MARGIN, recovery_dcm_ahead, recovery_landing_width
 from drake_estop.systems.plan_sequence import PlanSequence
 
 DT = 0.005

@@ -17,6 +17,7 @@ from planner_helpers import (
     state_at,
 )
 
+from drake_estop.planning.capture import MAX_STEP_WIDTH
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
@@ -461,7 +462,7 @@ def test_a_push_towards_the_swing_foot_lands_sooner_at_the_widest_step(monkeypat
     caught = replan_stop(plan, t, com, vel)
     assert caught.landing_time < plan.landing_time - 0.1  # 3.345 s against 3.455 s
     support_y, sole = 0.095, plan.pattern.params.sole
-    assert caught.landing_position[1] == pytest.approx(support_y - replan.MAX_STEP_WIDTH)
+    assert caught.landing_position[1] == pytest.approx(support_y - MAX_STEP_WIDTH)
     # the LIPM's DCM at the touchdown (eq. 6-9) lies within 5 cm of the landed ankle and inside its sole's
     # outer edge less the margin: in the support polygon the landing makes
     pos, speed, _, _ = caught.com([caught.landing_time])
@@ -538,7 +539,7 @@ def test_every_capture_landing_lands_sooner_at_the_widest_step_and_stops_within_
                 continue
             captured += 1
             assert caught.landing_time <= plan.landing_time + 1e-9
-            assert caught.landing_position[1] == pytest.approx(0.095 - replan.MAX_STEP_WIDTH)
+            assert caught.landing_position[1] == pytest.approx(0.095 - MAX_STEP_WIDTH)
             start = caught.swing_start
             braking = replace(caught.params, min_landing_time=DT,
                               max_swing_acceleration=replan.CAPTURE_SWING_ACCELERATION)
@@ -653,6 +654,6 @@ def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     assert [s["kind"] for s in summary["steps"]] == ["capture landing", "recovery step"]
     assert summary["steps_after_signal"] == 2 and summary["capture_landings"] == 1
     # without the recovery step's stop the two steps are not planned
-    monkeypatch.setattr(replan, "_recovery_step", lambda *args: (_ for _ in ()).throw(args[-1]))
+    monkeypatch.setattr(replan, "recovery_step_plan", lambda *args: (_ for _ in ()).throw(args[-1]))
     with pytest.raises(InfeasibleStop, match="capture step"):
         replan_stop(plan, t, com, vel, recovery_step=True)

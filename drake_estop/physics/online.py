@@ -197,7 +197,8 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
-from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller, connect_reference
+from drake_estop.systems.reference import connect_reference
+from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
 from drake_estop.timing import TickTimer
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s, the slowdown ZMP at the

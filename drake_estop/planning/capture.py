@@ -69,7 +69,7 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     ``max_width`` [m] from the support ankle; None when the nominal landing stands (the shift is below
     :data:`SHIFT_THRESHOLD`)."""
     if state.support != "single" or state.next_landing is None or state.recovery_touchdown is not None:
-        return None  # (a recovery step is aimed at the measured DCM already: replan._recovery_step)
+        return None  # (a recovery step is aimed at the measured DCM already: recovery.recovery_step)
     w = pattern.w
     nominal_pos, nominal_vel, _, nominal_zmp = pattern.com([state.time])
     deviation = (state.com[1] - nominal_pos[0][1]) + (state.com_vel[1] - nominal_vel[0][1]) / w

@@ -20,10 +20,12 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.assembly import plan_from, with_compute_time
-from drake_estop.planning.capture import MAX_STEP_WIDTH, capture_time
+from drake_estop.planning.capture import capture_time
 from drake_estop.planning.gait import SIDES, rotation
 from drake_estop.planning.plan import SWING_GRID, InfeasibleStop, StopParameters, StopPlan, snap_to_tick
 from drake_estop.planning.problems import descent_time
+from drake_estop.planning.recovery import RECOVERY_ZMP_MARGIN, on_sole, zmp_to_reach
+from drake_estop.planning.recovery import recovery_step as recovery_step_plan
 from drake_estop.planning.zmp_check import start_polygon
 
 #: A re-plan's tries, in order, by the support it starts in: single support (III.A) holds the plan's ZMP,
@@ -130,15 +132,16 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     foot's ankle: stopping the COG between the feet then needs a ZMP beyond
     the toe, or stretches the rear leg past ``max_rear_reach``), the re-plan
     steps: the rear foot lifts at ``t`` and lands ahead
-    (:func:`_recovery_step`), the stop solved as a single-support stop (III.A,
+    (:func:`~drake_estop.planning.recovery.recovery_step`), the stop solved as a single-support stop (III.A,
     eq. 21-26) on the fore foot from the measured COG. A step out of double
     support where a stop would end: the paper's plan has no such step (its
     stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
     steps towards the capture point. Only forward (the rear foot steps past
-    the fore foot), from a DCM at least :func:`recovery_dcm_ahead` past the
-    fore ankle, not heading for the rear foot's side past the fore sole's
-    inner edge (unless ``recovery_step_inward``: landing wider,
-    :func:`recovery_landing_width`), with the rear leg within ``max_rear_reach``; a DCM outside the feet
+    the fore foot), from a DCM at least
+    :func:`~drake_estop.planning.recovery.recovery_dcm_ahead` past the fore ankle, not heading for the
+    rear foot's side past the fore sole's inner edge (unless ``recovery_step_inward``: landing wider,
+    :func:`~drake_estop.planning.recovery.recovery_landing_width`), with the rear leg within
+    ``max_rear_reach``; a DCM outside the feet
     sideways or behind is not caught (sideways no step without a crossover would:
     :func:`drake_estop.planning.capture.step_out_gain`).
 
@@ -205,7 +208,7 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
         solves += 1
         try:
             if name == "recovery step":
-                return _recovery_step(plan, t, com_xy, com_vel_xy, params, footholds, failure)
+                return recovery_step_plan(plan, t, com_xy, com_vel_xy, params, footholds, failure)
             if name == "capture":
                 return _capture_landing(start, capture, failure, two_steps=recovery_step)
             return start.solve(stance_zmp=stance_zmp)
@@ -266,8 +269,8 @@ def _capture_landing(start: _ReplanStart, setup: tuple, failure: InfeasibleStop,
 
 
 #: How far [m] past the landed ankle a two-step capture (:func:`capture_step`) aims the DCM at its touchdown:
-#: the recovery step that follows needs it :func:`recovery_dcm_ahead` past at least; the forward pushes the
-#: recovery steps caught had it 6.8-8.2 cm past.
+#: the recovery step that follows needs it :func:`~drake_estop.planning.recovery.recovery_dcm_ahead` past at
+#: least; the forward pushes the recovery steps caught had it 6.8-8.2 cm past.
 CAPTURE_STEP_DCM_AHEAD = 0.07
 #: How far [m] inside the recovery step's lateral bound (the landed sole's inner edge less its margin) a
 #: two-step capture keeps the DCM at its touchdown (the landing's width is chosen for it).
@@ -283,9 +286,10 @@ def capture_step(start: _ReplanStart, setup: tuple, failure: InfeasibleStop) -> 
     (:func:`capture_setup`'s touchdown, on the servo grid), at the reachable landing point nearest
     :data:`CAPTURE_STEP_DCM_AHEAD` behind the DCM there, the support ZMP held meanwhile (eq. 6-9 give
     the COG at the touchdown); then the old support foot steps ahead out of double support, planned as
-    the recovery step (:func:`_recovery_step`, III.A) from that state. The plan returned lands once and
-    follows the recovery step's COG and ZMP after its touchdown; :attr:`StopPlan.next_step` holds the
-    recovery step, which the online controller takes there (re-planned from the measured state first).
+    the recovery step (:func:`~drake_estop.planning.recovery.recovery_step`, III.A) from that state. The
+    plan returned lands once and follows the recovery step's COG and ZMP after its touchdown;
+    :attr:`StopPlan.next_step` holds the recovery step, which the online controller takes there
+    (re-planned from the measured state first).
 
     Raises :class:`InfeasibleStop` (after ``failure``'s message) where the recovery step finds no stop.
     """
@@ -320,7 +324,7 @@ def capture_step(start: _ReplanStart, setup: tuple, failure: InfeasibleStop) -> 
     footholds = {support: ankle, swing: landing}
     recovery_params = replace(params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     try:
-        step = _recovery_step(plan, touchdown, com, vel, recovery_params, footholds, failure)
+        step = recovery_step_plan(plan, touchdown, com, vel, recovery_params, footholds, failure)
     except InfeasibleStop as error:
         raise InfeasibleStop(f"{failure}; capture step: {error}") from error
     x, y = (lipm.LipmTrajectory.from_zmp(t, [duration, *np.diff(traj.breaks)],
@@ -422,7 +426,7 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     grow = math.exp(w * landing)
     held_dcm = zmp_local[0] + (float(dcm[0]) - zmp_local[0]) * grow  # at the touchdown, the ZMP held (eq. 6-9)
     aim = float(np.clip(held_dcm + CAPTURE_DCM_BEHIND_LANDING, *reach)) - CAPTURE_DCM_BEHIND_LANDING
-    zmp_local[0] = float(np.clip(_zmp_to_reach(float(dcm[0]), aim, grow), -sole.heel + margin, sole.toe - margin))
+    zmp_local[0] = float(np.clip(zmp_to_reach(float(dcm[0]), aim, grow), -sole.heel + margin, sole.toe - margin))
     low = max(reach[0] - zmp_local[0], params.min_step_length)  # step lengths from the support ZMP
     high = min(reach[1] - zmp_local[0], params.max_step_length)
     if low >= high - 1e-3:
@@ -527,28 +531,13 @@ def ankle_zmp(plan: StopPlan, t: float, com_xy, com_vel_xy):
     pos, vel, _, _ = plan.com([plan.landing_time])
     xi_landing = pos[0] + vel[0] / w
     xi_now = np.asarray(com_xy, float)[:2] + np.asarray(com_vel_xy, float)[:2] / w
-    wanted = _zmp_to_reach(xi_now, xi_landing, grow)
+    wanted = zmp_to_reach(xi_now, xi_landing, grow)
     support = next(side for side in SIDES if side != plan.landing_foot)
     ankle = np.asarray(plan.feet(t)[support][:2], float)
     turn = rotation(float(plan.feet_yaw(t)[0][support]))
-    zmp = _on_sole(plan.pattern.params.sole, support, ankle, turn, turn.T @ (wanted - ankle), plan.params.zmp_margin)
+    zmp = on_sole(plan.pattern.params.sole, support, ankle, turn, turn.T @ (wanted - ankle), plan.params.zmp_margin)
     current = np.array([traj.evaluate_at(float(t))[3] for traj in (plan.x, plan.y)])
     return None if np.max(np.abs(zmp - current)) < 1e-3 else zmp
-
-
-def _zmp_to_reach(xi_now, xi_target, grow):
-    """The ZMP ``p`` that, held while the DCM grows by ``grow = exp(w T)``, takes it from ``xi_now`` to
-    ``xi_target``: ``xi(T) = p + (xi_now - p) grow`` (eq. 6-9) solved for ``p``."""
-    return (xi_target - xi_now * grow) / (1.0 - grow)
-
-
-def _on_sole(sole, side: str, ankle, turn, local, margin: float):
-    """``local`` (a point in the frame of the ``side`` sole: ankle ``ankle``, rotation ``turn``) clamped to
-    the sole less ``margin`` (toe, heel, inner and outer edges), in world axes."""
-    left_edge, right_edge = sole.lateral_edges(side)
-    local = np.array([np.clip(local[0], -sole.heel + margin, sole.toe - margin),
-                      np.clip(local[1], -right_edge + margin, left_edge - margin)])
-    return ankle + turn @ local
 
 
 def _footholds(feet):
@@ -652,127 +641,3 @@ class _ReplanStart:
         new.braked_swing = self.braked
         new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
         return with_compute_time(new, wall)
-
-
-#: ZMP margin [m] of a recovery step's plan (or the plan's own, if smaller). A recovery step is planned
-#: where the controller's 3 cm stop has no solution; with 3 cm its halt had none either (30 N s forward
-#: push in double support: at most 3.6 mm at the first try; measured before the step's lateral aim, with
-#: which 1.5 cm finds it at that first try).
-RECOVERY_ZMP_MARGIN = 0.015
-
-
-#: A recovery step needs the measured DCM past the fore ankle (sagittally) by at least this share of the sole's toe
-#: length (:func:`recovery_dcm_ahead`: 5 cm on the default humanoid's 13.5 cm toe, 3.5 cm on TALOS's 9.5 cm).
-#: Measured on the robustness benchmark (default humanoid): steps taken from DCMs 2.5-3.5 cm past the ankle (a left
-#: push late in single support, a backward push in double support whose rebound failed a double-support re-plan)
-#: failed two runs that held without them; the forward pushes the steps caught had it 6.8-8.2 cm past. A share of
-#: the toe, not a length: a shorter sole has less room ahead of the ankle for the ZMP that holds the DCM while the
-#: rear foot swings (on TALOS's 0.3 m/s forward push at its first double-support tick the DCM lay 4.97 cm past the
-#: ankle at the first re-plan; it steps there, 50 ms before a fixed 5 cm would let it, and both stop). Laterally
-#: the DCM may lie no further towards the rear foot than the fore sole's inner edge less the margin (the step lifts
-#: that foot) unless the robot's StopParameters.recovery_step_inward says so: in the default humanoid's campaign,
-#: steps from DCMs 4.6-9.9 cm towards it (pushes forward-left and left) made a run that passed fall, another fail
-#: by 0.4 mm and a third, failing already, fall; with the landing widened instead (recovery_step_inward), 2 of the
-#: campaign's first 122 runs that had stopped failed (CoP 0.4 and 12 mm out) and none was gained.
-RECOVERY_DCM_TOE_SHARE = 0.37
-
-
-def recovery_dcm_ahead(sole) -> float:
-    """How far [m] past the fore ankle the measured DCM must be for a recovery step: the
-    :data:`RECOVERY_DCM_TOE_SHARE` of the ``sole``'s toe length, to the millimetre."""
-    return round(RECOVERY_DCM_TOE_SHARE * sole.toe, 3)
-
-
-def _recovery_step(plan: StopPlan, t: float, com_xy, com_vel_xy, params: StopParameters, footholds,
-                   failure: InfeasibleStop) -> StopPlan:
-    """:func:`replan_stop`'s recovery step out of a double-support stop at ``t`` (re-raises ``failure``
-    where it does not apply or has no stop either).
-
-    The state: single support on the fore foot (along the feet's mean heading), the rear foot at rest
-    on the floor as the swing foot (lifted from ``t``: the swing's clearance bump), both at ``footholds``
-    where given. The ZMP steps, at rest, onto the fore sole less ``zmp_margin``: sagittally under the
-    measured DCM (holding it, eq. 6-9; a CoP already on the toe stays there), laterally where it sends the
-    DCM to the feet's midline by the soonest touchdown the swing speed allows. A DCM heading for the rear
-    foot's side, past the fore sole's inner edge less the margin, takes no step (lifting that foot drops
-    the robot onto its side), unless ``params.recovery_step_inward`` (a robot's measured choice): then the
-    step lands as wide as the LIPM's DCM at that touchdown needs to lie between the feet
-    (:func:`recovery_landing_width`, within the robot's step widths), and a DCM past even the widest
-    landing's ankle takes none. Otherwise the landing keeps the rear foot's lateral offset from the fore
-    foot, along the fore foot's heading; its length, the landing time and the phases after it are the
-    single-support solve's (III.A, eq. 21-26), the nominal touchdown one single-support time after ``t``.
-    """
-    feet = plan.feet(t)
-    now = {side: np.array([*np.asarray((footholds or {}).get(side, feet[side][:2]), float)[:2], 0.0])
-           for side in SIDES}
-    yaw, _ = plan.feet_yaw(t)
-    heading = rotation(0.5 * (yaw["left"] + yaw["right"]))
-    along = {side: float((heading.T @ now[side][:2])[0]) for side in SIDES}
-    fore = max(SIDES, key=along.get)
-    rear = next(side for side in SIDES if side != fore)
-    w = plan.pattern.w
-    com, vel = np.asarray(com_xy, float)[:2].copy(), np.asarray(com_vel_xy, float)[:2].copy()
-    dcm = com + vel / w
-    turn = rotation(float(yaw[fore]))
-    local = turn.T @ (dcm - now[fore][:2])  # the DCM in the fore sole's frame
-    sole = plan.pattern.params.sole
-    if local[0] < recovery_dcm_ahead(sole):
-        raise failure  # the DCM is not far past the fore ankle: the stop's own limits failed, not the feet
-    if float((turn.T @ (com - now[rear][:2]))[0]) > params.max_rear_reach:
-        raise failure  # the rear leg is stretched straight: it drags over the floor instead of lifting
-    params = replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN))
-    margin = params.zmp_margin
-    lateral = float((turn.T @ (now[rear][:2] - now[fore][:2]))[1])
-    lateral = math.copysign(min(max(abs(lateral), params.min_step_width), params.max_step_width), lateral)
-    behind = float((turn.T @ (dcm - now[rear][:2]))[0])  # the DCM ahead of the rear ankle
-    if not params.recovery_step_inward and math.copysign(1.0, lateral) * local[1] > sole.inner - margin:
-        raise failure  # the DCM heads for the rear foot's side: lifting that foot drops the robot onto it
-    # sagittal: the ZMP under the DCM holds it (eq. 6-9); lateral: the ZMP that brings the DCM to the feet's
-    # midline by the soonest touchdown the swing speed allows, xi(T) = p + (xi - p) exp(w T) (as ankle_zmp)
-    soonest = max(params.min_landing_time, behind / params.max_swing_speed)
-    grow = math.exp(w * soonest)
-    lateral_zmp = _zmp_to_reach(local[1], 0.5 * lateral, grow)
-    zmp = _on_sole(sole, fore, now[fore][:2], turn, np.array([local[0], lateral_zmp]), margin)
-    width = recovery_landing_width(local[1], float((turn.T @ (zmp - now[fore][:2]))[1]), lateral, grow,
-                                   params.max_step_width)
-    if width is None:
-        raise failure  # the DCM heads past the widest landing: lifting the rear foot drops the robot onto it
-    gait = plan.pattern.params
-    zero = np.zeros(3)
-    upper, upper_rate = plan.upper_body(t)
-    state = replace(
-        plan.start_state, time=float(t), support="single", support_foot=fore, com=com, com_vel=vel, zmp=zmp,
-        zmp_rate=np.zeros(2), zmp_accel=np.zeros(2), feet=now, feet_vel={side: zero.copy() for side in SIDES},
-        feet_acc={side: zero.copy() for side in SIDES},
-        next_landing=now[fore][:2] + turn @ np.array([gait.step_length, width]), rear_foot=None,
-        upper_body=upper, upper_body_rate=upper_rate, feet_yaw=dict(yaw),
-        feet_yaw_rate={side: 0.0 for side in SIDES}, next_landing_yaw=float(yaw[fore]),
-        recovery_touchdown=float(t) + gait.single_support_time)
-    wall = time.perf_counter()
-    try:
-        new = plan_from(plan.pattern, state, params, plan.signal_time, plan.case)
-    except InfeasibleStop as error:
-        raise InfeasibleStop(f"{failure}; recovery step: {error}") from error
-    new.crouch_window = plan.crouch_window or (plan.start_time, plan.halt_end)
-    new.recovery_step = True
-    new.swing_start = dict(new.swing_start, clearance=plan.pattern.params.lift_height)  # lifted from the floor
-    return with_compute_time(new, wall)
-
-
-def recovery_landing_width(dcm_y: float, zmp_y: float, lateral: float, grow: float,
-                           max_width: float = MAX_STEP_WIDTH) -> float | None:
-    """A recovery step's landing offset [m] across the fore foot (signed as ``lateral``, the rear foot's
-    offset clamped to the step widths), or None where no landing within them catches the DCM.
-
-    ``dcm_y`` and ``zmp_y`` [m] are the measured DCM and the held ZMP across the fore sole and ``grow``
-    ``= exp(w T)`` for the soonest touchdown ``T``: the DCM there is ``p + (xi - p) grow`` (eq. 6-9). The
-    landing keeps ``lateral`` unless that DCM lies past its midline; then it lands twice the DCM's offset
-    out (the DCM at the new feet's midline), at most ``max_width`` [m] (the robot's
-    ``StopParameters.max_step_width``). None where the DCM passes even that landing's ankle.
-    """
-    side = math.copysign(1.0, lateral)
-    reach = side * (zmp_y + (dcm_y - zmp_y) * grow)  # towards the rear foot's side
-    if reach > max_width:
-        return None
-    if 2.0 * reach <= abs(lateral) + 1e-9:  # (a ZMP aimed at the midline reaches it to rounding: the width stands)
-        return lateral
-    return side * min(2.0 * reach, max_width)

@@ -38,8 +38,8 @@ from drake_estop.robots.parameters import as_robot, standing_height, stop_parame
 from drake_estop.robots.plant import add_robot, sole_frame
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.multibody_zmp import multibody_zmp, support_margins
-from drake_estop.systems.reference import ReferenceLayout, pattern_layout, reference_vector
-from drake_estop.systems.stop_controller import add_stop_controller, connect_reference
+from drake_estop.systems.reference import ReferenceLayout, connect_reference, pattern_layout, reference_vector
+from drake_estop.systems.stop_controller import add_stop_controller
 
 #: Bounds every IK tick must meet (COG and sole position [m], sole rotation [rad]).
 IK_COM_BOUND = 1e-3

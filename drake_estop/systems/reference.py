@@ -299,3 +299,13 @@ class WalkingPatternSource(ReferenceSystem):
     def _calc_reference(self, context):
         return reference_vector(context.get_time(), pattern=self._pattern, layout=self._layout)
 
+
+def connect_reference(builder, source, ik, *, feet=None, upper_body=None):
+    """Connect a reference source's com / feet / upper_body to WholeBodyIK; the feet from ``feet``
+    (a system with ``left_foot`` / ``right_foot`` outputs, e.g. a swing-foot compensation) and the
+    upper body from ``upper_body`` (a system with an ``upper_body`` output, e.g. the hip strategy) if given."""
+    for name in ("com", "left_foot", "right_foot", "upper_body"):
+        origin = feet if feet is not None and name.endswith("_foot") else source
+        if name == "upper_body" and upper_body is not None:
+            origin = upper_body
+        builder.Connect(origin.GetOutputPort(name), ik.GetInputPort(name))

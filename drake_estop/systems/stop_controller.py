@@ -57,13 +57,11 @@ from drake_estop.systems.reference import (
     reference_vector,
 )
 from drake_estop.systems.stop_numerics import (
-    SOLE_LIFTED,
-    SOLE_RELANDED,
     dcm_deviation,
     dcm_distance,
-    next_sole_stage,
     nominal_one_step_table,
     off_foothold,
+    relanded_soles,
 )
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
@@ -165,12 +163,8 @@ class StopPlannerSystem(ReferenceSystem):
     (:func:`drake_estop.planning.planner.replan_stop`). The step is not
     re-planned before its touchdown (a re-plan that hurried it struck the
     floor at 2.3 kN and the robot bounced for 75 ms); after it the re-plans
-    are double-support stops on the measured feet again. With it, a
-    single-support re-plan whose capture landing stops nothing takes two
-    steps (N-step capture, :func:`drake_estop.planning.replan.capture_step`):
-    at that landing's touchdown tick the planner takes the second step at
-    once, re-planned from the measured state, or as planned with the landing
-    where that finds none (:meth:`_take_next_step`).
+    are double-support stops on the measured feet again. With it, a capture
+    landing that stops nothing takes two steps (:meth:`_take_next_step`).
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the
     stored StopPlan, or None before the latch.  If no feasible stop exists the
@@ -231,10 +225,8 @@ class StopPlannerSystem(ReferenceSystem):
         ``recovery_step``; default True, False keeps the plan, for
         comparison), and a capture landing that stops nothing steps again.
     max_steps : int, optional
-        The most landings a stop may take after the signal (default
-        :data:`MAX_STOP_STEPS`): a re-plan takes a recovery step, or two
-        steps, only while they keep within it (the walk's own landings and the
-        stop's landings made so far count).
+        The most landings after the signal, the walk's own included (default
+        :data:`MAX_STOP_STEPS`): a recovery step, or two steps, only within it.
     capture_landing : bool, optional
         Whether a single-support re-plan whose other tries find no stop lands sooner at the widest step
         where a sideways push sends the lateral DCM past it before the touchdown (``replan_stop``'s
@@ -298,9 +290,8 @@ class StopPlannerSystem(ReferenceSystem):
     def __init__(self, *, pattern: NominalPattern, params: StopParameters, replan_threshold: float = 0.05,
                  bias_time_constant: float = 0.5, filter_time_constant: float = 0.03, blend_time: float = 0.2,
                  replan_interval: float = 0.05, landed_replan_threshold: float = 0.08, measured_footholds: bool = True,
-                 foothold_ticks: int = 2, foothold_replan: bool = False,
-                 foothold_tolerance: float = FOOTHOLD_TOLERANCE, recovery_step: bool = True,
-                 capture_landing: bool = True, max_steps: int = MAX_STOP_STEPS,
+                 foothold_ticks: int = 2, foothold_replan: bool = False, foothold_tolerance: float = FOOTHOLD_TOLERANCE,
+                 recovery_step: bool = True, capture_landing: bool = True, max_steps: int = MAX_STOP_STEPS,
                  relanded_footholds: bool = True, max_replan_solves: int | None = MAX_REPLAN_SOLVES,
                  max_latch_solves: int | None = MAX_LATCH_SOLVES, reference_fallback: bool = True,
                  plan_ahead: bool = True, timer=None, layout: ReferenceLayout | None = None):
@@ -315,10 +306,9 @@ class StopPlannerSystem(ReferenceSystem):
         if (isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, (int, float))
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
-        self._foothold_ticks = int(foothold_ticks)
         if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
             raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        self._max_steps = max_steps
+        self._foothold_ticks, self._max_steps = int(foothold_ticks), max_steps
         self._max_replan_solves = check_solve_bound(max_replan_solves, "max_replan_solves")
         self._max_latch_solves = check_solve_bound(max_latch_solves, "max_latch_solves")
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
@@ -557,19 +547,9 @@ class StopPlannerSystem(ReferenceSystem):
         feet = self.measured_feet_port.Eval(context)
         if not np.all(np.isfinite(feet)):
             return {}, False
-        t = context.get_time()
-        stages = context.get_discrete_state(self._sole_stages).value().copy()
-        planned = plan.feet(t)
-        relanded, fresh = {}, False
-        for k, side in enumerate(SIDES):
-            xy = feet[2 * k:2 * k + 2].copy()
-            stage = next_sole_stage(stages[k], airborne=planned[side][2] > 1e-9,
-                                    loaded=feet[4 + k] >= self._foothold_ticks, unloaded=feet[4 + k] == 0.0,
-                                    off=off_foothold(xy, planned[side], self._relanded_tolerance))
-            fresh = fresh or (stages[k] == SOLE_LIFTED and stage == SOLE_RELANDED)
-            stages[k] = stage
-            if stage == SOLE_RELANDED:
-                relanded[side] = xy
+        stages, relanded, fresh = relanded_soles(
+            context.get_discrete_state(self._sole_stages).value(), feet, plan.feet(context.get_time()),
+            self._foothold_ticks, self._relanded_tolerance)
         state.get_mutable_discrete_state(self._sole_stages).set_value(stages)
         return relanded, fresh
 
@@ -629,11 +609,9 @@ class StopPlannerSystem(ReferenceSystem):
         return EventStatus.Succeeded()
 
     def _take_next_step(self, context, state, handle, measured):
-        """At the touchdown of a two-step capture (a plan with a ``next_step``,
-        :func:`~drake_estop.planning.replan.capture_step`): the recovery step re-planned from the measured
-        state, or the one planned with the capture landing where that finds none or nothing is measured.
-        (A double-support stop is not tried here: the LIPM's DCM misses the body's pitch about the support
-        toe, and on a 35 N s forward push such a stop, feasible on the model, fell.)"""
+        """At a two-step capture's touchdown (:func:`~drake_estop.planning.replan.capture_step`): its
+        recovery step re-planned from the measured state, else as planned. No double-support stop: on a
+        35 N s forward push one, feasible on the LIPM, fell (the body pitched about the support toe)."""
         t, plan = context.get_time(), handle.plan
         start = time.perf_counter()
         try:
@@ -720,13 +698,3 @@ def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=No
     builder.Connect(trigger.stop_port, planner.stop_port)
     return trigger, planner
 
-
-def connect_reference(builder, source, ik, *, feet=None, upper_body=None):
-    """Connect a reference source's com / feet / upper_body to WholeBodyIK; the feet from ``feet``
-    (a system with ``left_foot`` / ``right_foot`` outputs, e.g. a swing-foot compensation) and the
-    upper body from ``upper_body`` (a system with an ``upper_body`` output, e.g. the hip strategy) if given."""
-    for name in ("com", "left_foot", "right_foot", "upper_body"):
-        origin = feet if feet is not None and name.endswith("_foot") else source
-        if name == "upper_body" and upper_body is not None:
-            origin = upper_body
-        builder.Connect(origin.GetOutputPort(name), ik.GetInputPort(name))

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from drake_estop.planning.gait import NominalPattern
+from drake_estop.planning.gait import SIDES, NominalPattern
 from drake_estop.planning.planner import StopParameters, one_step_feasible
 
 #: Stages of a sole in the stop (:func:`next_sole_stage`): where the plan has it in the air; standing
@@ -94,3 +94,21 @@ def next_sole_stage(stage: float, *, airborne: bool, loaded: bool, unloaded: boo
     if stage == SOLE_RELANDED and not off:  # a plan stands on it now
         return SOLE_STANDING
     return stage
+
+
+def relanded_soles(stages, feet, planned, foothold_ticks: int, tolerance: float):
+    """One tick of :func:`next_sole_stage` for both soles (``SIDES`` order): ``stages`` (2) the soles' stages,
+    ``feet`` the estimated soles (``[x_l, y_l, x_r, y_r, ticks_l, ticks_r]``: loaded ticks), ``planned`` the
+    plan's feet at the tick (``{side: (x, y, lift)}``). Returns the new stages, ``{side: xy}`` of the soles
+    re-landed more than ``tolerance`` [m] off their foothold, and whether one re-landed on this tick."""
+    stages = np.array(stages, dtype=float)
+    relanded, fresh = {}, False
+    for k, side in enumerate(SIDES):
+        xy = np.array(feet[2 * k:2 * k + 2], dtype=float)
+        stage = next_sole_stage(stages[k], airborne=planned[side][2] > 1e-9, loaded=feet[4 + k] >= foothold_ticks,
+                                unloaded=feet[4 + k] == 0.0, off=off_foothold(xy, planned[side], tolerance))
+        fresh = fresh or (stages[k] == SOLE_LIFTED and stage == SOLE_RELANDED)
+        stages[k] = stage
+        if stage == SOLE_RELANDED:
+            relanded[side] = xy
+    return stages, relanded, fresh
