@@ -11,7 +11,7 @@ turns each off in turn).
 import dataclasses
 from dataclasses import dataclass
 
-from drake_estop.planning.replan import MAX_REPLAN_SOLVES, MAX_STOP_STEPS, check_solve_bound
+from drake_estop.planning.replan import MAX_REPLAN_SOLVES, MAX_STOP_STEPS, check_solve_bound, check_step_bound
 
 #: The physics controllers: the online controller, and the offline preview filter it is compared with.
 CONTROLLER_KINDS = ("online", "offline-filter")
@@ -130,8 +130,7 @@ class ControllerOptions:
             if f.type is bool and not isinstance(getattr(self, f.name), bool):
                 raise ValueError(f"controller.{f.name} must be true or false, got {getattr(self, f.name)!r}")
         check_solve_bound(self.max_replan_solves, "controller.max_replan_solves")
-        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int) or self.max_steps < 1:
-            raise ValueError(f"controller.max_steps must be a positive integer, got {self.max_steps!r}")
+        check_step_bound(self.max_steps, "controller.max_steps")
 
     def planner_options(self) -> dict:
         """The features that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` keyword

@@ -62,6 +62,13 @@ MAX_REPLAN_SOLVES = 2
 #: three steps the capture region grows little).
 MAX_STOP_STEPS = 3
 
+def check_step_bound(value, name: str = "max_steps"):
+    """``value`` if it bounds a stop's landings (a positive integer); else ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
 def check_solve_bound(value, name: str = "max_solves"):
     """``value`` if it bounds a re-plan's solves (a positive integer, or None: no bound); else ``ValueError``
     naming ``name``."""

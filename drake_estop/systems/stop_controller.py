@@ -42,6 +42,7 @@ from drake_estop.planning.replan import (
     REPLAN_TRIES,
     ReplanPending,
     check_solve_bound,
+    check_step_bound,
     replan_stop,
     replan_support,
     shortest_replanned_landing,
@@ -306,9 +307,7 @@ class StopPlannerSystem(ReferenceSystem):
         if (isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, (int, float))
                 or not math.isfinite(foothold_ticks) or foothold_ticks != int(foothold_ticks) or foothold_ticks < 1):
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
-        if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        self._foothold_ticks, self._max_steps = int(foothold_ticks), max_steps
+        self._foothold_ticks, self._max_steps = int(foothold_ticks), check_step_bound(max_steps)
         self._max_replan_solves = check_solve_bound(max_replan_solves, "max_replan_solves")
         self._max_latch_solves = check_solve_bound(max_latch_solves, "max_latch_solves")
         self._foothold_tolerance = float(foothold_tolerance) if foothold_replan else None
