@@ -408,10 +408,12 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     if not deadlines:
         return None  # the DCM does not head past the widest or the farthest landing before the plan's touchdown
     deadline = min(deadlines)
-    if lateral_deadline is None:  # a forward push alone: the landing keeps the plan's lateral place
-        widest = float((turn.T @ (np.asarray(plan.landing_position, float)[:2] - ankle))[1])
+    # the landing's offset across the support sole: the widest step, or for a forward push alone the plan's
+    if lateral_deadline is None:
+        across = float((turn.T @ (np.asarray(plan.landing_position, float)[:2] - ankle))[1])
         zmp_local = np.array([held[0], held[1]])
     else:
+        across = widest
         zmp_local = np.array([held[0], edge_zmp])
     # no sooner than the swing's descent and the planner's shortest landing (the braked landing's own
     # bound, to the plan's far landing point, is what this try replaces)
@@ -424,7 +426,7 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     acceleration = max(params.max_swing_acceleration, CAPTURE_SWING_ACCELERATION)
     reach = None
     while landing <= latest + 1e-9:  # later where the swing cannot brake onto enough landings by then
-        reach = swing_reach(swing_local, swing_vel, swing_acc, widest, landing, acceleration)
+        reach = swing_reach(swing_local, swing_vel, swing_acc, across, landing, acceleration)
         if reach is not None and reach[1] - reach[0] >= CAPTURE_LANDING_SPAN - 1e-9:
             break
         landing, reach = landing + dt, None
@@ -439,11 +441,11 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     if low >= high - 1e-3:
         return None
     # the mean swing speed the reachable landings need (the braking limit checked them already)
-    speed = max(math.hypot(x - swing_local[0], widest - swing_local[1]) for x in reach) / landing + 1e-6
+    speed = max(math.hypot(x - swing_local[0], across - swing_local[1]) for x in reach) / landing + 1e-6
     limits = replace(params, min_landing_time=max(landing - dt, dt), max_landing_time=landing + 1e-9,
                      min_step_length=low, max_step_length=high, max_swing_speed=max(params.max_swing_speed, speed),
                      max_swing_acceleration=acceleration)
-    landing_xy = ankle + turn @ np.array([float(np.clip(swing_local[0], reach[0], reach[1])), widest])
+    landing_xy = ankle + turn @ np.array([float(np.clip(swing_local[0], reach[0], reach[1])), across])
     state = replace(plan.start_state, **dict(changes, zmp=ankle + turn @ zmp_local, zmp_rate=np.zeros(2),
                                              zmp_accel=np.zeros(2), next_landing=landing_xy))
     return state, limits, params
