@@ -190,3 +190,15 @@ def frozen_heap():
         yield
     finally:
         gc.unfreeze()
+
+
+def per_tick(log, servo_period: float) -> np.ndarray:
+    """A ``VectorLog`` of a system's per-tick output, by tick: row k is the value (the log's first entry; all
+    of them, one a column, for a log of several) that the update of tick ``k * servo_period`` set, which the
+    logger publishes at the next tick. NaN for a tick whose update had not run."""
+    ticks = np.rint(log.sample_times() / servo_period).astype(int)
+    data = log.data()
+    out = np.full((int(ticks.max()) if len(ticks) else 0, data.shape[0]), np.nan)
+    later = ticks >= 1
+    out[ticks[later] - 1] = data[:, later].T
+    return out[:, 0] if data.shape[0] == 1 else out

@@ -267,3 +267,16 @@ def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
     assert seen["add_state_estimation"]["true_state"] is False
     default_features = {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES}
     assert default_features == ControllerOptions().planner_options()
+
+
+@pytest.mark.slow
+def test_every_tick_of_the_online_paper_stop_is_capturable(paper_stop):
+    """Unpushed, the measured state stays capturable on every tick of the run, and the summary reports the
+    signal's tick."""
+    capture = paper_stop.online["capture"]
+    ticks = np.isfinite(capture[:, 0])
+    assert np.count_nonzero(ticks) >= round(paper_stop.times[-1] / 0.005) - 2
+    assert np.all(capture[ticks, 0] >= 0)
+    summary = paper_stop.online["capturability"]
+    assert summary["steps"] >= 0 and summary["margin"] >= 0.0
+    assert summary["worst"]["margin"] == pytest.approx(np.nanmin(capture[int(round(3.4 / 0.005)):, 1]))

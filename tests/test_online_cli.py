@@ -179,8 +179,12 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert data["perturbations"]["mass_scale"] == 1.1
     header = open(log).readline().strip().split(",")
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
-                   "one_step_feasible"):
+                   "one_step_feasible", "capture_steps", "capture_margin"):
         assert column in header
+    # the measured state's capturability at the signal (no push): caught in at most three steps
+    assert set(data["capturability"]) == {"steps", "margin", "margin_speed", "witness", "worst"}
+    assert 0 <= data["capturability"]["steps"] <= 3 and data["capturability"]["margin"] >= 0.0
+    assert len(data["capturability"]["witness"]) == data["capturability"]["steps"]
 
 
 #: The campaign's run 181 (docs/campaign): a push under way at the signal that no stop from the measured state catches.

@@ -193,13 +193,15 @@ from drake_estop.physics.plant import (
     sole_bodies,
 )
 from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
+from drake_estop.planning.capturability import SteppingLimits
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot
+from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.reference import connect_reference
 from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
-from drake_estop.timing import TickTimer
+from drake_estop.timing import TickTimer, per_tick
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s, the slowdown ZMP at the
 #: landing ankle (the paper's eq. 20). With the kinematic default's 5 cm ahead of it, the robustness benchmark's
@@ -344,6 +346,7 @@ class OnlineHandles:
     physics: PhysicsParameters
     robot: object = None  # the RobotDescription
     foot_force: object = None  # FootForceDifferenceControl, or None (the robot gives no foot_force_damping)
+    capturability: object = None  # the CapturabilityMonitor (observes the measured state; does not act)
 
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
@@ -416,6 +419,10 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
+    monitor = add_capturability_monitor(
+        builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
+        limits=SteppingLimits.from_parameters(stop_params, pattern.params.sole),
+        report_time=report_time(estop_time, perturbations.pushes))
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
@@ -456,6 +463,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         "com_vel_est": LogVectorOutput(estimator.com_vel_port, builder, period),
         # every servo tick, whatever log_period: its update of tick k is published at tick k + 1
         "one_step_feasible": LogVectorOutput(planner.one_step_feasible_port, builder, dt),
+        "capturability": LogVectorOutput(monitor.capturability_port, builder, dt),
     }
     if swing_tilt_system is not None:
         loggers["swing_tilt"] = LogVectorOutput(swing_tilt_system.tilt_port, builder, period)
@@ -468,7 +476,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     diagram = builder.Build()
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force)
+                         compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force, monitor)
 
 
 def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None = None) -> Simulator:
@@ -481,15 +489,6 @@ def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None
     apply_model_errors(handles.plant, plant_context, perturbations or Perturbations(), handles.robot)
     simulator.Initialize()
     return simulator
-
-
-def _per_tick(log, servo_period: float) -> np.ndarray:
-    """Row k: the value a planner update of tick ``k * servo_period`` set, published at the next tick."""
-    ticks = np.rint(log.sample_times() / servo_period).astype(int)
-    out = np.full(int(ticks.max()) if len(ticks) else 0, np.nan)
-    later = ticks >= 1
-    out[ticks[later] - 1] = log.data()[0, later]
-    return out
 
 
 def _checked_pattern(gait_params, pattern, robot=None, whole_body: bool = False) -> NominalPattern:
@@ -669,7 +668,9 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
                                                    .FindLog(context).sample_times()),
         "com_est": handles.loggers["com_est"].FindLog(context).data().T,
-        "one_step_feasible": _per_tick(handles.loggers["one_step_feasible"].FindLog(context), stop_params.servo_period),
+        "one_step_feasible": per_tick(handles.loggers["one_step_feasible"].FindLog(context), stop_params.servo_period),
+        # the measured state's N-step capturability: per tick (steps, -1 for none; margin [m], [m/s]) and summary
+        **monitor_results(handles.capturability, handles.loggers["capturability"], context, plan.signal_time),
         # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
         # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
         "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),
