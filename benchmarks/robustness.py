@@ -16,8 +16,9 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
 * **Ablation** (``--ablation``): the matrix (44 runs) with the defaults, then with each feature of the
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
   braked landing, re-landed footholds, recovery step, capture landing, reference fallback and the feet's
-  force control off; the foothold re-plan on; the re-plan's solves a tick unbounded) and with the plant at a
-  2 ms step: 572 runs, about 5 s of CPU each (about 25 min on 2 workers). Each row: the matrix's passes,
+  force control off; the re-plan's solves a tick unbounded; the foothold re-plan, the whole-body walk, the
+  hip strategy and the crossover step on; one step at most) and with the plant at a 2 ms step: 748
+  runs, about 7 s of CPU each (about 45 min on 2 workers). Each row: the matrix's passes,
   its falls and the cells that fail.
   ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
 
@@ -80,6 +81,7 @@ ABLATION = (
     {"controller": {"whole_body_walk": True}},
     {"controller": {"hip_strategy": True}},
     {"controller": {"max_steps": 1}},
+    {"controller": {"crossover_step": True}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.

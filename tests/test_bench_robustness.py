@@ -98,7 +98,7 @@ def test_the_ablation_covers_every_controller_feature_and_the_2_ms_plant(bench):
     assert {name for fields in controller for name in fields} == features and len(controller) == len(features)
     assert {"plant": {"time_step": 0.002}} in bench.ABLATION
     keys = [bench.change_key(change) for change in bench.ABLATION]
-    assert len(set(keys)) == len(keys) == 16 and keys[0] == "defaults"
+    assert len(set(keys)) == len(keys) == 17 and keys[0] == "defaults"
     assert bench.change_label({"controller": {"max_replan_solves": None}}) == "controller.max_replan_solves: null"
     assert bench.change_settings({"plant": {"time_step": 0.002}})["time_step"] == 0.002
 

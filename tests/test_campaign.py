@@ -325,6 +325,10 @@ def test_the_row_keeps_the_cop_margin_the_criterion_checks():
     assert row["outcome"] == "failure" and row["cop_in_support"] is False
     assert row["cop_margin_min"] == -0.0124
     assert (row["steps"], row["capture_landings"], row["recovery_steps"]) == (2, 1, 0)
+    assert row["sole_off_plan_max"] is None and row["sole_turn_max"] is None  # a summary without them
+    numbers.update(sole_off_plan_max_m=0.019, sole_turn_max_rad=0.05)
+    row = outcome_from_reply({"returncode": 1, "summary": summary, "stderr": "", "exception": None})
+    assert (row["sole_off_plan_max"], row["sole_turn_max"]) == (0.019, 0.05)
 
 
 @pytest.mark.slow

@@ -185,3 +185,23 @@ def test_step_out_gain_numbers_and_bad_input():
                          ({"omega": -1.0}, "omega"), ({"max_width": 0.1}, "max_width")):
         with pytest.raises(ValueError, match=name):
             capture.step_out_gain(**{"separation": 0.19, "step_time": 0.2, "omega": w, **kwargs})
+
+
+def test_a_capture_landing_without_a_braking_limit_swings_at_the_capture_acceleration():
+    """A stop whose swing has no braking limit (``max_swing_acceleration`` inf, the planner's default) still takes
+    the capture landing: its swing is bounded by ``CAPTURE_SWING_ACCELERATION`` (20 m/s^2), the same landing as
+    with that limit given (it raised OverflowError in the reach search before)."""
+    from drake_estop.planning.planner import replan_stop
+    from drake_estop.planning.replan import CAPTURE_SWING_ACCELERATION, capture_swing_acceleration
+
+    landings = []
+    for limit in (math.inf, CAPTURE_SWING_ACCELERATION):
+        params = StopParameters(zmp_margin=0.03, max_swing_acceleration=limit)
+        assert capture_swing_acceleration(params) == CAPTURE_SWING_ACCELERATION
+        plan = plan_stop(NominalPattern(), 2.95, params)
+        pos, vel, _, _ = plan.com([3.1])
+        caught = replan_stop(plan, 3.1, pos[0], vel[0] - np.array([0.0, 0.4]))  # pushed right, the swing's side
+        assert caught.capture_landing
+        landings.append((caught.landing_time, *caught.landing_position))
+    np.testing.assert_allclose(landings[0], landings[1], atol=1e-12)
+    assert capture_swing_acceleration(StopParameters(max_swing_acceleration=30.0)) == 30.0

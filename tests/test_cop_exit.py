@@ -119,3 +119,54 @@ def test_the_report_tables_where_the_upright_runs_left_their_support(tmp_path):
     assert "<tr><td>halt</td><td>2</td><td></td><td>2</td></tr>" in section
     # a table written before these columns reads with them null: no counts
     assert cop_exit_counts(_columns(table.drop_columns(["cop_exit_phase", "cop_exit_edge"]))) == {}
+
+
+def test_sole_deviations_measure_a_loaded_planned_sole_against_the_plan():
+    """The distance and turn of a sole from the plan's foothold count only where the plan stands on it
+    and it carries load: a swing foot's lift, an unloaded sole's slide, are not counted."""
+    from drake_estop.physics.criteria import sole_deviations
+
+    n = 4
+    plan = {"left": np.zeros((n, 3)), "right": np.zeros((n, 3))}
+    plan["right"][1:3, 2] = 0.03  # the right foot swings at ticks 1-2
+    measured = {side: values.copy() for side, values in plan.items()}
+    measured["left"][2, :2] = [0.012, -0.005]  # 13 mm off, loaded
+    measured["left"][3, :2] = [0.050, 0.0]  # 50 mm off, unloaded
+    measured["right"][1, :2] = [0.2, 0.0]  # swinging
+    yaw = {"left": np.array([0.0, 0.0, 0.08, 0.3]), "right": np.array([0.0, 0.5, 0.0, 2 * np.pi - 0.02])}
+    planned_yaw = [{"left": 0.0, "right": 0.0}] * n
+    loaded = {"left": np.array([True, True, True, False]), "right": np.ones(n, bool)}
+    off_plan, turn = sole_deviations(measured, yaw, plan, planned_yaw, loaded)
+    assert off_plan == pytest.approx({"left": 0.013, "right": 0.0})
+    assert turn == pytest.approx({"left": 0.08, "right": 0.02})  # the heading wrapped: 2 pi - 0.02 is 0.02
+    loaded["left"][:] = False
+    assert sole_deviations(measured, yaw, plan, planned_yaw, loaded)[0]["left"] == 0.0
+
+
+def test_the_report_tables_where_the_feet_stood_by_run_class(tmp_path):
+    """The campaign's ``sole_off_plan_max`` / ``sole_turn_max`` columns, their medians per run class and the
+    runs with a sole over 1 cm off; a table without them says so."""
+    from drake_estop.campaign.report import OFF_PLAN, RUN_CLASSES, sole_deviation_counts
+
+    store = ResultStore(tmp_path / "c")
+    store.parts.mkdir(parents=True)
+    runs = [(True, True, 0.002, 0.004), (True, True, 0.004, 0.006), (False, True, 0.019, 0.05),
+            (False, True, 0.030, 0.09), (False, True, 0.008, 0.01), (False, False, 0.04, 0.2)]
+    for i, (success, upright, off, turn) in enumerate(runs):
+        row = guarded_run((fake_run, sample_run(default_config(), run_seed(3, i), i), 1.0))
+        store.write({**row, "error": None, "outcome": "success" if success else "failure", "success": success,
+                     "no_fall": upright, "sole_off_plan_max": off, "sole_turn_max": turn})
+    table = store.read()
+    counts = sole_deviation_counts(_columns(table))
+    assert list(counts) == list(RUN_CLASSES)
+    assert counts["met every criterion"] == pytest.approx(
+        {"runs": 2, "off_plan_median": 0.003, "turn_median": 0.005, "off_plan_runs": 0})
+    assert counts["stayed up, missed a criterion"] == pytest.approx(
+        {"runs": 3, "off_plan_median": 0.019, "turn_median": 0.05, "off_plan_runs": 2})
+    assert counts["fell"]["off_plan_runs"] == 1 and OFF_PLAN == 0.01
+    text = write_report(table, store.folder, manifest={"seed": 3, "config": {}, "sessions": []}).read_text()
+    section = text.split("Where the feet stood")[1].split("<h2>")[0]
+    assert "<tr><td>stayed up, missed a criterion</td><td>3</td><td>19.0</td><td>0.050</td><td>2</td></tr>" in section
+    data = _columns(table)
+    data["sole_off_plan_max"][:] = np.nan  # an older table: the columns empty
+    assert sole_deviation_counts(data) == {}

@@ -58,6 +58,8 @@ def test_paper_stop_meets_every_criterion_online(paper_stop):
     numbers = paper_stop.numbers()
     assert numbers["final_cog_offset_m"] < 0.01
     assert numbers["torso_tilt_max_rad"] < 0.05
+    # unpushed, the loaded soles stand where the plan puts them, headed as it heads them
+    assert numbers["sole_off_plan_max_m"] < 0.005 and numbers["sole_turn_max_rad"] < 0.01
 
 
 def test_online_controller_works_every_tick_and_reports_its_cost(paper_stop):

@@ -73,7 +73,8 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
 CHANGED = {"true_state": True, "foot_compliance": False, "swing_tilt": False, "measured_footholds": False,
            "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "braked_landing": False,
            "reference_fallback": False, "foothold_replan": True, "foot_force_control": False,
-           "max_replan_solves": None, "whole_body_walk": True, "hip_strategy": True, "max_steps": 2}
+           "max_replan_solves": None, "whole_body_walk": True, "hip_strategy": True, "max_steps": 2,
+           "crossover_step": True}
 
 
 def _controller_text(name, value) -> str:

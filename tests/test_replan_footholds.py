@@ -12,6 +12,7 @@ from drake_estop.systems.stop_numerics import (
     SOLE_LIFTED,
     SOLE_RELANDED,
     SOLE_STANDING,
+    foothold_loaded,
     next_sole_stage,
 )
 
@@ -117,9 +118,10 @@ def _feet_at_the_plan(pattern, params, shift, **kwargs):
     return planner, context, simulator, first, t, feet
 
 
-def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landing(pattern, params):
+def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_each_time_it_moves(pattern, params):
     """With the DCM on the plan, a sole measured 1 cm from the plan's foot (more than foothold_tolerance)
-    re-plans the stop on the measured feet; a foot that keeps sliding is not chased."""
+    re-plans the stop on the measured feet (``foothold_replan``); a sole that slides on re-plans again, no
+    sooner than the re-plan interval after the last, and one that stays where the plan stands does not."""
     planner, context, simulator, first, t, feet = _feet_at_the_plan(pattern, params, {"left": (0.0, -0.01)},
                                                                     foothold_replan=True)
     assert planner.replans(context) == (1, 0)
@@ -127,12 +129,19 @@ def test_a_foot_measured_off_the_plan_replans_on_the_measured_feet_once_a_landin
     assert new.start_time == pytest.approx(t) and new.recovery_step is False
     for side in feet:
         np.testing.assert_allclose(new.final_feet[side][:2], feet[side], atol=1e-12)
-    # the foot slides on by another centimetre: that landing's feet were taken once, no second re-plan
+    # standing where the re-plan put it: no re-plan over the next 0.1 s
+    _measure_on_the_plan(planner, context, new, t + 0.1)
+    simulator.AdvanceTo(t + 0.1 - DT / 2)
+    assert planner.replans(context) == (1, 0) and planner.plan(context) is new
+    # the foot slides on by another centimetre: a second re-plan stands on it, at the next tick
     slid = feet["left"] + [0.0, -0.01]
     planner.measured_feet_port.FixValue(context, [*slid, *feet["right"], 40.0, 40.0])
-    _measure_on_the_plan(planner, context, new, t + 0.1)
     simulator.AdvanceTo(t + 0.1 + DT / 2)
-    assert planner.replans(context) == (1, 0)
+    assert planner.replans(context) == (2, 0)
+    again = planner.plan(context)
+    assert again.start_time == pytest.approx(t + 0.1)
+    np.testing.assert_allclose(again.final_feet["left"][:2], slid, atol=1e-12)
+    np.testing.assert_allclose(again.final_feet["right"][:2], feet["right"], atol=1e-12)
 
 
 @pytest.mark.parametrize("shift, kwargs", [
@@ -197,6 +206,17 @@ def test_a_sole_that_relands_on_its_foothold_keeps_the_plan(pattern, params, shi
     planner, context, first, _, _ = _relanding(pattern, params, shift, **kwargs)
     assert planner.replans(context) == (0, 0)
     assert planner.plan(context) is first
+
+
+def test_a_relanded_sole_off_its_foothold_replans_through_the_foothold_replan_once_loaded(pattern, params):
+    """Without ``relanded_footholds`` the foothold re-plan still stands the stop on a sole re-landed 1 cm
+    back, once it has been loaded ``foothold_ticks`` ticks (not on its first loaded tick)."""
+    planner, context, first, moved, t = _relanding(pattern, params, (-0.01, 0.0), relanded_footholds=False,
+                                                   foothold_replan=True)
+    assert planner.replans(context) == (1, 0)
+    new = planner.plan(context)
+    assert new.start_time == pytest.approx(t)
+    np.testing.assert_allclose(new.final_feet["left"][:2], moved, atol=1e-12)
 
 
 @pytest.mark.parametrize("scuff_ticks", [0, 3])
@@ -267,3 +287,9 @@ def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(patter
 def test_a_soles_stage_follows_its_load_and_the_plan(stage, flags, expected):
     flags = {"airborne": False, "loaded": False, "unloaded": False, "off": False, **flags}
     assert next_sole_stage(stage, **flags) == expected
+
+
+def test_a_sole_is_a_foothold_once_loaded_foothold_ticks_ticks():
+    feet = [0.1, 0.1, 0.3, -0.1, 2.0, 1.0]  # left loaded 2 ticks, right 1
+    assert foothold_loaded(feet, "left", 2) and not foothold_loaded(feet, "right", 2)
+    assert foothold_loaded(feet, "right", 1) and not foothold_loaded(feet, "left", 3)

@@ -142,10 +142,10 @@ def test_print_scenario_shows_the_effective_scenario(capsys):
     assert scenario.gait.step_length == 0.25 and scenario.simulation == "physics"
     assert scenario.perturbations.mass_scale == 1.2 and scenario.perturbations.pushes == (Push(3.4, 100.0, 0.0, 0.1),)
     assert scenario.controller == ControllerOptions(swing_tilt=False, max_replan_solves=None, true_state=True)
-    section = text[text.index("\ncontroller:\n"):].split("\n")[2:18]  # every field of the section, by name
+    section = text[text.index("\ncontroller:\n"):].split("\n")[2:19]  # every field of the section, by name
     assert [line.split(":")[0].strip() for line in section] == [
         "kind", "true_state", "foot_compliance", "swing_tilt", "measured_footholds", "relanded_footholds",
-        "recovery_step", "capture_landing", "braked_landing", "reference_fallback", "foothold_replan",
+        "recovery_step", "capture_landing", "crossover_step", "braked_landing", "reference_fallback", "foothold_replan",
         "foot_force_control", "whole_body_walk", "hip_strategy", "max_steps", "max_replan_solves"]
 
 

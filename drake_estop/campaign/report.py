@@ -5,7 +5,8 @@
 * ``success_vs_model_error.png``: success rate over each model error, the friction, latency and noise.
 
 The page also tables where the runs that stayed up let the centre of pressure leave the planned support
-(:func:`cop_exit_counts`: the stop's phase and the loaded sole's edge), and lists each failure's command.
+(:func:`cop_exit_counts`: the stop's phase and the loaded sole's edge), where the feet stood against the
+plan's (:func:`sole_deviation_counts`), and lists each failure's command.
 
 Rates count every run: an error or timeout row is not a success. Error
 bars and the headline interval are 95 % Wilson score intervals.
@@ -210,6 +211,108 @@ def _cop_exit_table(data: dict) -> str:
     return "<table>" + head + "".join(rows) + "</table>"
 
 
+#: The run classes of :func:`sole_deviation_counts`, in the report's order.
+RUN_CLASSES = ("met every criterion", "stayed up, missed a criterion", "fell")
+#: A loaded sole farther than this [m] from the plan's foothold counts as off the plan (:func:`sole_deviation_counts`).
+OFF_PLAN = 0.01
+
+
+def sole_deviation_counts(data: dict) -> dict:
+    """Where the loaded soles stood against the plan's feet, per run class (:data:`RUN_CLASSES`) that has runs:
+    ``{"runs", "off_plan_median" [m], "turn_median" [rad], "off_plan_runs"}`` (runs with a sole over
+    :data:`OFF_PLAN` off), from the ``sole_off_plan_max`` and ``sole_turn_max`` columns (before any fall); empty
+    for a table without them."""
+    if "sole_off_plan_max" not in data or not np.any(np.isfinite(data["sole_off_plan_max"])):
+        return {}
+    fell = data["no_fall"] == 0.0
+    masks = {RUN_CLASSES[0]: data["success"], RUN_CLASSES[1]: ~data["success"] & (data["no_fall"] == 1.0),
+             RUN_CLASSES[2]: fell}
+    counts = {}
+    for name, mask in masks.items():
+        off, turn = data["sole_off_plan_max"][mask], data["sole_turn_max"][mask]
+        measured = np.isfinite(off)
+        if np.any(measured):
+            counts[name] = {"runs": int(np.sum(measured)), "off_plan_median": float(np.median(off[measured])),
+                            "turn_median": float(np.nanmedian(turn[measured])),
+                            "off_plan_runs": int(np.sum(off[measured] > OFF_PLAN))}
+    return counts
+
+
+def _sole_deviation_table(data: dict) -> str:
+    counts = sole_deviation_counts(data)
+    if not counts:
+        return "<p>Not measured (the table predates these columns).</p>"
+    head = (f"<tr><th>runs</th><th>n</th><th>sole off the plan's foothold, median [mm]</th><th>sole turned, "
+            f"median [rad]</th><th>a sole over {OFF_PLAN * 1e3:.0f} mm off</th></tr>")
+    rows = [f"<tr><td>{name}</td><td>{c['runs']}</td><td>{c['off_plan_median'] * 1e3:.1f}</td>"
+            f"<td>{c['turn_median']:.3f}</td><td>{c['off_plan_runs']}</td></tr>" for name, c in counts.items()]
+    return "<table>" + head + "".join(rows) + "</table>"
+
+
+#: How a run's push meets the walk (:func:`push_side`), in the report's order.
+PUSH_SIDES = ("towards the stance foot", "towards the swing foot", "sagittal", "both feet down", "no push")
+
+
+def push_side(pattern, push_time: float, force_x: float, force_y: float) -> str:
+    """How a push of ``(force_x, force_y)`` [N] (world frame; the campaign's walks head along x) starting at
+    ``push_time`` [s] meets the walk ``pattern``: one of :data:`PUSH_SIDES`.
+
+    "both feet down" where the pattern has both feet on the floor at ``push_time`` (double support, or
+    standing); else "sagittal" within 45 deg of the walking axis, and otherwise "towards the stance foot"
+    (the side of the foot standing alone: its sole's outer edge is the ankle's last hold, and only a crossover
+    step lands beyond it) or "towards the swing foot" (the side a capture landing steps to).
+    """
+    if not (math.isfinite(force_x) and math.isfinite(force_y)) or (force_x == 0.0 and force_y == 0.0):
+        return "no push"
+    kind, _, stance = pattern.support_at(push_time)
+    if kind != "single":
+        return "both feet down"
+    if abs(force_y) <= abs(force_x):
+        return "sagittal"
+    return "towards the stance foot" if (force_y > 0.0) == (stance == "left") else "towards the swing foot"
+
+
+def push_sides(data: dict, robot=None) -> np.ndarray:
+    """:func:`push_side` of every run of the report's ``data`` (:func:`_columns`), on the walk each run took:
+    ``robot``'s gait (a description, a name or None: the default humanoid) with the run's step length,
+    time and width. A run without a push time is "no push"."""
+    from drake_estop.planning.gait import NominalPattern
+    from drake_estop.robots import gait_parameters
+    from drake_estop.robots.parameters import as_robot
+
+    description, patterns, sides = as_robot(robot), {}, []
+    for length, period, width, onset, fx, fy in zip(*(data[name] for name in (
+            "step_length", "step_time", "step_width", "push_time", "push_fx", "push_fy"))):
+        if not math.isfinite(onset):
+            sides.append("no push")
+            continue
+        key = (length, period, width)
+        if key not in patterns:
+            patterns[key] = NominalPattern(gait_parameters(description, step_length=length, step_time=period,
+                                                           step_width=width))
+        sides.append(push_side(patterns[key], onset, fx, fy))
+    return np.array(sides, dtype=object)
+
+
+def push_side_counts(data: dict, robot=None) -> dict:
+    """Per :data:`PUSH_SIDES` entry that has runs: ``{"runs", "success", "falls"}`` (counts)."""
+    sides = push_sides(data, robot)
+    fell = data["no_fall"] == 0.0
+    return {side: {"runs": int(np.sum(sides == side)), "success": int(np.sum(data["success"] & (sides == side))),
+                   "falls": int(np.sum(fell & (sides == side)))} for side in PUSH_SIDES if np.any(sides == side)}
+
+
+def _push_side_table(data: dict, robot) -> str:
+    try:
+        counts = push_side_counts(data, robot)
+    except (KeyError, ValueError, OSError) as error:  # a robot this install cannot load, or an older table
+        return f"<p>Not tabled: {html.escape(str(error))}</p>"
+    head = "<tr><th>push</th><th>runs</th><th>met every criterion</th><th>falls</th></tr>"
+    rows = [f"<tr><td>{side}</td><td>{c['runs']}</td><td>{c['success']} ({100 * c['success'] / c['runs']:.0f} %)"
+            f"</td><td>{c['falls']}</td></tr>" for side, c in counts.items()]
+    return "<table>" + head + "".join(rows) + "</table>"
+
+
 def _summary_lines(data: dict) -> list:
     n, wins = len(data["success"]), int(data["success"].sum())
     low, high = wilson(wins, n)
@@ -267,10 +370,19 @@ def write_report(table, folder, *, manifest: dict | None = None) -> Path:
         "<h2>Push recovery map</h2>", *(_image(p) for p in paths[:1] if p.exists()),
         "<h2>Signal phase in the stride</h2>", *(_image(p) for p in paths[1:2] if p.exists()),
         "<h2>Model error</h2>", *(_image(p) for p in paths[2:] if p.exists()),
+        "<h2>Where the push came from</h2>",
+        "<p>Runs by how the push met the walk at its onset (<code>drake_estop.campaign.report.push_side</code>): "
+        "with both feet down, within 45 deg of the walking axis, or sideways towards the foot standing alone "
+        "(beyond its sole's outer edge only a crossover step lands) or towards the swinging one.</p>",
+        _push_side_table(data, (manifest or {}).get("robot")) if len(data["success"]) else "",
         "<h2>Where the CoP left the support</h2>",
         "<p>Runs that did not fall but whose centre of pressure left the planned support, by the stop's phase "
         "and the loaded sole's edge at the least margin (within 1 cm of it or past it; \"inside\": more than "
         "1 cm inside the measured sole, outside the planned one).</p>", _cop_exit_table(data),
+        "<h2>Where the feet stood</h2>",
+        "<p>How far a loaded sole the plan stands on lay from the plan's foothold, and how far it turned from "
+        "the plan's heading, largest over the run (before any fall): a pushed sole on its edge slides and spins, "
+        "and the CoP criterion measures against the plan's feet.</p>", _sole_deviation_table(data),
         "<h2>Failures and how to reproduce them</h2>",
         "<table><tr><th>run</th><th>seed</th><th>phase</th><th>impulse [N s]</th><th>direction [deg]</th>"
         "<th>case</th><th>missed</th><th>reproduce</th></tr>", _failure_rows(table), "</table>",

@@ -40,7 +40,10 @@ REQUIRED_NUMBERS = ("pelvis_z_min", "torso_tilt_max", "final_cog_offset", "cog_t
 _SUMMARY_NUMBERS = {"time_to_rest": "time_to_rest_s", "rest_after_halt": "rest_after_halt_s",
                     "final_cog_offset": "final_cog_offset_m", "cog_travel": "cog_travel_m",
                     "pelvis_z_min": "pelvis_z_min_m", "torso_tilt_max": "torso_tilt_max_rad",
-                    "cop_margin_min": "cop_margin_plan_min_m"}
+                    "cop_margin_min": "cop_margin_plan_min_m", "sole_off_plan_max": "sole_off_plan_max_m",
+                    "sole_turn_max": "sole_turn_max_rad"}
+#: Numbers of :data:`_SUMMARY_NUMBERS` that a summary written before them lacks (their columns stay null).
+_LATER_NUMBERS = ("sole_off_plan_max", "sole_turn_max")
 
 
 class RunTimeout(RuntimeError):
@@ -162,7 +165,8 @@ def outcome_from_reply(reply: dict) -> dict:
         lines = [line for line in reply["stderr"].splitlines() if line.strip()]
         return _error_outcome(f"simulate exited with status {code}: {lines[-1] if lines else 'no message'}")
     numbers = summary["physics"]["numbers"]
-    values = {name: numbers[key] for name, key in _SUMMARY_NUMBERS.items()}
+    values = {name: numbers.get(key) if name in _LATER_NUMBERS else numbers[key]
+              for name, key in _SUMMARY_NUMBERS.items()}
     slips = (numbers["slip_left_m"], numbers["slip_right_m"])
     values["slip_max"] = None if None in slips else max(slips)
     missing = [name for name in REQUIRED_NUMBERS if values[name] is None]

@@ -43,7 +43,7 @@ _PARAMETERS = [
 ]
 #: The key numbers of a run (from its ``simulate --summary``), SI units.
 NUMBERS = ("time_to_rest", "rest_after_halt", "final_cog_offset", "cog_travel", "pelvis_z_min", "torso_tilt_max",
-           "slip_max", "cop_margin_min")
+           "slip_max", "cop_margin_min", "sole_off_plan_max", "sole_turn_max")
 _OUTCOME = [
     ("outcome", pa.string()), ("error", pa.string()), ("success", pa.bool_()), ("case", pa.string()),
     ("support", pa.string()), *((name, pa.bool_()) for name in CRITERIA), *((n, pa.float64()) for n in NUMBERS),

@@ -90,6 +90,11 @@ class PhysicsResult:
     online: dict | None = None
     #: side -> (n,) measured sole yaw [rad] (None: level, unturned soles)
     feet_yaw_meas: dict | None = None
+    #: side -> the farthest a loaded sole the plan stands on lay from the plan's foothold before any fall [m]
+    #: (:func:`sole_deviations`; empty: not measured)
+    sole_off_plan: dict = field(default_factory=dict)
+    #: side -> the most such a sole turned from the plan's heading before any fall [rad] (empty: not measured)
+    sole_turn: dict = field(default_factory=dict)
 
     @property
     def realtime_factor(self) -> float:
@@ -139,6 +144,10 @@ class PhysicsResult:
             "cop_margin_plan_min_m": float(np.nanmin(self.cop_margin_plan)),
             "cop_margin_meas_min_m": float(np.nanmin(self.cop_margin_meas)),
             "cog_travel_m": self.cog_travel,
+            # where the feet stand against the plan's: a pushed sole on its edge slides and spins, and the
+            # CoP criterion measures against the plan's feet
+            "sole_off_plan_max_m": max(self.sole_off_plan.values(), default=float("nan")),
+            "sole_turn_max_rad": max(self.sole_turn.values(), default=float("nan")),
             # time the CoP spends on the edge of the contact corners (a foot rolling on an edge):
             # the corner spheres sit SOLE_CONTACT_INSET inside the sole rectangle
             "cop_edge_time_s": float(np.sum(self.cop_margin_meas < SOLE_CONTACT_INSET + 5e-4)
@@ -173,6 +182,23 @@ def sole_edge(local_xy, side: str, sole, band: float = EDGE_BAND) -> str:
 def _sole_local(point, ankle, yaw: float) -> np.ndarray:
     """``point`` (x, y) in the frame of a sole at ``ankle`` (x, y) turned by ``yaw`` [rad]."""
     return rotation(yaw).T @ (np.asarray(point, float) - np.asarray(ankle, float))
+
+
+def sole_deviations(feet_meas: dict, feet_yaw: dict, feet_plan: dict, planned_yaw: list, loaded: dict):
+    """How far each sole stood off the plan: ``({side: metres}, {side: radians})``, the largest distance
+    (xy) of the measured sole from the plan's foothold and the largest turn from the plan's heading, over
+    the ticks where the plan stands on it (planned lift 0) and it is ``loaded`` (side -> (n,) bools).
+    ``feet_meas`` / ``feet_plan``: side -> (n, 3) [m]; ``feet_yaw``: side -> (n,) [rad]; ``planned_yaw``:
+    per tick ``{side: yaw}`` [rad]. 0 for a side never standing loaded."""
+    off_plan, turn = {}, {}
+    for side in SIDES:
+        standing = (feet_plan[side][:, 2] <= 1e-9) & loaded[side]
+        yaw_plan = np.array([yaws[side] for yaws in planned_yaw])
+        distance = np.linalg.norm(feet_meas[side][:, :2] - feet_plan[side][:, :2], axis=1)
+        heading = np.abs(np.angle(np.exp(1j * (feet_yaw[side] - yaw_plan))))
+        off_plan[side] = float(distance[standing].max()) if np.any(standing) else 0.0
+        turn[side] = float(heading[standing].max()) if np.any(standing) else 0.0
+    return off_plan, turn
 
 
 def _planned_support(plan: StopPlan, t: float):
@@ -239,6 +265,10 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
             travel = np.linalg.norm(feet_meas[side][a:b, :2] - feet_meas[side][a, :2], axis=1)
             worst = max(worst, float(travel.max()))
         slip[side] = worst
+    # until a fall (the torso past its tilt limit): the feet of a fallen robot say nothing of the stop
+    upright = np.cumprod(tilt < physics.max_torso_tilt).astype(bool)
+    off_plan, turn = sole_deviations(feet_meas, feet_yaw, feet_plan, planned_yaw,
+                                     {side: in_contact[side] & upright for side in SIDES})
     sole = plan.pattern.params.sole
     planned_support = [_planned_support(plan, float(t)) for t in times]
     margin_plan = np.full(n, np.nan)
@@ -284,7 +314,7 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
         plan=plan, times=times, cop_x=cop[:, 0], cop_y=cop[:, 1], normal_force=normal,
         foot_forces=foot_forces, pelvis_z=pelvis_z, com_meas_x=com[:, 0], com_meas_y=com[:, 1],
         com_meas_z=com[:, 2], com_meas_speed=speed, com_plan=com_plan, zmp_plan=zmp_plan,
-        torso_tilt=tilt, feet_meas=feet_meas, feet_plan=feet_plan, slip=slip,
+        torso_tilt=tilt, feet_meas=feet_meas, feet_plan=feet_plan, slip=slip, sole_off_plan=off_plan, sole_turn=turn,
         cop_margin_plan=margin_plan, cop_margin_meas=margin_meas,
         time_to_rest=rest_time - plan.signal_time, rest_time=rest_time, final_offset=final_offset,
         final_offset_plan=float(np.linalg.norm(com[-1, :2] - mid_plan)), cog_travel=travel,

@@ -43,8 +43,9 @@ leaving the foot to its touchdown (0.18 s from a 0.15 m stance): the controller'
 shortest ZMP transition and landing are 0.1 s each, so a second lateral step
 catches nothing one landing does not. A push towards the support foot is the
 same: the swing foot lands on the inner side, then the support foot would have
-to step out. What catches those is a crossover step or the upper body's
-angular momentum, neither of which the stop plans. Measured, 29 N s to the left
+to step out. What catches those is a crossover step (an option,
+:func:`drake_estop.planning.crossover.crossover_stop`: the default humanoid's legs allow none) or the upper
+body's angular momentum. Measured, 29 N s to the left
 at 2.95 s: the CoP reaches the support sole's outer edge within 50 ms and stays
 there while the body rolls over that edge (0.1 rad by 3.3 s), which the LIPM's
 DCM (0.12 m, inside the 0.176 m edge, at 3.05 s) does not show.
@@ -82,6 +83,8 @@ def capture_landing_y(pattern: NominalPattern, state: PatternState, landing_dura
     nominal_y = float(pattern.steps[state.step_index]["end"][1])  # the walk's own footstep, not a re-plan's
     support_y = float(state.feet[state.support_foot][1])
     side = math.copysign(1.0, nominal_y - support_y)  # the swing foot's side
+    if side * (float(state.next_landing[1]) - support_y) < 0:
+        return None  # a crossover step's landing (crossover.crossover_stop) is placed already
     width = side * (nominal_y + shift - support_y)
     return support_y + side * min(max(width, min_width), max_width)
 

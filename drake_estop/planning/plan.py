@@ -361,6 +361,7 @@ class StopPlan:
     # (replan.capture_step), which the controller takes there (re-planned from the measured state first)
     next_step: StopPlan | None = None
     capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.replan_stop)
+    crossover: bool = False  # a re-plan's landing across the support foot (crossover.crossover_stop)
     braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -394,6 +395,8 @@ class StopPlan:
         or ``"stop landing"`` (the paper's)."""
         if self.landing_foot is None:
             return None
+        if self.crossover:
+            return "crossover step"
         return "recovery step" if self.recovery_step else "capture landing" if self.capture_landing else "stop landing"
 
     # -- evaluation -----------------------------------------------------
@@ -475,12 +478,12 @@ class StopPlan:
         s = self.swing_start  # the key holds the values (not the objects' ids, which a new object may reuse)
         key = (self.start_time, self.landing_time, *np.ravel(self.landing_position), *np.ravel(s["pos"]),
                *np.ravel(s["vel"]), *np.ravel(s["acc"]), s.get("clearance"), self._approach_slope,
-               self.params.landing_approach_height, self.pattern.params.lift_height)
+               self.params.landing_approach_height, self.pattern.params.lift_height, s.get("cross_delay"))
         if self._swing_cache is None or self._swing_cache[0] != key:
             self._swing_cache = key, landing_swing_polynomials(
                 s["pos"], s["vel"], s["acc"], self.landing_position, self.landing_time - self.start_time,
                 self.pattern.params.lift_height, s.get("clearance"), self._approach_slope,
-                self.params.landing_approach_height)
+                self.params.landing_approach_height, s.get("cross_delay"))
         return self._swing_cache[1]
 
     def feet_yaw(self, t: float):
@@ -621,15 +624,21 @@ _BUMP_ON_APPROACH = lipm.poly_eval(_BUMP, _APPROACH_GRID)
 
 
 def landing_swing_polynomials(pos, vel, acc, target_xy, duration, lift_height, clearance=None,
-                              approach_slope=0.0, approach_height=0.01) -> list:
+                              approach_slope=0.0, approach_height=0.01, cross_delay=None) -> list:
     """The x, y and lift polynomials of :func:`landing_swing` in the normalised time ``s`` in [0, 1]
-    (coefficients, lowest order first)."""
+    (coefficients, lowest order first). ``cross_delay`` (a crossover step's,
+    :func:`drake_estop.planning.crossover.crossover_delay`) moves the foot across later: the lateral shape
+    ``LATE_LATERAL[cross_delay]`` instead of the quintic's."""
     target = np.array([target_xy[0], target_xy[1], 0.0])
     unit = [
         np.eye(6)[0] * pos[i] + (target[i] - pos[i]) * lipm.SMOOTHSTEP
         + vel[i] * duration * lipm.HERMITE_D1 + acc[i] * duration**2 * lipm.HERMITE_D2
         for i in range(3)
     ]
+    if cross_delay is not None:
+        from drake_estop.planning.crossover import LATE_LATERAL
+        shape = LATE_LATERAL[cross_delay]
+        unit[1] = lipm.pad(unit[1] - (target[1] - pos[1]) * lipm.SMOOTHSTEP, len(shape)) + (target[1] - pos[1]) * shape
     lowest = float(np.min(lipm.poly_eval(unit[2], SWING_GRID)))
     leaving = pos[2] < 0.5 * lift_height and vel[2] >= -1e-9
     apex = max(0.0, min(lift_height, 0.5 * lift_height - lowest)) if leaving else max(0.0, -lowest)

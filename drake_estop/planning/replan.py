@@ -102,7 +102,8 @@ def _capture_only(plan: StopPlan, t: float) -> bool:
 
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
-                capture_landing: bool = True, first_try: int = 0, max_solves: int | None = None) -> StopPlan | None:
+                capture_landing: bool = True, first_try: int = 0, max_solves: int | None = None,
+                crossover: bool = False) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and
@@ -160,6 +161,11 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     followed by a recovery step of the old support foot (N-step capture, :func:`capture_step`: the plan
     lands once, and its :attr:`~drake_estop.planning.plan.StopPlan.next_step` is the second step).
 
+    **Crossover step** (``crossover=True``; before the landing only; default off). Where the lateral DCM
+    lies at the support sole's outer bound (a push towards the foot standing alone), the single-support
+    re-plan first tries a landing beyond the support foot, in front of its leg, where the legs' geometry
+    allows (:func:`drake_estop.planning.crossover.crossover_stop`); else the tries below as usual.
+
     **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to five solves in
     single support, two in double support) run in order until one gives a
     stop. ``max_solves`` (None: no bound) caps the solves of this call: when
@@ -193,6 +199,15 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     failure = InfeasibleStop(f"re-plan at t={t:.3f} s: the {support}-support tries before "
                              f"{tries[first_try]!r} found no stop on earlier ticks") if first_try else None
     ankle, solves = None, 0
+    if crossover and support == "single":  # before the ankle strategy and the capture landing: the DCM is past them
+        from drake_estop.planning.crossover import crossover_stop  # (it plans with this module's helpers)
+        try:
+            found = crossover_stop(start, com_xy, com_vel_xy)
+        except InfeasibleStop as error:
+            failure, solves = error, 1
+        else:
+            if found is not None:
+                return found
     for index in range(first_try, len(tries)):
         name, stance_zmp = tries[index], None
         if name == "recovery step" and not recovery_step:
@@ -375,13 +390,12 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
       rule's (:func:`~drake_estop.planning.capture.capture_landing_y`).
 
     None where the plan has no landing ahead, neither the lateral DCM passes the widest landing ankle
-    nor the sagittal DCM the farthest one before the plan's touchdown (a push towards the support foot:
-    that needs a crossover step, which this does not plan), or no landing sooner than the plan's reaches
-    :data:`CAPTURE_LANDING_SPAN` of landing points.
+    nor the sagittal DCM the farthest one before the plan's touchdown (a push towards the support foot
+    needs a crossover step: :func:`drake_estop.planning.crossover.crossover_stop`), or no landing sooner
+    than the plan's reaches :data:`CAPTURE_LANDING_SPAN` of landing points.
     """
     plan, changes = start.plan, start.changes
-    params = replace(start.params, zmp_margin=min(start.params.zmp_margin, RECOVERY_ZMP_MARGIN),
-                     max_swing_descent_speed=max(start.params.max_swing_descent_speed, CAPTURE_DESCENT_SPEED))
+    params = capture_parameters(start.params)
     swing = plan.landing_foot
     if swing is None or start.double:
         return None
@@ -415,15 +429,11 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     else:
         across = widest
         zmp_local = np.array([held[0], edge_zmp])
-    # no sooner than the swing's descent and the planner's shortest landing (the braked landing's own
-    # bound, to the plan's far landing point, is what this try replaces)
-    soonest = max(min(params.min_landing_time, _SHORTEST_LANDING),
-                  descent_time(float(changes["feet"][swing][2]), params, float(changes["feet_vel"][swing][2]),
-                               float(changes["feet_acc"][swing][2])))
-    landing = max(math.floor(deadline / dt + 1e-9) * dt, snap_to_tick(soonest, dt))
+    soonest = snap_to_tick(soonest_capture_landing(params, changes, swing), dt)
+    landing = max(math.floor(deadline / dt + 1e-9) * dt, soonest)
     latest = plan.landing_time - float(changes["time"]) - dt
     swing_vel, swing_acc = (turn.T @ changes[key][swing][:2] for key in ("feet_vel", "feet_acc"))
-    acceleration = max(params.max_swing_acceleration, CAPTURE_SWING_ACCELERATION)
+    acceleration = capture_swing_acceleration(params)
     reach = None
     while landing <= latest + 1e-9:  # later where the swing cannot brake onto enough landings by then
         reach = swing_reach(swing_local, swing_vel, swing_acc, across, landing, acceleration)
@@ -449,6 +459,31 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     state = replace(plan.start_state, **dict(changes, zmp=ankle + turn @ zmp_local, zmp_rate=np.zeros(2),
                                              zmp_accel=np.zeros(2), next_landing=landing_xy))
     return state, limits, params
+
+
+def capture_parameters(params: StopParameters) -> StopParameters:
+    """``params`` for a hurried landing (the capture landing, the crossover step): a ZMP margin of at most
+    :data:`RECOVERY_ZMP_MARGIN`, the swing coming down at :data:`CAPTURE_DESCENT_SPEED` at least."""
+    return replace(params, zmp_margin=min(params.zmp_margin, RECOVERY_ZMP_MARGIN),
+                   max_swing_descent_speed=max(params.max_swing_descent_speed, CAPTURE_DESCENT_SPEED))
+
+
+def soonest_capture_landing(params: StopParameters, changes: dict, swing: str) -> float:
+    """The soonest a hurried landing of the ``swing`` foot may touch down [s from ``changes["time"]``]: after
+    its descent (:func:`~drake_estop.planning.problems.descent_time`, from its height, rate and acceleration in
+    ``changes``, a re-plan start's) and the planner's shortest landing (the braked landing's own bound, to the
+    plan's far landing point, is what a hurried landing replaces)."""
+    feet, rates, accelerations = (changes[key] for key in ("feet", "feet_vel", "feet_acc"))
+    return max(min(params.min_landing_time, _SHORTEST_LANDING),
+               descent_time(float(feet[swing][2]), params, float(rates[swing][2]), float(accelerations[swing][2])))
+
+
+def capture_swing_acceleration(params: StopParameters) -> float:
+    """The largest horizontal acceleration [m/s^2] of a hurried landing's swing: the stop's braking limit, at
+    least :data:`CAPTURE_SWING_ACCELERATION`; that where the stop sets none (``inf``: :func:`swing_reach`
+    needs a finite one)."""
+    acceleration = max(params.max_swing_acceleration, CAPTURE_SWING_ACCELERATION)
+    return acceleration if math.isfinite(acceleration) else CAPTURE_SWING_ACCELERATION
 
 
 def _capture_deadline(dcm: float, zmp: float, edge: float, beyond: float, remaining: float, omega: float):

@@ -23,10 +23,10 @@ class PlanHandle:
     """
 
     __slots__ = ("plan", "wall_time", "replans", "replan_failures", "max_wall_time", "blend", "history",
-                 "last_try", "footholds_of", "pending", "latch_fallback")
+                 "last_try", "pending", "latch_fallback")
 
     def __init__(self, plan=None, wall_time=float("nan"), replans=0, replan_failures=0, max_wall_time=None,
-                 blend=None, history=None, last_try=-math.inf, footholds_of=None, pending=None, latch_fallback=None):
+                 blend=None, history=None, last_try=-math.inf, pending=None, latch_fallback=None):
         self.plan = plan
         # why the latch planned from the reference although the measured state had left it (the
         # InfeasibleStop message of the plan from the measured state), or None
@@ -34,8 +34,6 @@ class PlanHandle:
         self.last_try = last_try  # time of the last re-plan attempt's first tick
         # (support, next_try) of a re-plan whose tries go on next tick (planner.ReplanPending), or None
         self.pending = pending
-        # the landing (the plan of history that made it) whose measured footholds a re-plan has tried
-        self.footholds_of = footholds_of
         self.history = history if history is not None else ((plan,) if plan is not None else ())
         self.blend = blend  # (start, dp (2), dv (2), duration[, dfeet (2, 3)]): reference.blended_reference
         self.wall_time = wall_time

@@ -72,6 +72,12 @@ def off_foothold(xy, planned, tolerance: float) -> bool:
     return bool(np.hypot(xy[0] - planned[0], xy[1] - planned[1]) > tolerance)
 
 
+def foothold_loaded(feet, side: str, foothold_ticks: int) -> bool:
+    """Whether ``side``'s sole of the estimated ``feet`` (``[x_l, y_l, x_r, y_r, ticks_l, ticks_r]``) has been
+    loaded ``foothold_ticks`` ticks: where it stands is a foothold (one in the air, or just down, is not yet)."""
+    return bool(feet[4 + SIDES.index(side)] >= foothold_ticks)
+
+
 def next_sole_stage(stage: float, *, airborne: bool, loaded: bool, unloaded: bool, off: bool) -> float:
     """A sole's stage (``SOLE_*``) after one tick.
 
@@ -105,7 +111,8 @@ def relanded_soles(stages, feet, planned, foothold_ticks: int, tolerance: float)
     relanded, fresh = {}, False
     for k, side in enumerate(SIDES):
         xy = np.array(feet[2 * k:2 * k + 2], dtype=float)
-        stage = next_sole_stage(stages[k], airborne=planned[side][2] > 1e-9, loaded=feet[4 + k] >= foothold_ticks,
+        stage = next_sole_stage(stages[k], airborne=planned[side][2] > 1e-9,
+                                loaded=foothold_loaded(feet, side, foothold_ticks),
                                 unloaded=feet[4 + k] == 0.0, off=off_foothold(xy, planned[side], tolerance))
         fresh = fresh or (stages[k] == SOLE_LIFTED and stage == SOLE_RELANDED)
         stages[k] = stage
