@@ -329,6 +329,10 @@ def test_the_row_keeps_the_cop_margin_the_criterion_checks():
     numbers.update(sole_off_plan_max_m=0.019, sole_turn_max_rad=0.05)
     row = outcome_from_reply({"returncode": 1, "summary": summary, "stderr": "", "exception": None})
     assert (row["sole_off_plan_max"], row["sole_turn_max"]) == (0.019, 0.05)
+    assert (row["capture_steps"], row["capture_margin"]) == (None, None)  # a summary without the verdict
+    summary["capturability"] = {"steps": -1, "margin": -0.031, "margin_speed": -0.108, "witness": [], "worst": None}
+    row = outcome_from_reply({"returncode": 1, "summary": summary, "stderr": "", "exception": None})
+    assert (row["capture_steps"], row["capture_margin"]) == (-1, -0.031)
 
 
 @pytest.mark.slow
@@ -487,3 +491,24 @@ def test_the_report_counts_the_runs_that_took_a_capture_landing_or_a_recovery_st
     text = write_report(store.read(), store.folder, manifest={"seed": 5, "config": {}, "sessions": []}).read_text()
     assert "runs with a capture landing: 2, of which 1 met every criterion" in text
     assert "recovery step" not in text
+
+
+def test_the_report_splits_success_by_capturability(tmp_path):
+    from drake_estop.campaign.report import _columns, capturability_counts, write_report
+
+    store = ResultStore(tmp_path / "c")
+    rows = [guarded_run((fake_run, sample_run(default_config(), run_seed(6, i), i), 1.0)) for i in range(5)]
+    store.parts.mkdir(parents=True)
+    steps = [0, 1, -1, -1, None]  # the last: a run without the verdict, counted in neither class
+    for i, row in enumerate(rows):  # runs 0 and 2 succeed; run 3 falls
+        store.write({**row, "error": None, "outcome": "success" if i in (0, 2) else "failure",
+                     "success": i in (0, 2), "no_fall": i != 3, "capture_steps": steps[i],
+                     "capture_margin": None if steps[i] is None else 0.01 * (steps[i] or 1)})
+    counts = capturability_counts(_columns(store.read()))
+    assert counts == {"capturable": {"runs": 2, "success": 1, "falls": 0},
+                      "not capturable": {"runs": 2, "success": 1, "falls": 1}}
+    text = write_report(store.read(), store.folder, manifest={"seed": 6, "config": {}, "sessions": []}).read_text()
+    line = "not capturable at the signal or the push's end (N <= 3 steps): 2 runs, 1 met every criterion (50 %), 1 fell"
+    assert line in text
+    assert capturability_counts(_columns(store.read().drop(["capture_steps"]))) == {}
+

@@ -102,6 +102,10 @@ def plot_push_map(data: dict, path, *, sectors: int = 12, impulse_step: float = 
     mesh = ax.pcolormesh(theta_edges, r_edges, rate.T, cmap="RdYlGn", vmin=0, vmax=1, shading="flat")
     ax.scatter(direction[success], impulse[success], s=6, c="k", marker="o", label="success", alpha=0.6)
     ax.scatter(direction[~success], impulse[~success], s=10, c="k", marker="x", label="failure", alpha=0.6)
+    beyond = _not_capturable(data)
+    if beyond.any():  # the pushes no controller catches in three steps (the capturability verdict)
+        ax.scatter(direction[beyond], impulse[beyond], s=40, facecolors="none", edgecolors="b", linewidths=0.8,
+                   label="not capturable (N <= 3)")
     ax.set_xticks(np.radians([0, 90, 180, 270]), ["forward", "left", "backward", "right"])
     ax.set_rlabel_position(112)
     ax.set_title(f"Push recovery: success rate per {360 / sectors:g} deg sector and {impulse_step:g} N s ring\n"
@@ -313,6 +317,24 @@ def _push_side_table(data: dict, robot) -> str:
     return "<table>" + head + "".join(rows) + "</table>"
 
 
+def _not_capturable(data: dict) -> np.ndarray:
+    """Runs whose measured state no N <= 3 steps captured (``capture_steps`` -1; null counts as capturable)."""
+    return data.get("capture_steps", np.full(len(data["success"]), np.nan)) == -1.0
+
+
+def capturability_counts(data: dict) -> dict:
+    """Success among the runs the capturability verdict says can be caught (``capture_steps`` >= 0) and among
+    those it says cannot: ``{"capturable" | "not capturable": {"runs", "success", "falls"}}`` (classes with
+    runs); empty for a table without the column."""
+    steps = data.get("capture_steps")
+    if steps is None or not np.any(np.isfinite(steps)):
+        return {}
+    fell = data["no_fall"] == 0.0
+    masks = {"capturable": steps >= 0.0, "not capturable": steps == -1.0}
+    return {name: {"runs": int(mask.sum()), "success": int(data["success"][mask].sum()),
+                   "falls": int(fell[mask].sum())} for name, mask in masks.items() if mask.any()}
+
+
 def _summary_lines(data: dict) -> list:
     n, wins = len(data["success"]), int(data["success"].sum())
     low, high = wilson(wins, n)
@@ -334,6 +356,9 @@ def _summary_lines(data: dict) -> list:
         if took.any():
             lines.append(f"runs with {label}: {int(took.sum())}, of which {int(data['success'][took].sum())} "
                          "met every criterion")
+    for name, c in capturability_counts(data).items():
+        lines.append(f"{name} at the signal or the push's end (N <= 3 steps): {c['runs']} runs, {c['success']} "
+                     f"met every criterion ({100 * c['success'] / c['runs']:.0f} %), {c['falls']} fell")
     wall = data["wall_time"][np.isfinite(data["wall_time"])]
     if len(wall):
         lines.append(f"wall time per run: median {np.median(wall):.1f} s, max {np.max(wall):.1f} s")

@@ -185,6 +185,7 @@ def outcome_from_reply(reply: dict) -> dict:
         "recovery_steps": summary.get("recovery_steps", 0),
         "joint_velocity_violations": summary["joint_velocity_violations"],
         **_cop_exit_columns(summary["physics"].get("cop_exit")),
+        **_capture_columns(summary.get("capturability")),
         "tick_p99": summary["tick_compute"]["p99"], "realtime_factor": numbers["realtime_factor"],
     }
 
@@ -194,6 +195,13 @@ def _cop_exit_columns(cop_exit: dict | None) -> dict:
     if cop_exit is None:
         return {"cop_exit_phase": None, "cop_exit_edge": None}
     return {"cop_exit_phase": cop_exit["phase"], "cop_exit_edge": cop_exit["edge"]}
+
+
+def _capture_columns(capturability: dict | None) -> dict:
+    """``capture_steps`` and ``capture_margin`` of a summary's ``capturability`` (null: a summary without it)."""
+    if capturability is None or capturability["steps"] is None:
+        return {"capture_steps": None, "capture_margin": None}
+    return {"capture_steps": capturability["steps"], "capture_margin": capturability["margin"]}
 
 
 def simulate_run(params: RunParameters, timeout: float) -> dict:

@@ -49,6 +49,9 @@ _OUTCOME = [
     ("support", pa.string()), *((name, pa.bool_()) for name in CRITERIA), *((n, pa.float64()) for n in NUMBERS),
     ("replans", pa.int64()), ("replan_failures", pa.int64()), ("steps", pa.int64()), ("capture_landings", pa.int64()),
     ("recovery_steps", pa.int64()), ("joint_velocity_violations", pa.int64()),
+    # the measured state's N-step capturability at the later of the signal and the push's end
+    # (drake_estop.planning.capturability): the least steps (-1: none of N <= 3) and the margin [m]
+    ("capture_steps", pa.int64()), ("capture_margin", pa.float64()),
     # where the CoP left the planned support (null where it did not): the stop's phase and the sole's edge
     ("cop_exit_phase", pa.string()), ("cop_exit_edge", pa.string()),
     ("tick_p99", pa.float64()), ("realtime_factor", pa.float64()), ("wall_time", pa.float64()),
