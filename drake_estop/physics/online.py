@@ -422,7 +422,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     monitor = add_capturability_monitor(
         builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
         limits=SteppingLimits.from_parameters(stop_params, pattern.params.sole),
-        report_time=report_time(estop_time, perturbations.pushes))
+        report_time=report_time(estop_time, perturbations.pushes), timer=timer)
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))

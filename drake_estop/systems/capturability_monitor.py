@@ -29,7 +29,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_estop.planning.capturability import SteppingLimits, capturability, swing_touchdown_time
 from drake_estop.planning.plan import StopParameters
-from drake_estop.timing import per_tick
+from drake_estop.timing import per_tick, timed
 
 SIDES = ("left", "right")
 #: The output's entries.
@@ -51,10 +51,13 @@ class CapturabilityMonitor(LeafSystem):
         The soles' heading [rad] (the walks the controller takes head along x).
     report_time : float
         The time [s] from which the first tick's whole verdict is kept (:meth:`reported`; inf: none).
+    timer : TickTimer, optional
+        Times each tick's update (:func:`drake_estop.timing.timed`): the verdict's cost shows beside the
+        controller's blocks.
     """
 
     def __init__(self, *, omega: float, limits: SteppingLimits, params: StopParameters, heading: float = 0.0,
-                 report_time: float = float("inf")):
+                 report_time: float = float("inf"), timer=None):
         super().__init__()
         self._omega, self._limits, self._params, self._heading = float(omega), limits, params, float(heading)
         self._report_time = float(report_time)
@@ -67,7 +70,7 @@ class CapturabilityMonitor(LeafSystem):
         self._state = self.DeclareDiscreteState(BasicVector([0.0, 0.0, 0.0, 0.0, 0.0]))
         self._reported = self.DeclareAbstractState(AbstractValue.Make(None))  # the report tick's verdict
         # unrestricted: the report tick sets the abstract state too (the state is a few numbers to copy)
-        self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(params.servo_period, 0.0, timed(self._update, timer))
         self.capturability_port = self.DeclareVectorOutputPort(
             "capturability", len(FIELDS),
             lambda context, output: output.SetFromVector(context.get_discrete_state(self._state).get_value()[:3]),
@@ -116,12 +119,12 @@ class CapturabilityMonitor(LeafSystem):
 
 
 def add_capturability_monitor(builder, *, estimator, reference, omega: float, limits: SteppingLimits,
-                              params: StopParameters, report_time: float = float("inf"),
+                              params: StopParameters, report_time: float = float("inf"), timer=None,
                               name: str = "capturability_monitor") -> CapturabilityMonitor:
     """Add a :class:`CapturabilityMonitor` fed by ``estimator`` (its ``com``, ``com_vel`` and ``feet``
     outputs) and ``reference`` (its ``left_foot`` / ``right_foot``: the commanded soles)."""
     monitor = builder.AddNamedSystem(name, CapturabilityMonitor(omega=omega, limits=limits, params=params,
-                                                                report_time=report_time))
+                                                                report_time=report_time, timer=timer))
     builder.Connect(estimator.com_port, monitor.measured_com_port)
     builder.Connect(estimator.com_vel_port, monitor.measured_com_vel_port)
     builder.Connect(estimator.feet_port, monitor.measured_feet_port)
