@@ -1,6 +1,7 @@
 """N-step capturability (drake_estop.planning.capturability): Koolen's closed forms, the lateral numbers
 worked by hand for the default humanoid, symmetry, the boundary, bad input and the unpushed stride."""
 
+import json
 import math
 from dataclasses import replace
 
@@ -121,6 +122,9 @@ def test_witness_captures_the_state():
     box = limits.cop_box(last.side)
     local = dcm - np.array(last.landing)
     assert np.all(local >= box[:, 0] - 1e-9) and np.all(local <= box[:, 1] + 1e-9)
+    as_json = json.loads(json.dumps(verdict.as_dict()))  # the summary's form
+    assert as_json["steps"] == 2 and [w["region"] for w in as_json["witness"]] == [s.region for s in verdict.witness]
+    assert as_json["witness"][-1]["landing"] == pytest.approx(list(last.landing))
 
 
 def test_swing_reach_bounds_the_first_landing():

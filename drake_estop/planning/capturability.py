@@ -73,8 +73,6 @@ from drake_estop.planning.gait import Sole
 MAX_STEPS = 3
 #: Step times searched per step, evenly in exp(-omega T) from the shortest to the longest.
 TIME_SAMPLES = 5
-#: Region names, in the order the witness reports them.
-REGIONS = ("nominal", "crossover ahead", "crossover behind")
 
 
 @dataclass(frozen=True)
@@ -178,10 +176,10 @@ class Capturability:
         return self.steps >= 0
 
     def as_dict(self) -> dict:
-        """JSON-ready: ``{steps, margin, margin_speed, witness: [{side, region, landing, time}]}``."""
+        """JSON-ready: ``{steps, margin, margin_speed, witness: [{side, region, landing, time, cop}]}``."""
         return {"steps": self.steps, "margin": self.margin, "margin_speed": self.margin_speed,
-                "witness": [{"side": s.side, "region": s.region, "landing": list(s.landing), "time": s.time}
-                            for s in self.witness]}
+                "witness": [{"side": s.side, "region": s.region, "landing": [float(v) for v in s.landing],
+                             "time": s.time, "cop": [float(v) for v in s.cop]} for s in self.witness]}
 
 
 def _other(side: str) -> str:
@@ -391,7 +389,7 @@ def state_capturability(state, *, omega: float, limits: SteppingLimits, params) 
     dcm = np.asarray(state.com, dtype=float) + np.asarray(state.com_vel, dtype=float) / omega
     if state.support == "single":
         stance, swing = state.support_foot, _other(state.support_foot)
-        first = swing_touchdown_time(params, *(float(state.__dict__[key][swing][2])
+        first = swing_touchdown_time(params, *(float(getattr(state, key)[swing][2])
                                                for key in ("feet", "feet_vel", "feet_acc")))
         other, swing_foot = None, np.asarray(state.feet[swing][:2], dtype=float)
     else:
