@@ -1,6 +1,7 @@
 """What each robot can catch: the largest impulsive push speed that leaves its walk N-step capturable
-(N <= 3; drake_estop.planning.capturability), by direction and moment of the stride, with and without
-crossover steps. The LIPM's bound on what any controller can catch, not a simulation.
+(N <= 3; drake_estop.planning.capturability), by direction and moment of the stride, with crossover steps as
+far as the robot's legs allow (what the online verdict uses), as far as the soles alone allow, and without.
+The LIPM's bound on what any controller can catch, not a simulation.
 
     python benchmarks/capturability_table.py [--robots default g1 talos] [--out benchmarks/CAPTURABILITY.md]
 
@@ -20,13 +21,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from drake_estop.planning.capturability import SteppingLimits, largest_push_speed, state_capturability
+from drake_estop.planning.capturability import largest_push_speed, state_capturability
 from drake_estop.planning.gait import NominalPattern
-from drake_estop.robots import gait_parameters, stop_parameters
-from drake_estop.robots.parameters import as_robot, leg_scale
+from drake_estop.robots import gait_parameters, stepping_limits, stop_parameters
+from drake_estop.robots.parameters import REFERENCE_CROSSOVER_REACH, as_robot, leg_scale
 
-#: The default humanoid's crossover reach past the stance ankle [m]; other robots' scale with the leg length.
-CROSSOVER_REACH = 0.10
+#: The crossover variants of the table: name -> the crossover reach [m] (None: the robot's legs decide)
+CROSSOVERS = {"legs": None, "soles": REFERENCE_CROSSOVER_REACH, "none": 0.0}
 
 DIRECTIONS = ("inward", "outward", "forward", "backward")
 
@@ -47,18 +48,18 @@ def direction(state, name: str) -> np.ndarray:
 
 
 def robot_rows(robot_name: str) -> list:
-    """Table rows of one robot: (robot, moment, crossover, speed per direction...)."""
+    """Table rows of one robot: (robot, moment, crossovers, its reach [m], speed per direction...)."""
     robot = as_robot(robot_name)
     pattern, params = NominalPattern(gait_parameters(robot)), stop_parameters(robot)
-    limits = SteppingLimits.from_parameters(params, pattern.params.sole,
-                                            crossover_reach=CROSSOVER_REACH * leg_scale(robot))
+    limits = stepping_limits(robot, params)
+    variants = {name: limits if reach is None else replace(limits, crossover_reach=round(reach * leg_scale(robot), 3))
+                for name, reach in CROSSOVERS.items()}
     rows = []
     for moment, t in moments(pattern).items():
         state = pattern.state(t)
         assert state_capturability(state, omega=pattern.w, limits=limits, params=params).capturable
-        for crossover in (True, False):
-            lim = limits if crossover else replace(limits, crossover_reach=0.0)
-            rows.append((robot.name, moment, "yes" if crossover else "no",
+        for name, lim in variants.items():
+            rows.append((robot.name, moment, name, f"{lim.crossover_reach:.3f}",
                          *(largest_push_speed(state, direction(state, d), omega=pattern.w, limits=lim, params=params)
                            for d in DIRECTIONS)))
     return rows
@@ -68,14 +69,15 @@ def markdown(rows: list, seconds: float) -> str:
     lines = ["# What each robot can catch", "",
              "The largest impulsive push speed [m/s] that leaves the walk capturable in at most three steps "
              "(LIPM with finite feet, `drake_estop.planning.capturability`), by direction and moment of the "
-             "third step's stride, with and without crossover steps (a crossover lands up to 0.10 m past the "
-             "stance ankle, scaled with the leg length for the other robots, the soles 1 cm apart; the legs' "
-             "collision geometry is not checked). A bound on "
-             "what any controller catches, not a simulation. Made by `python benchmarks/capturability_table.py` "
-             f"in {seconds:.1f} s.", "",
-             "| robot | moment | crossover | " + " | ".join(DIRECTIONS) + " |",
-             "|---|---|---|" + "---|" * len(DIRECTIONS)]
-    lines += ["| " + " | ".join([*row[:3], *(f"{v:.2f}" for v in row[3:])]) + " |" for row in rows]
+             "third step's stride. Crossovers: *legs*, landings past the stance ankle as far as the robot's legs "
+             "keep clear (`drake_estop.robots.stepping_limits`: the online verdict's; the default humanoid's "
+             "leg capsules allow none; the G1 and TALOS have no leg model, so theirs is the soles' reach); "
+             "*soles*, up to 0.10 m past it (scaled with the leg), the soles 1 cm apart; *none*. A bound on what "
+             "any controller catches, not a simulation. Made by `python benchmarks/capturability_table.py` in "
+             f"{seconds:.1f} s.", "",
+             "| robot | moment | crossovers | reach [m] | " + " | ".join(DIRECTIONS) + " |",
+             "|---|---|---|---|" + "---|" * len(DIRECTIONS)]
+    lines += ["| " + " | ".join([*row[:4], *(f"{v:.2f}" for v in row[4:])]) + " |" for row in rows]
     return "\n".join(lines) + "\n"
 
 

@@ -223,3 +223,15 @@ def test_the_planner_system_takes_a_crossover_step_only_with_crossover_step(monk
     assert [s["kind"] for s in planner.plans(context).summary()["steps"]][-1] == "crossover step"
     planner, context = _planner_pushed_left()
     assert not planner.plan(context).crossover
+
+
+def test_the_capturability_verdicts_crossover_reach_is_where_the_legs_clear():
+    """The default humanoid's legs keep no crossover landing clear (its verdict counts none); slim legs do."""
+    from drake_estop.planning.crossover import clear_crossover_reach
+    from drake_estop.robots import stepping_limits
+    from drake_estop.robots.parameters import as_robot
+
+    assert clear_crossover_reach() == 0.0
+    assert clear_crossover_reach(LegGeometry(radius=0.03)) == pytest.approx(0.10)
+    assert stepping_limits(as_robot()).crossover_reach == 0.0
+    assert stepping_limits(as_robot()).regions("left").keys() == {"nominal"}

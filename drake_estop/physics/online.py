@@ -193,10 +193,9 @@ from drake_estop.physics.plant import (
     sole_bodies,
 )
 from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
-from drake_estop.planning.capturability import SteppingLimits
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
-from drake_estop.robots.parameters import as_robot
+from drake_estop.robots.parameters import as_robot, stepping_limits
 from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.reference import connect_reference
@@ -421,7 +420,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
     monitor = add_capturability_monitor(
         builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
-        limits=SteppingLimits.from_parameters(stop_params, pattern.params.sole),
+        limits=stepping_limits(robot, stop_params),
         report_time=report_time(estop_time, perturbations.pushes), timer=timer)
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(

@@ -356,3 +356,31 @@ def crossover_stop(start, com_xy, com_vel_xy, geometry: LegGeometry | None = Non
     if failure is not None:
         raise failure
     return None
+
+
+#: Lateral reaches [m] past the stance ankle that :func:`clear_crossover_reach` tries, widest first.
+CROSSOVER_REACHES = (0.10, 0.08, 0.06, 0.04, 0.02, 0.0)
+
+
+def clear_crossover_reach(geometry: LegGeometry | None = None, sole: Sole | None = None, *, height: float = 0.814,
+                          forward: float = 0.4, lift: float = 0.05) -> float:
+    """The widest lateral reach [m] past the stance ankle (of :data:`CROSSOVER_REACHES`) at which a crossover
+    landing ahead keeps the legs :data:`LEG_CLEARANCE` apart at the touchdown and is reachable
+    (:func:`landing_reachable`), for the capturability verdict's crossover regions
+    (:class:`drake_estop.planning.capturability.SteppingLimits`); 0 where none is. Landings from the soles'
+    clearance to ``forward`` [m] ahead every 2 cm, the COG ``height`` [m] over the stance ankle, the feet's
+    midpoint or the landing ankle sagittally and 4 cm either side of the stance ankle laterally.
+
+    The default humanoid's legs (capsules 5.5 cm in radius, the support knee bent forward) allow none: 0.
+    """
+    geometry, sole = geometry or LegGeometry(), sole or Sole()
+    clear = sole.toe + sole.heel + SOLE_CLEARANCE
+    for reach in CROSSOVER_REACHES:
+        for x in np.arange(clear, forward + 1e-9, 0.02):
+            for com_landing in ((cx, cy) for cx in (0.0, x / 2, x) for cy in (-0.04, 0.0, 0.04)):
+                path = CrossoverPath(start=np.array([0.0, 0.19]), landing=np.array([x, -reach]),
+                                     com_start=np.zeros(2), com_landing=np.array(com_landing), height=height,
+                                     lift=lift, swing_side=1.0)  # the left foot across a right stance
+                if landing_reachable(path, geometry) and _clearance_at(path, 1.0, 0, geometry) >= LEG_CLEARANCE:
+                    return reach
+    return 0.0

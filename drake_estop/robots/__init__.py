@@ -74,7 +74,13 @@ from drake_estop.robots.measure import (
     reach_limits,
     robot_facts,
 )
-from drake_estop.robots.parameters import as_robot, com_height_range, gait_parameters, stop_parameters
+from drake_estop.robots.parameters import (
+    as_robot,
+    com_height_range,
+    gait_parameters,
+    stepping_limits,
+    stop_parameters,
+)
 from drake_estop.robots.plant import JointLimits, add_robot, joint_limits, set_servo_gains, sole_frame
 
 __all__ = [
@@ -83,5 +89,5 @@ __all__ = [
     "add_robot", "as_robot", "com_height_range", "gait_defaults", "gait_parameters", "joint_limits", "load_robot",
     "max_fore_reach", "max_rear_reach", "measure_reach",
     "nominal_standing_configuration", "reach_limits", "read_description", "robot_facts", "set_servo_gains",
-    "sole_frame", "stop_parameters",
+    "sole_frame", "stepping_limits", "stop_parameters",
 ]

@@ -137,6 +137,31 @@ def stop_parameters(description: RobotDescription, **changes) -> StopParameters:
     return replace(stop, **changes) if changes else stop
 
 
+#: A crossover landing's reach past the stance ankle [m] for a robot without a leg model, at the default leg
+#: length (scaled with the leg): the soles alone keep it apart.
+REFERENCE_CROSSOVER_REACH = 0.10
+
+
+def stepping_limits(description: RobotDescription, params: StopParameters | None = None, **changes):
+    """Where and when the robot's feet can land, for the capturability verdict
+    (:class:`drake_estop.planning.capturability.SteppingLimits`): its stop limits (``params``, default
+    :func:`stop_parameters`) and sole; crossover landings as far as its legs allow. The default humanoid's legs
+    (:class:`drake_estop.planning.crossover.LegGeometry`, from its URDF) allow none
+    (:func:`~drake_estop.planning.crossover.clear_crossover_reach`); a robot without a leg model gets
+    :data:`REFERENCE_CROSSOVER_REACH` scaled with its leg, its soles alone checked (an upper bound).
+    ``changes`` override any field."""
+    from drake_estop.planning.capturability import SteppingLimits
+    from drake_estop.planning.crossover import LegGeometry, clear_crossover_reach
+
+    params = params or stop_parameters(description)
+    gait = gait_parameters(description)
+    if description == default_robot():
+        reach = clear_crossover_reach(LegGeometry(), gait.sole, height=gait.com_height)
+    else:
+        reach = round(REFERENCE_CROSSOVER_REACH * leg_scale(description), 3)
+    return SteppingLimits.from_parameters(params, gait.sole, **{"crossover_reach": reach, **changes})
+
+
 #: The least gap [m] between the soles' inner edges of a landing moved sideways (no foot collision).
 STEP_WIDTH_CLEARANCE = 0.04
 
