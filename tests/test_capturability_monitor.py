@@ -82,3 +82,20 @@ def test_summary_gives_the_worst_tick_from_the_signal_on():
     assert summary["steps"] is None and summary["witness"] == []
     assert summary["worst"] == {"time": pytest.approx(0.015), "steps": 1, "margin": 0.005, "margin_speed": 0.017}
     assert len(FIELDS) == rows.shape[1]
+    # a fall at 0.014 s: the ticks from then on are left out (tick 3's margin would be the least otherwise)
+    rows[3, 1] = -0.9
+    assert capturability_summary(None, rows, 0.005, since=0.01, until=0.014)["worst"]["margin"] == 0.02
+    assert capturability_summary(None, rows, 0.005, since=0.01, until=0.01)["worst"] is None
+
+
+def test_fall_time_is_the_first_tilt_past_the_limit():
+    from types import SimpleNamespace
+
+    from drake_estop.physics.criteria import fall_time
+    from drake_estop.physics.plant import PhysicsParameters
+
+    physics = PhysicsParameters()
+    times = np.arange(5) * 0.1
+    tilted = SimpleNamespace(times=times, torso_tilt=np.array([0.0, 0.1, physics.max_torso_tilt, 0.1, 0.5]))
+    assert fall_time(tilted, physics) == pytest.approx(0.2)
+    assert fall_time(SimpleNamespace(times=times, torso_tilt=np.zeros(5)), physics) == math.inf

@@ -38,6 +38,13 @@ def joint_velocity_violations(plant, states: np.ndarray) -> np.ndarray:
     return np.sum(np.abs(v[:, finite]) > limit[finite], axis=1)
 
 
+def fall_time(result, physics) -> float:
+    """The first time [s] the torso of ``result`` (:class:`PhysicsResult`) tilts past ``physics.max_torso_tilt``
+    (the cut of :func:`analyse`'s "before any fall"); inf where it never does."""
+    fallen = np.flatnonzero(np.asarray(result.torso_tilt) >= physics.max_torso_tilt)
+    return float(result.times[fallen[0]]) if len(fallen) else math.inf
+
+
 def joint_velocity_peak(plant, states: np.ndarray, times: np.ndarray) -> dict:
     """The joint closest to (or furthest over) its velocity limit: name, speed / limit, time."""
     v = np.abs(states[:, plant.num_positions():])

@@ -172,7 +172,13 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from drake_estop.physics.compliance import add_foot_edge_compliance
 from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
-from drake_estop.physics.criteria import JointReference, analyse, joint_velocity_peak, joint_velocity_violations
+from drake_estop.physics.criteria import (
+    JointReference,
+    analyse,
+    fall_time,
+    joint_velocity_peak,
+    joint_velocity_violations,
+)
 from drake_estop.physics.estimation import add_state_estimation
 from drake_estop.physics.foot_force import add_foot_force_control
 from drake_estop.physics.hip_strategy import HIP_STRATEGY, add_hip_strategy
@@ -669,7 +675,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         "com_est": handles.loggers["com_est"].FindLog(context).data().T,
         "one_step_feasible": per_tick(handles.loggers["one_step_feasible"].FindLog(context), stop_params.servo_period),
         # the measured state's N-step capturability: per tick (steps, -1 for none; margin [m], [m/s]) and summary
-        **monitor_results(handles.capturability, handles.loggers["capturability"], context, plan.signal_time),
+        **monitor_results(handles.capturability, handles.loggers["capturability"], context, plan.signal_time,
+                          fall_time(result, handles.physics)),
         # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
         # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
         "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),

@@ -23,6 +23,8 @@ first tick at or after ``report_time`` (the later of the signal and the end of t
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
@@ -140,14 +142,17 @@ def report_time(estop_time: float | None, pushes=()) -> float:
     return max(times) if times else float("inf")
 
 
-def capturability_summary(reported, per_tick: np.ndarray, servo_period: float, since: float) -> dict:
+def capturability_summary(reported, per_tick: np.ndarray, servo_period: float, since: float,
+                          until: float = float("inf")) -> dict:
     """The run summary's ``capturability``: the ``reported`` verdict (:meth:`CapturabilityMonitor.reported`,
-    or None) as ``{steps, margin, margin_speed, witness}``, and ``worst``, the tick from ``since`` [s] on of
-    least margin in ``per_tick`` (rows: ticks k * servo_period; columns :data:`FIELDS`), with its ``time``."""
+    or None) as ``{steps, margin, margin_speed, witness}``, and ``worst``, the tick from ``since`` [s] on and
+    before ``until`` [s] (a fall: the verdict on a robot falling says nothing) of least margin in ``per_tick``
+    (rows: ticks k * servo_period; columns :data:`FIELDS`), with its ``time``; None without such a tick."""
     summary = reported.as_dict() if reported is not None else {"steps": None, "margin": None,
                                                                "margin_speed": None, "witness": []}
     first = max(int(round(since / servo_period)), 0) if np.isfinite(since) else len(per_tick)
-    margins = per_tick[first:, 1]
+    last = int(math.ceil(until / servo_period - 1e-9)) if np.isfinite(until) else len(per_tick)
+    margins = per_tick[first:max(last, first), 1]
     if np.any(np.isfinite(margins)):
         k = first + int(np.nanargmin(margins))
         summary["worst"] = {"time": k * servo_period, "steps": int(per_tick[k, 0]),
@@ -157,11 +162,12 @@ def capturability_summary(reported, per_tick: np.ndarray, servo_period: float, s
     return summary
 
 
-def monitor_results(monitor: CapturabilityMonitor, logger, root_context, since: float) -> dict:
+def monitor_results(monitor: CapturabilityMonitor, logger, root_context, since: float,
+                    until: float = float("inf")) -> dict:
     """A run's capturability from its ``monitor`` and the ``logger`` of its output (``root_context``: the
     diagram's): ``capture`` (ticks x :data:`FIELDS`, per servo tick from 0) and ``capturability``
-    (:func:`capturability_summary`, the worst tick from ``since`` [s], the signal, on)."""
+    (:func:`capturability_summary`, the worst tick from ``since`` [s], the signal, until ``until``, a fall)."""
     servo_period = monitor.servo_period
     rows = per_tick(logger.FindLog(root_context), servo_period).reshape(-1, len(FIELDS))
     reported = monitor.reported(monitor.GetMyContextFromRoot(root_context))
-    return {"capture": rows, "capturability": capturability_summary(reported, rows, servo_period, since)}
+    return {"capture": rows, "capturability": capturability_summary(reported, rows, servo_period, since, until)}
