@@ -25,7 +25,7 @@ LEFT, RIGHT = np.array([0.0, 0.095]), np.array([0.3, -0.095])
 SOLE_FLAT = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
 
 
-def run_monitor(com, com_vel, loaded, swing_height=0.03, *, report=0.0, until=0.012):
+def run_monitor(com, com_vel, loaded, swing_height=0.03, *, report=0.0, until=0.012, left_yaw=0.0):
     monitor = CapturabilityMonitor(omega=OMEGA, limits=LIMITS, params=PARAMS, report_time=report)
     context = monitor.CreateDefaultContext()
     monitor.measured_com_port.FixValue(context, [*com, 0.814])
@@ -33,7 +33,8 @@ def run_monitor(com, com_vel, loaded, swing_height=0.03, *, report=0.0, until=0.
     monitor.measured_feet_port.FixValue(context, [*LEFT, *RIGHT, *loaded])
     lifted = list(SOLE_FLAT)
     lifted[2] = swing_height
-    monitor.foot_ports["left"].FixValue(context, SOLE_FLAT if loaded[0] else lifted)
+    turned = [*SOLE_FLAT[:3], math.cos(left_yaw / 2), 0.0, 0.0, math.sin(left_yaw / 2)]
+    monitor.foot_ports["left"].FixValue(context, turned if loaded[0] else lifted)
     monitor.foot_ports["right"].FixValue(context, SOLE_FLAT if loaded[1] else lifted)
     simulator = Simulator(monitor, context)
     simulator.AdvanceTo(until)
@@ -63,6 +64,16 @@ def test_both_soles_loaded_is_double_support_over_the_hull():
     one = run_monitor(com, [0.0, 0.0], loaded=(2.0, 0.0))
     assert both[0].capturability_port.Eval(both[1])[0] == 0
     assert one[0].capturability_port.Eval(one[1])[0] >= 1
+
+
+def test_the_stance_soles_commanded_heading_turns_its_rectangle():
+    """A COG at rest 12 cm to the left of the left ankle: past the sole's outer edge (8.1 cm) when the sole
+    heads along x, inside its toe (13.5 cm) when it is turned a quarter turn to the left."""
+    com = [LEFT[0], LEFT[1] + 0.12]
+    straight = run_monitor(com, [0.0, 0.0], loaded=(2.0, 0.0))
+    turned = run_monitor(com, [0.0, 0.0], loaded=(2.0, 0.0), left_yaw=math.pi / 2)
+    assert straight[0].capturability_port.Eval(straight[1])[0] != 0
+    assert turned[0].capturability_port.Eval(turned[1])[0] == 0
 
 
 def test_report_waits_for_its_time():

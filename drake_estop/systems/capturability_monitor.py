@@ -49,8 +49,6 @@ class CapturabilityMonitor(LeafSystem):
         Where and when the feet can land.
     params : StopParameters
         The stop's limits: the swing's descent (the least time to touch down) and ``servo_period`` [s].
-    heading : float
-        The soles' heading [rad] (the walks the controller takes head along x).
     report_time : float
         The time [s] from which the first tick's whole verdict is kept (:meth:`reported`; inf: none).
     timer : TickTimer, optional
@@ -58,10 +56,10 @@ class CapturabilityMonitor(LeafSystem):
         controller's blocks.
     """
 
-    def __init__(self, *, omega: float, limits: SteppingLimits, params: StopParameters, heading: float = 0.0,
+    def __init__(self, *, omega: float, limits: SteppingLimits, params: StopParameters,
                  report_time: float = float("inf"), timer=None):
         super().__init__()
-        self._omega, self._limits, self._params, self._heading = float(omega), limits, params, float(heading)
+        self._omega, self._limits, self._params = float(omega), limits, params
         self._report_time = float(report_time)
         self.measured_com_port = self.DeclareVectorInputPort("measured_com", 3)
         self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
@@ -90,34 +88,43 @@ class CapturabilityMonitor(LeafSystem):
 
     def _update(self, context, state) -> EventStatus:
         previous = context.get_discrete_state(self._state).get_value()
-        heights = np.array([self.foot_ports[side].Eval(context)[2] for side in SIDES])
+        soles = [self.foot_ports[side].Eval(context) for side in SIDES]  # [x, y, z, qw, qx, qy, qz]
+        heights = np.array([sole[2] for sole in soles])
         verdict = self.verdict(self.measured_com_port.Eval(context)[:2], self.measured_com_vel_port.Eval(context)[:2],
                                self.measured_feet_port.Eval(context), heights,
-                               (heights - previous[3:]) / self._params.servo_period)
+                               (heights - previous[3:]) / self._params.servo_period,
+                               headings=[_yaw(sole[3:7]) for sole in soles])
         state.get_mutable_discrete_state(self._state).SetFromVector(
             [verdict.steps, verdict.margin, verdict.margin_speed, *heights])
         if context.get_time() >= self._report_time - 1e-9 and self.reported(context) is None:
             state.get_mutable_abstract_state(self._reported).set_value(verdict)
         return EventStatus.Succeeded()
 
-    def verdict(self, com, com_vel, feet, heights, rates):
+    def verdict(self, com, com_vel, feet, heights, rates, headings=(0.0, 0.0)):
         """The :class:`~drake_estop.planning.capturability.Capturability` of a COG ``com`` [m] moving at
         ``com_vel`` [m/s] on the estimator's ``feet`` (left xy, right xy, loaded ticks), the commanded soles at
-        ``heights`` [m] moving at ``rates`` [m/s] (left, right). One loaded sole: single support on it; both
-        or neither: both feet down (either may step, after a weight shift)."""
+        ``heights`` [m] moving at ``rates`` [m/s] and turned to ``headings`` [rad] (left, right). One loaded
+        sole: single support on it, its heading the soles'; both or neither: both feet down (either may step,
+        after a weight shift), the left sole's heading."""
         dcm = np.asarray(com, dtype=float) + np.asarray(com_vel, dtype=float) / self._omega
         ankles = {"left": np.asarray(feet[0:2], dtype=float), "right": np.asarray(feet[2:4], dtype=float)}
         loaded = [side for side, ticks in zip(SIDES, feet[4:6]) if ticks > 0.0]
-        common = dict(omega=self._omega, limits=self._limits, heading=self._heading)
+        common = dict(omega=self._omega, limits=self._limits)
         if len(loaded) == 1:
             stance = loaded[0]
             swing = "right" if stance == "left" else "left"
             index = SIDES.index(swing)
             first = swing_touchdown_time(self._params, float(heights[index]), float(rates[index]))
             return capturability(dcm, stance_ankle=ankles[stance], stance_side=stance, first_step_time=first,
-                                 swing_foot=ankles[swing], **common)
+                                 swing_foot=ankles[swing], heading=float(headings[1 - index]), **common)
         return capturability(dcm, stance_ankle=ankles["left"], stance_side="left", other_ankle=ankles["right"],
-                             first_step_time=self._limits.min_step_time, **common)
+                             first_step_time=self._limits.min_step_time, heading=float(headings[0]), **common)
+
+
+def _yaw(quaternion) -> float:
+    """The heading [rad] of a sole turned by the unit ``quaternion`` ``[w, x, y, z]``."""
+    w, x, y, z = (float(v) for v in quaternion)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def add_capturability_monitor(builder, *, estimator, reference, omega: float, limits: SteppingLimits,
