@@ -8,15 +8,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from pydrake.systems.analysis import Simulator  # noqa: E402
-from pydrake.systems.framework import DiagramBuilder  # noqa: E402
-
-from drake_estop import AddEmergencyStop, make_meshcat  # noqa: E402
+import drake_estop
+from drake_estop import AddEmergencyStop, make_meshcat
 
 
 @dataclass
@@ -65,43 +61,12 @@ def describe(run):
             f"foot {s['ik']['ik_foot_err_max_m'] * 1e3:.3f} mm; real-time factor {rate:.1f}")
 
 
-def _phase_lines(ax, plan):
-    ax.axvline(plan.signal_time, color="k", lw=1.0, ls="--", label="stop signal")
-    for t in (plan.landing_time, plan.transition_end, plan.slowdown_end, plan.halt_end):
-        ax.axvline(t, color="0.6", lw=0.8, ls=":")
-
-
 def plot_cog_zmp(run, path, title):
     """COG and ZMP vs time, x and y (paper Fig. 9 / Fig. 12)."""
-    fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    for axis, ax in enumerate(axes):
-        ax.plot(run.log.times, run.log.com[:, axis], "b-", label="COG")
-        ax.plot(run.log.times, run.log.zmp[:, axis], "r--", label="ZMP")
-        _phase_lines(ax, run.plan)
-        ax.set_ylabel(f"{'xy'[axis]} [m]")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper left")
-    axes[0].set_title(title)
-    axes[1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return drake_estop.plot_cog_zmp(run.log.times, run.log.com, run.log.zmp, run.plan, path, title)
 
 
 def plot_knees(runs, path, title):
     """Knee angles of both legs for several runs (paper Fig. 10)."""
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for label, run in runs.items():
-        for side, style in (("left", "-"), ("right", "--")):
-            ax.plot(run.log.times, np.degrees(run.knees[side]), style, label=f"{side} knee, {label}")
-    _phase_lines(ax, next(iter(runs.values())).plan)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("knee angle [deg]")
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    knees = {label: (run.log.times, run.knees) for label, run in runs.items()}
+    return drake_estop.plot_knees(knees, next(iter(runs.values())).plan, path, title)

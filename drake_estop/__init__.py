@@ -21,7 +21,11 @@ the planner itself: `plan_stop` returning a `StopPlan` (or raising
 within one step; the online controller on the simulated robot: `run_online`
 (``drake-estop simulate --physics`` from Python) with
 `controller_stop_parameters` and `ControllerOptions` (the controller's
-features, on or off; a scenario's ``controller`` section). World frame x
+features, on or off; a scenario's ``controller`` section); what can be caught
+at all: `capturability` / `state_capturability` (N-step capturability with
+finite feet, `SteppingLimits`, a `Capturability` verdict) and the
+`CapturabilityMonitor` system; the paper-style figures `plot_cog_zmp` and
+`plot_knees`. World frame x
 forward, y left, z up; SI units throughout (m, s, rad, N).
 
 Names are imported on first use (PEP 562), so ``import drake_estop`` stays
@@ -68,6 +72,13 @@ _EXPORTS = {
     "load_scenario": "drake_estop.scenario",
     "load_humanoid": "drake_estop.model",
     "make_meshcat": "drake_estop.systems.visualization",
+    "plot_cog_zmp": "drake_estop.systems.visualization",
+    "plot_knees": "drake_estop.systems.visualization",
+    "SteppingLimits": "drake_estop.planning.capturability",
+    "Capturability": "drake_estop.planning.capturability",
+    "capturability": "drake_estop.planning.capturability",
+    "state_capturability": "drake_estop.planning.capturability",
+    "CapturabilityMonitor": "drake_estop.systems.capturability_monitor",
 }
 
 __all__ = ["__version__", *_EXPORTS]

@@ -77,11 +77,30 @@ TIME_SAMPLES = 5
 
 @dataclass(frozen=True)
 class SteppingLimits:
-    """Where and when a foot can land, for the capturability verdict (lengths in m, times in s).
+    """Where and when a foot can land, for the capturability verdict.
 
     Landing regions are given for the left foot landing from a right stance, in
     the stance sole's frame (x ahead, y to the left); the right foot's are their
-    mirror image. ``cop_margin`` shrinks each sole's CoP rectangle.
+    mirror image.
+
+    Attributes
+    ----------
+    sole : Sole
+        Both soles' rectangle about the ankle.
+    cop_margin : float
+        Shrinks each sole's CoP rectangle [m].
+    forward, backward : float
+        Farthest landing ankle ahead of and behind the stance ankle [m].
+    min_width, max_width : float
+        Nearest and farthest landing beside the stance ankle, ankle to ankle [m].
+    crossover_reach : float
+        Farthest crossover landing past the stance ankle [m] (0: no crossover regions).
+    crossover_gap : float
+        Sagittal gap between the soles of a crossover landing [m].
+    min_step_time, max_step_time : float
+        Shortest step after the first (a weight shift and a swing) and longest step [s].
+    swing_speed : float
+        The first landing lies within this times its step time of the swing foot on each axis [m/s].
     """
 
     sole: Sole = field(default_factory=Sole)
@@ -162,9 +181,19 @@ class CaptureStep:
 
 @dataclass(frozen=True)
 class Capturability:
-    """The verdict on one state: ``steps`` the least N <= :data:`MAX_STEPS` that captures it (-1: none),
-    ``margin`` [m] and ``margin_speed`` [m/s] (module docstring; negative outside), ``witness`` the steps
-    of a sequence that captures it (empty for N = 0 or none)."""
+    """The verdict on one state.
+
+    Attributes
+    ----------
+    steps : int
+        The least N <= :data:`MAX_STEPS` that captures it; -1: none (dimensionless).
+    margin : float
+        The DCM's signed distance to that capture region's boundary [m] (module docstring; negative outside).
+    margin_speed : float
+        ``omega * margin`` [m/s]: the impulsive push speed that margin stands for.
+    witness : tuple of CaptureStep
+        The steps of a sequence that captures it (empty for N = 0 or none).
+    """
 
     steps: int
     margin: float
@@ -322,13 +351,45 @@ def _cop_corners(limits: SteppingLimits, side: str, ankle, rotation) -> np.ndarr
 def capturability(dcm, *, omega: float, stance_ankle, stance_side: str, limits: SteppingLimits,
                   first_step_time: float, heading: float = 0.0, other_ankle=None, swing_foot=None,
                   max_steps: int = MAX_STEPS) -> Capturability:
-    """The N-step capturability (module docstring) of a DCM ``dcm`` (world xy [m]) over the
-    ``stance_side`` foot at ``stance_ankle`` (world xy [m]), the soles turned by ``heading`` [rad]. With
-    ``other_ankle`` (world xy) the other foot is down too: double support, where either foot may step first.
-    ``first_step_time`` [s]: the swing's least time to touch down (in double support, a weight shift and a
-    swing; at least ``limits.min_step_time`` is sensible). ``swing_foot`` (world xy, single support): where the
-    swing foot is, so that the first landing lies within ``limits.swing_speed`` times its step time of it on
-    each axis; in double support the foot that steps starts from its ankle. None: anywhere in reach."""
+    """The N-step capturability of a state (module docstring).
+
+    Parameters
+    ----------
+    dcm : array_like
+        The DCM ``x + v / omega``, world xy [m].
+    omega : float
+        The LIPM's natural frequency sqrt(g / z) [1/s].
+    stance_ankle : array_like
+        The stance foot's ankle, world xy [m].
+    stance_side : str
+        ``"left"`` or ``"right"``.
+    limits : SteppingLimits
+        Where and when the feet can land.
+    first_step_time : float
+        The swing's least time to touch down [s] (in double support, a weight shift and a swing: at least
+        ``limits.min_step_time`` is sensible).
+    heading : float
+        The soles' heading [rad].
+    other_ankle : array_like, optional
+        The other ankle, world xy [m], where that foot is down too (double support: either foot may step
+        first, from its ankle).
+    swing_foot : array_like, optional
+        Where the swing foot is, world xy [m] (single support): the first landing lies within
+        ``limits.swing_speed`` times its step time of it on each axis. None: anywhere in reach.
+    max_steps : int
+        Look no further than this many steps (0 to :data:`MAX_STEPS`).
+
+    Returns
+    -------
+    Capturability
+        The least N, the margin [m] and [m/s], a witness.
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: a DCM or an ankle not finite, an unknown side, ``omega`` <= 0, ``max_steps`` out
+        of range.
+    """
     if stance_side not in ("left", "right"):
         raise ValueError(f"stance_side must be 'left' or 'right', got {stance_side!r}")
     if not (math.isfinite(omega) and omega > 0.0):
@@ -383,9 +444,26 @@ def swing_touchdown_time(params, lift: float, lift_rate: float = 0.0, lift_accel
 
 
 def state_capturability(state, *, omega: float, limits: SteppingLimits, params) -> Capturability:
-    """:func:`capturability` of a walk's or a measured :class:`~drake_estop.planning.gait.PatternState`:
-    its DCM from the COG (eq. 4), in single support over the support foot with the swing's least touchdown
-    time (:func:`swing_touchdown_time`), else over both feet, the rear one (the left standing) first."""
+    """:func:`capturability` of a walk's or a measured :class:`~drake_estop.planning.gait.PatternState`.
+
+    Parameters
+    ----------
+    state : PatternState
+        Its COG [m] and velocity [m/s] give the DCM (eq. 4); in single support it stands on the support foot,
+        the swing's least touchdown time from its height and rates (:func:`swing_touchdown_time`), else on
+        both feet (the rear one, or the left standing, first).
+    omega : float
+        The LIPM's natural frequency [1/s].
+    limits : SteppingLimits
+        Where and when the feet can land.
+    params : StopParameters
+        The stop's limits (the swing's descent).
+
+    Returns
+    -------
+    Capturability
+        The verdict.
+    """
     dcm = np.asarray(state.com, dtype=float) + np.asarray(state.com_vel, dtype=float) / omega
     if state.support == "single":
         stance, swing = state.support_foot, _other(state.support_foot)

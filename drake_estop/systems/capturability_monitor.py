@@ -7,18 +7,6 @@ DCM, eq. 4; the loaded soles are the support) and on the commanded swing foot's 
 ``steps`` is -1 where no N <= 3 captures the state. The whole verdict, its witness steps included, of the
 first tick at or after ``report_time`` (the later of the signal and the end of the last push) is kept too
 (:meth:`CapturabilityMonitor.reported`): the run's summary gives it.
-
-.. pydrake_system::
-
-    name: CapturabilityMonitor
-    input_ports:
-    - measured_com
-    - measured_com_vel
-    - measured_feet
-    - left_foot
-    - right_foot
-    output_ports:
-    - capturability
 """
 
 from __future__ import annotations
@@ -41,8 +29,24 @@ FIELDS = ("steps", "margin", "margin_speed")
 class CapturabilityMonitor(LeafSystem):
     """The N-step capturability of the measured state, once a servo tick (module docstring).
 
-    Parameters (keyword-only)
-    -------------------------
+    .. pydrake_system::
+
+        name: CapturabilityMonitor
+        input_ports:
+        - measured_com
+        - measured_com_vel
+        - measured_feet
+        - left_foot
+        - right_foot
+        output_ports:
+        - capturability
+
+    ``capturability`` is ``[steps, margin [m], margin_speed [m/s]]``; the inputs are the estimator's COG [m],
+    COG velocity [m/s] and feet (left xy, right xy [m], each sole's loaded ticks) and the commanded soles'
+    poses ``[x, y, z, qw, qx, qy, qz]`` [m].
+
+    Parameters
+    ----------
     omega : float
         The LIPM's natural frequency sqrt(g / z) [1/s] (the walk's ``NominalPattern.w``).
     limits : SteppingLimits

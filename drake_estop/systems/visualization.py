@@ -479,17 +479,36 @@ def _phase_lines(ax, plan):
         ax.axvline(t, color="0.6", lw=0.8, ls=":")
 
 
-def plot_cog_zmp(result, path, title):
-    """COG and ZMP vs time, x and y (paper Fig. 9 / Fig. 12)."""
+def plot_cog_zmp(times, com, zmp, plan, path, title):
+    """COG and ZMP against time, x and y, with the signal and the phase boundaries (paper Fig. 9 / Fig. 12).
+
+    Parameters
+    ----------
+    times : numpy.ndarray
+        (n,) [s].
+    com, zmp : numpy.ndarray
+        (n, 2) COG and ZMP, x and y [m].
+    plan : StopPlan
+        Its signal and phase boundaries are drawn.
+    path : str or pathlib.Path
+        The PNG written.
+    title : str
+        The figure's title.
+
+    Returns
+    -------
+    str or pathlib.Path
+        ``path``.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for axis, ax in enumerate(axes):
-        ax.plot(result.times, result.com[:, axis], "b-", label="COG")
-        ax.plot(result.times, result.zmp[:, axis], "r--", label="ZMP")
-        _phase_lines(ax, result.plan)
+        ax.plot(times, com[:, axis], "b-", label="COG")
+        ax.plot(times, zmp[:, axis], "r--", label="ZMP")
+        _phase_lines(ax, plan)
         ax.set_ylabel(f"{'xy'[axis]} [m]")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper left")
@@ -501,19 +520,35 @@ def plot_cog_zmp(result, path, title):
     return path
 
 
-def plot_knees(results, path, title):
-    """Knee angles of both legs for several runs (paper Fig. 10)."""
+def plot_knees(knees: dict, plan, path, title):
+    """Knee angles of both legs for several runs (paper Fig. 10).
+
+    Parameters
+    ----------
+    knees : dict
+        A run's label -> ``(times [s], {"left": angles, "right": angles})``, the angles [rad].
+    plan : StopPlan
+        Its signal and phase boundaries are drawn.
+    path : str or pathlib.Path
+        The PNG written.
+    title : str
+        The figure's title.
+
+    Returns
+    -------
+    str or pathlib.Path
+        ``path``.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
     styles = {"left": "-", "right": "--"}
-    for label, result in results.items():
+    for label, (times, angles) in knees.items():
         for side in ("left", "right"):
-            ax.plot(result.times, np.degrees(result.q[f"q_{side[0]}_knee"]), styles[side],
-                    label=f"{side} knee, {label}")
-    _phase_lines(ax, next(iter(results.values())).plan)
+            ax.plot(times, np.degrees(angles[side]), styles[side], label=f"{side} knee, {label}")
+    _phase_lines(ax, plan)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("knee angle [deg]")
     ax.set_title(title)
