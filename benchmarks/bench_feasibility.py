@@ -30,6 +30,7 @@ from pydrake.systems.primitives import Adder, ConstantVectorSource
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, one_step_feasible, warm_up
 from drake_estop.planning.rollout import stride_ticks
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.reference import WalkingPatternSource
 from drake_estop.systems.stop_controller import StopPlannerSystem
 from drake_estop.systems.stop_numerics import _table
@@ -66,7 +67,8 @@ def system_costs(pattern, params, ticks, velocity_offset=None):
     timer = TickTimer(params.servo_period)
     builder = DiagramBuilder()
     options = {} if velocity_offset is None else {"replan_threshold": 0.005}
-    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=params, timer=timer, **options))
+    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=params, timer=timer,
+                                                  config=StopPlannerConfig(**options)))
     builder.Connect(builder.AddSystem(ConstantVectorSource([0.0, np.nan])).get_output_port(), planner.stop_port)
     if velocity_offset is not None:  # measured = the reference + a constant COG velocity offset
         source = builder.AddSystem(WalkingPatternSource(pattern=pattern))

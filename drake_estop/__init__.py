@@ -11,7 +11,8 @@ The public API, for scripts, notebooks and system-level tests::
     simulator = Simulator(builder.Build())
 
 Building blocks (Drake LeafSystems): `WalkingPatternSource`, `EStopTrigger`,
-`StopPlannerSystem`, `WholeBodyIK`; parameters: `GaitParameters`,
+`StopPlannerSystem` (its settings a `StopPlannerConfig`, its mode a `StopMode`), `WholeBodyIK`;
+parameters: `GaitParameters`,
 `StopParameters`, `Sole`, `ArmSwing`, `PhysicsParameters`, `Perturbations`, `Push`;
 robots as data: `RobotDescription`, `load_robot` (``default``, ``g1``,
 ``talos`` or a YAML file) and `add_robot` (``AddEmergencyStop(robot=...)``
@@ -46,6 +47,8 @@ _EXPORTS = {
     "WalkingPatternSource": "drake_estop.systems.reference",
     "EStopTrigger": "drake_estop.systems.trigger",
     "StopPlannerSystem": "drake_estop.systems.stop_controller",
+    "StopPlannerConfig": "drake_estop.systems.decision",
+    "StopMode": "drake_estop.systems.decision",
     "WholeBodyIK": "drake_estop.systems.ik",
     "StopVisualizer": "drake_estop.systems.visualization",
     "GaitParameters": "drake_estop.planning.gait",
@@ -53,7 +56,7 @@ _EXPORTS = {
     "NominalPattern": "drake_estop.planning.gait",
     "ArmSwing": "drake_estop.planning.arms",
     "RobotDescription": "drake_estop.robots.description",
-    "load_robot": "drake_estop.robots.loading",
+    "load_robot": "drake_estop.robots.parameters",
     "add_robot": "drake_estop.robots.plant",
     "StopParameters": "drake_estop.planning.plan",
     "StopPlan": "drake_estop.planning.plan",

@@ -8,6 +8,7 @@ from pydrake.systems.analysis import Simulator
 
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.stop_controller import StopPlannerSystem
 
 DT = 0.005
@@ -24,7 +25,7 @@ def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
     ``t0`` from the reference, then without a measurement (NaN: no re-plan). Returns the planner, its
     context, the simulator and the first plan."""
     kwargs = {"filter_time_constant": 1e-6, "replan_interval": DT, **kwargs}
-    planner = StopPlannerSystem(pattern=pattern, params=params, **kwargs)
+    planner = StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**kwargs))
     context = planner.CreateDefaultContext()
     pos, vel, _, _ = pattern.com([t0])
     planner.stop_port.FixValue(context, [1.0, t0])

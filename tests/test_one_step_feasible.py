@@ -15,6 +15,7 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop
 from drake_estop.planning.rollout import stride_ticks
 from drake_estop.systems import stop_controller
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.stop_controller import StopPlannerSystem
 from drake_estop.systems.stop_numerics import nominal_one_step_table
 from drake_estop.systems.visualization import ONE_STEP_INDICATOR, StopVisualizer, make_meshcat
@@ -116,7 +117,7 @@ def test_nominal_ticks_are_looked_up_not_solved_on_the_tick(monkeypatch):
 def _measured_planner(pattern, t, stop, com_xy, vel_xy, **options):
     """A planner with constant measured COG inputs, its simulator at tick ``t`` (update not run yet)."""
     builder = DiagramBuilder()
-    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=PARAMS, **options))
+    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=PARAMS, config=StopPlannerConfig(**options)))
     for port, value in ((planner.stop_port, stop), (planner.measured_com_port, [*com_xy, 0.8]),
                         (planner.measured_com_vel_port, [*vel_xy, 0.0])):
         builder.Connect(builder.AddSystem(ConstantVectorSource(np.asarray(value, float))).get_output_port(), port)

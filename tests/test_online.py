@@ -133,6 +133,18 @@ def test_one_step_feasible_logged_every_tick_online(paper_stop):
     assert np.all(column[latched:] == float(first.case == "one-step"))
 
 
+def test_the_stops_mode_is_logged_every_tick_online(paper_stop):
+    """The planner's mode per tick and where it changed: walking until the latch of 3.4 s, then the
+    paper's stop phase by phase (the physics may re-plan, but the paper's stop lands once)."""
+    dt = paper_stop.plan.params.servo_period
+    modes = [change["mode"] for change in paper_stop.online["modes"]]
+    # the trigger's latch is its state: the planner sees the 3.4 s signal at the next tick
+    assert modes[0] == "walking" and paper_stop.online["modes"][1]["time"] == pytest.approx(3.4 + dt)
+    assert modes[1:4] == ["single_support_stop", "double_support_stop", "halt"]
+    assert paper_stop.online["mode"].shape[1] == 2
+    assert paper_stop.online["mode"][int(round(3.3 / dt))].tolist() == [0.0, 0.0]
+
+
 def test_joint_velocity_violations_counts_ticks_over_the_model_limit(paper_stop):
     from pydrake.multibody.plant import MultibodyPlant
 
@@ -229,13 +241,11 @@ def test_online_simulator_starts_the_robot_in_its_pose_with_the_model_errors_in_
 
 
 def test_the_controller_options_default_to_the_stop_planner_systems_own():
-    """The planner features left at their defaults change nothing: StopPlannerSystem has the same defaults."""
-    import inspect
+    """The planner features left at their defaults change nothing: StopPlannerConfig has the same defaults."""
+    from drake_estop.systems.decision import StopPlannerConfig
 
-    from drake_estop.systems.stop_controller import StopPlannerSystem
-
-    own = inspect.signature(StopPlannerSystem).parameters
-    assert ControllerOptions().planner_options() == {name: own[name].default for name in PLANNER_FEATURES}
+    own = StopPlannerConfig()
+    assert ControllerOptions().planner_options() == {name: getattr(own, name) for name in PLANNER_FEATURES}
 
 
 def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
@@ -259,15 +269,16 @@ def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
                                    foothold_replan=True, max_replan_solves=None)
     handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller,
                                    planner_options={"replan_threshold": 0.06})
-    assert {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES} == controller.planner_options()
-    assert seen["add_stop_controller"]["replan_threshold"] == 0.06
+    config = seen["add_stop_controller"]["config"]
+    assert {name: getattr(config, name) for name in PLANNER_FEATURES} == controller.planner_options()
+    assert config.replan_threshold == 0.06
     assert seen["add_state_estimation"]["true_state"] is True
     assert handles.compliance is None and handles.swing_tilt is None
     assert "ankle_offsets" not in handles.loggers and "swing_tilt" not in handles.loggers
     default = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
     assert default.compliance is not None and default.swing_tilt is not None
     assert seen["add_state_estimation"]["true_state"] is False
-    default_features = {name: seen["add_stop_controller"][name] for name in PLANNER_FEATURES}
+    default_features = {name: getattr(seen["add_stop_controller"]["config"], name) for name in PLANNER_FEATURES}
     assert default_features == ControllerOptions().planner_options()
 
 

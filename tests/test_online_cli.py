@@ -180,8 +180,9 @@ def test_physics_summary_reports_the_online_controller(tmp_path):
     assert data["perturbations"]["mass_scale"] == 1.1
     header = open(log).readline().strip().split(",")
     for column in ("cop_x", "cop_y", "pelvis_z", "com_meas_x", "com_meas_y", "com_meas_z", "com_est_x",
-                   "one_step_feasible", "capture_steps", "capture_margin"):
+                   "one_step_feasible", "capture_steps", "capture_margin", "mode", "steps_left"):
         assert column in header
+    assert data["modes"][0]["mode"] == "walking" and len(data["modes"]) >= 2  # the stop's modes from the latch
     # the measured state's capturability at the signal (no push): caught in at most three steps
     assert set(data["capturability"]) == {"steps", "margin", "margin_speed", "witness", "worst"}
     assert 0 <= data["capturability"]["steps"] <= 3 and data["capturability"]["margin"] >= 0.0

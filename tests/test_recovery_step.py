@@ -331,7 +331,9 @@ def test_a_stop_takes_no_more_steps_than_max_steps():
     with two it does. Not a positive integer: ValueError naming it."""
     from drake_estop.physics.online import controller_stop_parameters
     from drake_estop.planning.gait import NominalPattern
-    from drake_estop.systems.stop_controller import MAX_STOP_STEPS, StopPlannerSystem
+    from drake_estop.planning.replan import MAX_STOP_STEPS
+    from drake_estop.systems.decision import StopPlannerConfig
+    from drake_estop.systems.stop_controller import StopPlannerSystem
 
     planner, context, _ = _pushed_forward_at_3_1(max_steps=1)
     assert planner.plan(context).next_step is None and planner.replans(context) == (0, 1)
@@ -340,7 +342,8 @@ def test_a_stop_takes_no_more_steps_than_max_steps():
     assert MAX_STOP_STEPS == 3
     for bad in (0, 2.0, True):
         with pytest.raises(ValueError, match="max_steps"):
-            StopPlannerSystem(pattern=NominalPattern(), params=controller_stop_parameters(), max_steps=bad)
+            StopPlannerSystem(pattern=NominalPattern(), params=controller_stop_parameters(),
+                              config=StopPlannerConfig(max_steps=bad))
 
 
 def test_landings_made_counts_the_touchdowns_by_a_time():

@@ -6,6 +6,7 @@ import pytest
 from planner_helpers import DT, latched_stop_planner, moved_feet, replan_params, state_at
 from pydrake.systems.analysis import Simulator
 
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.stop_controller import StopPlannerSystem
 from drake_estop.systems.stop_numerics import (
     SOLE_AWAY,
@@ -82,7 +83,7 @@ def test_planner_keeps_the_plans_feet_without_usable_footholds(pattern, params, 
 @pytest.mark.parametrize("value", [0, -1, 1.5, True, float("nan")])
 def test_planner_rejects_bad_foothold_ticks(pattern, params, value):
     with pytest.raises(ValueError, match="foothold_ticks"):
-        StopPlannerSystem(pattern=pattern, params=params, foothold_ticks=value)
+        StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(foothold_ticks=value))
 
 
 # -- a foot measured off the plan (foothold_replan) ----------------------------------------------------

@@ -21,6 +21,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.reference import REFERENCE_SIZE, REFERENCE_SLICES, blended_reference
 from drake_estop.systems.stop_controller import StopPlannerSystem
 
@@ -32,7 +33,7 @@ def params():
 
 def _planner_diagram(pattern, params, stop, com, com_vel, **kwargs):
     builder = DiagramBuilder()
-    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=params, **kwargs))
+    planner = builder.AddSystem(StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**kwargs)))
     for port, value in ((planner.stop_port, stop), (planner.measured_com_port, com),
                         (planner.measured_com_vel_port, com_vel)):
         source = builder.AddSystem(ConstantVectorSource(np.asarray(value, float)))
@@ -257,7 +258,7 @@ def test_the_planner_drops_a_replans_tries_when_the_robot_is_back_on_the_plan(mo
 @pytest.mark.parametrize("value", [0, 2.5, False])
 def test_planner_rejects_a_bad_max_latch_solves(pattern, params, value):
     with pytest.raises(ValueError, match="max_latch_solves"):
-        StopPlannerSystem(pattern=pattern, params=params, max_latch_solves=value)
+        StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(max_latch_solves=value))
 
 
 @pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
@@ -265,10 +266,10 @@ def test_planner_rejects_a_bad_max_latch_solves(pattern, params, value):
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
 def test_planner_rejects_bad_settings(pattern, params, name, value):
     with pytest.raises(ValueError, match=name):
-        StopPlannerSystem(pattern=pattern, params=params, **{name: value})
+        StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**{name: value}))
 
 
 @pytest.mark.parametrize("value", [0, -1, 1.5, True, "2"])
 def test_planner_rejects_a_bad_solve_bound(pattern, params, value):
     with pytest.raises(ValueError, match="max_replan_solves"):
-        StopPlannerSystem(pattern=pattern, params=params, max_replan_solves=value)
+        StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(max_replan_solves=value))

@@ -8,6 +8,7 @@ from pydrake.systems.framework import DiagramBuilder
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters, plan_stop
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.reference import WalkingPatternSource
 from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
 from drake_estop.systems.stop_numerics import dcm_deviation
@@ -144,7 +145,7 @@ def test_trigger_with_real_meshcat_adds_button():
 
 
 def _planner_context(pattern, params, t, stop, **options):
-    planner = StopPlannerSystem(pattern=pattern, params=params, **options)
+    planner = StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**options))
     simulator = Simulator(planner)
     context = simulator.get_mutable_context()
     context.SetTime(t)

@@ -219,22 +219,10 @@ def _intervals(mask):
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
-def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointReference,
-            physics: PhysicsParameters, wall_time: float, robot=None) -> PhysicsResult:
-    """Per-tick arrays and success criteria from the loggers of a finished run of ``robot`` (a
-    description, a name or None: the default humanoid; its floating base is the "pelvis" of the height
-    bounds, its ``torso_body`` the tilted torso, its sole frames the feet)."""
-    robot = as_robot(robot)
-    physics = physics.for_robot(robot)
-    plant = handles.plant
-    logs = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
-    times = logs["state"].sample_times()
-    states = logs["state"].data().T
-    cop = logs["cop"].data().T
-    normal = logs["normal_force"].data()[0]
-    foot_forces = dict(zip(SIDES, logs["foot_forces"].data()))
-    n = len(times)
-    scratch = plant.CreateDefaultContext()
+def _measured(plant, scratch, states: np.ndarray, robot):
+    """Per logged state (rows of ``states``), set in ``scratch``: the COG [m] and its velocity [m/s] (n, 3), the
+    pelvis height [m] and the torso tilt [rad] (n,), and per side the sole positions [m] (n, 3) and yaws [rad] (n,)."""
+    n = len(states)
     torso = plant.GetBodyByName(robot.torso_body)
     pelvis = plant.GetBodyByName(robot.floating_base)
     soles = dict(zip(SIDES, sole_frames(plant, robot)))
@@ -255,14 +243,11 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
             feet_meas[side][i] = pose.translation()
             r = pose.rotation().matrix()
             feet_yaw[side][i] = math.atan2(r[1, 0], r[0, 0])
-    pos, _, _, zmp_plan = plan.com(times)
-    z_plan = plan.com_height(times)[0]
-    com_plan = np.column_stack([pos, z_plan])
-    planned_feet = [plan.feet(float(t)) for t in times]
-    feet_plan = {side: np.array([f[side] for f in planned_feet]) for side in SIDES}
-    planned_yaw = [plan.feet_yaw(float(t))[0] for t in times]
-    weight = plant.CalcTotalMass(scratch) * GRAVITY
-    in_contact = {side: foot_forces[side] > physics.contact_force_fraction * weight for side in SIDES}
+    return com, com_vel, pelvis_z, tilt, feet_meas, feet_yaw
+
+
+def _slip(feet_meas: dict, feet_plan: dict, in_contact: dict) -> dict:
+    """Per side, the worst slip [m] of the sole over the planned stance intervals (``{side: metres}``)."""
     # slip: sole travel (xy) over each planned stance interval, from its first tick in contact
     slip = {}
     for side in SIDES:
@@ -272,10 +257,14 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
             travel = np.linalg.norm(feet_meas[side][a:b, :2] - feet_meas[side][a, :2], axis=1)
             worst = max(worst, float(travel.max()))
         slip[side] = worst
-    # until a fall (the torso past its tilt limit): the feet of a fallen robot say nothing of the stop
-    upright = np.cumprod(tilt < physics.max_torso_tilt).astype(bool)
-    off_plan, turn = sole_deviations(feet_meas, feet_yaw, feet_plan, planned_yaw,
-                                     {side: in_contact[side] & upright for side in SIDES})
+    return slip
+
+
+def _cop_margins(plan: StopPlan, times, cop, in_contact: dict, feet_meas: dict, feet_yaw: dict, feet_plan: dict,
+                 planned_yaw: list):
+    """Per tick, the measured centre of pressure's margin [m] (positive inside) in the planned support and in the
+    soles measured in contact: ``(margin_plan, margin_meas)``; NaN without a CoP (or, measured, a contact)."""
+    n = len(times)
     sole = plan.pattern.params.sole
     planned_support = [_planned_support(plan, float(t)) for t in times]
     margin_plan = np.full(n, np.nan)
@@ -293,6 +282,40 @@ def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointRe
             corners = np.vstack([sole.corners(feet_meas[s][i][:2], s, float(feet_yaw[s][i]))
                                  for s in touching])
             margin_meas[i] = SupportPolygon(corners).margin(cop[i])[0]
+    return margin_plan, margin_meas
+
+
+def analyse(handles: PhysicsHandles, context, plan: StopPlan, reference: JointReference,
+            physics: PhysicsParameters, wall_time: float, robot=None) -> PhysicsResult:
+    """Per-tick arrays and success criteria from the loggers of a finished run of ``robot`` (a
+    description, a name or None: the default humanoid; its floating base is the "pelvis" of the height
+    bounds, its ``torso_body`` the tilted torso, its sole frames the feet)."""
+    robot = as_robot(robot)
+    physics = physics.for_robot(robot)
+    plant = handles.plant
+    logs = {name: logger.FindLog(context) for name, logger in handles.loggers.items()}
+    times = logs["state"].sample_times()
+    states = logs["state"].data().T
+    cop = logs["cop"].data().T
+    normal = logs["normal_force"].data()[0]
+    foot_forces = dict(zip(SIDES, logs["foot_forces"].data()))
+    n = len(times)
+    scratch = plant.CreateDefaultContext()
+    com, com_vel, pelvis_z, tilt, feet_meas, feet_yaw = _measured(plant, scratch, states, robot)
+    pos, _, _, zmp_plan = plan.com(times)
+    z_plan = plan.com_height(times)[0]
+    com_plan = np.column_stack([pos, z_plan])
+    planned_feet = [plan.feet(float(t)) for t in times]
+    feet_plan = {side: np.array([f[side] for f in planned_feet]) for side in SIDES}
+    planned_yaw = [plan.feet_yaw(float(t))[0] for t in times]
+    weight = plant.CalcTotalMass(scratch) * GRAVITY
+    in_contact = {side: foot_forces[side] > physics.contact_force_fraction * weight for side in SIDES}
+    slip = _slip(feet_meas, feet_plan, in_contact)
+    # until a fall (the torso past its tilt limit): the feet of a fallen robot say nothing of the stop
+    upright = np.cumprod(tilt < physics.max_torso_tilt).astype(bool)
+    off_plan, turn = sole_deviations(feet_meas, feet_yaw, feet_plan, planned_yaw,
+                                     {side: in_contact[side] & upright for side in SIDES})
+    margin_plan, margin_meas = _cop_margins(plan, times, cop, in_contact, feet_meas, feet_yaw, feet_plan, planned_yaw)
     speed = np.linalg.norm(com_vel[:, :2], axis=1)
     moving = np.flatnonzero(speed >= physics.rest_speed)
     rest_index = 0 if len(moving) == 0 else moving[-1] + 1

@@ -369,6 +369,41 @@ class StateEstimator(LeafSystem):
         y[out + 3:out + 6] = plant.CalcCenterOfMassTranslationalVelocityInWorld(scratch)
         return y
 
+    def _cog_filters(self, context, x, dt, quat, acc, wrench, fz, total, com_meas):
+        """The COG filters' step over ``dt`` [s] (one Kalman filter per axis, ``self._model``'s input), from
+        ``x``'s estimate to the measured COG ``com_meas`` [m]: the new ``(mean, cov, d_lp)``."""
+        mean, cov = x[_MEAN].copy(), x[_COV].copy()
+        a_world = quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, self._g])
+        a_force = self._g * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
+        d_lp = x[_D_LP] + (dt / (self._push_tau + dt)) * (a_world[:2] - a_force - x[_D_LP])
+        for axis in range(3):
+            m, P = mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3]
+            sigma = self._sz if axis == 2 else self._sa
+            if axis < 2 and self._model == "lipm":
+                p = self.cop_port.Eval(context)[axis]
+                if total > self._min_force and math.isfinite(p):
+                    ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
+                    A = np.array([[ch, sh / self._omega], [self._omega * sh, ch]])
+                    B, u = np.array([1.0 - ch, -self._omega * sh]), p
+                else:
+                    A, B, u = np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
+            else:
+                A = np.array([[1.0, dt], [0.0, 1.0]])
+                B = np.array([0.5 * dt * dt, dt])
+                if axis == 2:
+                    u = 0.0
+                elif self._model == "imu":
+                    u = a_world[axis]
+                elif self._model == "hybrid":
+                    d = d_lp[axis]
+                    u = a_force[axis] + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
+                else:
+                    u = a_force[axis]
+            Q = sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
+            m, P = kf_step(m, P, A, B, u, Q, com_meas[axis], self._r)
+            mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3] = m, P
+        return mean, cov, d_lp
+
     def _step(self, context, x, t):
         plant = self._plant
         dt = max(t - x[_T_LAST], 0.0) if x[_UPDATED] else 0.0
@@ -420,36 +455,7 @@ class StateEstimator(LeafSystem):
         com_meas = base + com_rel
 
         # 3. COG filters
-        mean, cov = x[_MEAN].copy(), x[_COV].copy()
-        a_world = quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, self._g])
-        a_force = self._g * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
-        d_lp = x[_D_LP] + (dt / (self._push_tau + dt)) * (a_world[:2] - a_force - x[_D_LP])
-        for axis in range(3):
-            m, P = mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3]
-            sigma = self._sz if axis == 2 else self._sa
-            if axis < 2 and self._model == "lipm":
-                p = self.cop_port.Eval(context)[axis]
-                if total > self._min_force and math.isfinite(p):
-                    ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
-                    A = np.array([[ch, sh / self._omega], [self._omega * sh, ch]])
-                    B, u = np.array([1.0 - ch, -self._omega * sh]), p
-                else:
-                    A, B, u = np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
-            else:
-                A = np.array([[1.0, dt], [0.0, 1.0]])
-                B = np.array([0.5 * dt * dt, dt])
-                if axis == 2:
-                    u = 0.0
-                elif self._model == "imu":
-                    u = a_world[axis]
-                elif self._model == "hybrid":
-                    d = d_lp[axis]
-                    u = a_force[axis] + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
-                else:
-                    u = a_force[axis]
-            Q = sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
-            m, P = kf_step(m, P, A, B, u, Q, com_meas[axis], self._r)
-            mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3] = m, P
+        mean, cov, d_lp = self._cog_filters(context, x, dt, quat, acc, wrench, fz, total, com_meas)
 
         y = x.copy()
         y[_QUAT], y[_STANCE], y[_ANCHOR] = quat, stance, anchor

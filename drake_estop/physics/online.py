@@ -27,7 +27,6 @@ N-step capturability every tick.
 
 from __future__ import annotations
 
-import inspect
 import time
 from dataclasses import dataclass, replace
 
@@ -69,9 +68,10 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot, stepping_limits
 from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
+from drake_estop.systems.decision import StopPlannerConfig, mode_changes
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.reference import connect_reference
-from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
+from drake_estop.systems.stop_controller import add_stop_controller
 from drake_estop.timing import TickTimer, per_tick
 
 #: Planner settings for the physics controller: 3 cm ZMP margin, halts of 1.0-1.5 s, the slowdown ZMP at the
@@ -267,9 +267,8 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     from drake_estop.systems.diagram import robot_layout
 
     robot = as_robot(robot)
-    robot_settings = controller_settings(robot)
     controller = ControllerOptions() if controller is None else controller
-    planner_settings = {"layout": robot_layout(robot, pattern), **_planner_settings(controller, planner_options)}
+    planner_config = _planner_settings(controller, planner_options)
     perturbations = perturbations or Perturbations()
     physics = ground_friction(perturbations, physics or PhysicsParameters()).for_robot(robot)
     dt = stop_params.servo_period
@@ -286,7 +285,8 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
                                      true_state=controller.true_state, initial_q=q0, timer=timer, robot=robot)
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-                                           timer=timer, **planner_settings)
+                                           timer=timer, config=planner_config,
+                                           layout=robot_layout(robot, pattern))
     builder.Connect(estimator.com_port, planner.measured_com_port)
     builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
@@ -297,43 +297,68 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
+    reflexes = _add_reflexes(builder, controller=controller, robot=robot, planner=planner, estimator=estimator,
+                             ik=ik, kin_plant=kin_plant, plant=plant, omega=pattern.w, servo_period=dt, timer=timer)
+    swing_tilt_system, foot_force, hip, compliance = reflexes
+    add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
+                      velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
+    loggers = _add_loggers(builder, plant=plant, cop=cop, ik=ik, estimator=estimator, planner=planner,
+                           monitor=monitor, reflexes=reflexes, period=physics.log_period, servo_period=dt)
+    diagram = builder.Build()
+    diagram.set_name("estop_online")
+    return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
+                         compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force, monitor)
+
+
+def _add_reflexes(builder, *, controller, robot, planner, estimator, ik, kin_plant, plant, omega, servo_period,
+                  timer) -> tuple:
+    """The controller's reflexes between the planner and the IK, each where ``controller`` turns it on:
+    ``(swing tilt, foot force control, hip strategy, foot-edge compliance)`` (None where off); the
+    reference connected to the IK through them."""
+    settings = controller_settings(robot)
     swing_tilt_system = None
     if controller.swing_tilt:
         swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
-                                                        estimator=estimator, servo_period=dt, timer=timer,
+                                                        estimator=estimator, servo_period=servo_period, timer=timer,
                                                         robot=robot, **_robot_setting(
-                                                            SWING_TILT_COMPENSATION, robot_settings, "deadband",
+                                                            SWING_TILT_COMPENSATION, settings, "deadband",
                                                             "swing_tilt_deadband"))
     feet = swing_tilt_system
     foot_force = None
-    if controller.foot_force_control and robot_settings["foot_force_damping"] is not None:
+    if controller.foot_force_control and settings["foot_force_damping"] is not None:
         foot_force = add_foot_force_control(builder, feet=swing_tilt_system or planner, zmp_source=planner,
-                                            sensors=estimator.sensors, servo_period=dt, timer=timer,
-                                            damping=robot_settings["foot_force_damping"], **_robot_setting(
-                                                FOOT_FORCE_CONTROL, robot_settings, "engage_time",
+                                            sensors=estimator.sensors, servo_period=servo_period, timer=timer,
+                                            damping=settings["foot_force_damping"], **_robot_setting(
+                                                FOOT_FORCE_CONTROL, settings, "engage_time",
                                                 "foot_force_engage_time"))
         feet = foot_force
     hip = None
     if controller.hip_strategy:
         hip = add_hip_strategy(builder, reference=planner, estimator=estimator, plant=kin_plant, robot=robot,
-                               layout=planner.layout, omega=pattern.w, servo_period=dt, timer=timer,
+                               layout=planner.layout, omega=omega, servo_period=servo_period, timer=timer,
                                **HIP_STRATEGY)
     connect_reference(builder, planner, ik, feet=feet, upper_body=hip)
     compliance = None
     if controller.foot_compliance:
-        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, dt, timer=timer,
+        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, servo_period, timer=timer,
                                               robot=robot, **_robot_setting(
-                                                  FOOT_EDGE_COMPLIANCE, robot_settings, "edge_margin",
+                                                  FOOT_EDGE_COMPLIANCE, settings, "edge_margin",
                                                   "edge_margin"))
-    add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
-                      velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
-    period = physics.log_period
+    return swing_tilt_system, foot_force, hip, compliance
+
+
+def _add_loggers(builder, *, plant, cop, ik, estimator, planner, monitor, reflexes, period, servo_period) -> dict:
+    """The run's loggers by name: the plant's and the IK's every ``period``, the planner's and the
+    monitor's every servo tick, the reflexes' where they run."""
+    swing_tilt_system, foot_force, hip, compliance = reflexes
+    dt = servo_period
     loggers = {
         **add_online_loggers(builder, plant, cop, ik, period),
         "com_est": LogVectorOutput(estimator.com_port, builder, period),
         "com_vel_est": LogVectorOutput(estimator.com_vel_port, builder, period),
         # every servo tick, whatever log_period: its update of tick k is published at tick k + 1
         "one_step_feasible": LogVectorOutput(planner.one_step_feasible_port, builder, dt),
+        "mode": LogVectorOutput(planner.mode_port, builder, dt),
         "capturability": LogVectorOutput(monitor.capturability_port, builder, dt),
     }
     if swing_tilt_system is not None:
@@ -344,10 +369,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
     if foot_force is not None:
         loggers["foot_height_difference"] = LogVectorOutput(foot_force.height_difference_port, builder, period)
-    diagram = builder.Build()
-    diagram.set_name("estop_online")
-    return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
-                         compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force, monitor)
+    return loggers
 
 
 def online_simulator(handles: OnlineHandles, perturbations: Perturbations | None = None) -> Simulator:
@@ -384,27 +406,34 @@ def robot_stop_parameters(robot=None, *, braked_landing: bool = True) -> StopPar
                                       robot=description)
 
 
-def _planner_settings(controller, planner_options) -> dict:
-    """The StopPlannerSystem keyword arguments: ``controller``'s planner features and ``planner_options``,
-    its other settings; ValueError naming the argument that cannot be one."""
+def mode_results(log, servo_period: float) -> dict:
+    """The planner's ``mode`` log by tick (``mode``: rows ``[StopMode, landings left]``) and its changes
+    (``modes``: :func:`drake_estop.systems.decision.mode_changes`)."""
+    modes = per_tick(log, servo_period)
+    return {"mode": modes, "modes": mode_changes(modes, servo_period)}
+
+
+def _planner_settings(controller, planner_options) -> StopPlannerConfig:
+    """The StopPlannerSystem's settings: ``controller``'s planner features and ``planner_options``, its
+    other settings; ValueError naming the argument that cannot be one."""
     if not isinstance(controller, ControllerOptions):
         raise ValueError(f"controller must be a ControllerOptions, got {controller!r}")
     if controller.kind != "online":
         raise ValueError(f"controller.kind must be 'online' here, got {controller.kind!r} (the offline filter: "
                          "drake_estop.physics.offline.run_physics)")
     if planner_options is None:
-        return controller.planner_options()
+        return StopPlannerConfig(**controller.planner_options())
     if not isinstance(planner_options, dict):
         raise ValueError(f"planner_options must be a dict, got {planner_options!r}")
     features = sorted(set(planner_options) & set(PLANNER_FEATURES))
     if features:
         raise ValueError(f"planner_options: {features} are controller options: give them as "
                          f"controller=ControllerOptions({features[0]}=...)")
-    known = set(inspect.signature(StopPlannerSystem).parameters) - {"pattern", "params", "timer"}
+    known = set(StopPlannerConfig.field_names())
     unknown = sorted(set(planner_options) - known)
     if unknown:
         raise ValueError(f"planner_options: unknown setting(s) {unknown}; known: {sorted(known)}")
-    return {**controller.planner_options(), **planner_options}
+    return StopPlannerConfig(**{**controller.planner_options(), **planner_options})
 
 
 def _check_run_arguments(pattern, estop_time, after_halt):
@@ -414,6 +443,66 @@ def _check_run_arguments(pattern, estop_time, after_halt):
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
     if isinstance(after_halt, bool) or not (finite_number(after_halt) and float(after_halt) >= 1.0):
         raise ValueError(f"after_halt must be at least 1 s, as simulate's --after-halt, got {after_halt!r}")
+
+
+def _ik_reference(handles: OnlineHandles, context) -> JointReference:
+    """The IK's joint targets of a run and its COG and sole errors (a failure: past their bounds)."""
+    from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND  # (the diagram module imports this one)
+
+    q_log = handles.loggers["ik_q"].FindLog(context)
+    com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
+    foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
+    failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
+    return JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, 0.0)
+
+
+def _online_results(handles: OnlineHandles, context, plan, result, cpu: float, perturbations) -> dict:
+    """``result.online``: the controller's tick times, re-plans, modes, capturability and reflexes of a run
+    (``cpu``: its CPU seconds)."""
+    planner_context = handles.planner.GetMyContextFromRoot(context)
+    dt = handles.planner.params.servo_period
+    states = handles.loggers["state"].FindLog(context).data().T
+    replans, replan_failures = handles.planner.replans(planner_context)
+    return {
+        "controller": "online",
+        "tick_compute": handles.timer.summary(since=plan.signal_time),
+        # the same ticks in the controller thread's CPU time: its own work, without preemption by other
+        # processes (which the wall clock above includes on a shared machine)
+        "tick_compute_cpu": handles.timer.summary(since=plan.signal_time, clock="cpu"),
+        # where those ticks' CPU time goes: each block's own share, mean seconds a tick
+        "tick_compute_by_block": handles.timer.breakdown(since=plan.signal_time, clock="cpu"),
+        # the three slowest of those ticks (CPU) and each one's blocks: what the worst tick did
+        "tick_compute_slowest": handles.timer.slowest(since=plan.signal_time, clock="cpu", count=3),
+        "replans": int(replans),
+        "replan_failures": int(replan_failures),
+        # why the latch planned from the reference (no stop from the measured state), or None
+        "latch_fallback": handles.planner.latch_fallback(planner_context),
+        "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
+        "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
+                                                   .FindLog(context).sample_times()),
+        "com_est": handles.loggers["com_est"].FindLog(context).data().T,
+        "one_step_feasible": per_tick(handles.loggers["one_step_feasible"].FindLog(context), dt),
+        # the stop's mode after each tick's update ([StopMode, landings left]) and where it changed
+        **mode_results(handles.loggers["mode"].FindLog(context), dt),
+        # the measured state's N-step capturability: per tick (steps, -1 for none; margin [m], [m/s]) and summary
+        **monitor_results(handles.capturability, handles.loggers["capturability"], context, plan.signal_time,
+                          fall_time(result, handles.physics)),
+        # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
+        # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
+        "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),
+        "perturbations": perturbations,
+        # the largest ankle offset of the foot-edge compliance [rad] (0 without it)
+        "ankle_offset_max": float(np.max(np.abs(handles.loggers["ankle_offsets"].FindLog(context).data())))
+        if handles.compliance is not None else 0.0,
+        # the largest correction of the swing foot's tilt compensation [rad] (0 without it)
+        "swing_tilt_max": float(np.max(np.linalg.norm(
+            handles.loggers["swing_tilt"].FindLog(context).data().reshape(2, 3, -1), axis=1)))
+        if handles.swing_tilt is not None else 0.0,
+        # the hip strategy's largest bow of the trunk [rad] (0 without it, or where it never bowed)
+        "hip_strategy_bow_max": float(np.max(np.abs(
+            handles.loggers["hip_strategy_bow"].FindLog(context).data()[0])))
+        if "hip_strategy_bow" in handles.loggers else 0.0,
+    }
 
 
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
@@ -455,7 +544,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         ``ControllerOptions(foot_compliance=False)`` leaves out the stance ankles' foot-edge compliance,
         ``ControllerOptions(true_state=True)`` feeds the controller the true COG (debugging).
     planner_options : dict, optional
-        Other keyword arguments of :class:`drake_estop.systems.stop_controller.StopPlannerSystem`
+        Other fields of :class:`drake_estop.systems.decision.StopPlannerConfig`
         (``replan_threshold`` [m], ``replan_interval`` [s], ...); its features are ``controller``'s.
     robot : RobotDescription or str, optional
         The humanoid (a description, ``"default"``, ``"g1"``, ``"talos"`` or a description file; default
@@ -494,8 +583,6 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         ``ControllerOptions(reference_fallback=False)``, from the measured state (by default the latch
         then plans from the reference: ``online["latch_fallback"]``).
     """
-    from drake_estop.systems.diagram import IK_COM_BOUND, IK_FOOT_BOUND
-
     robot = as_robot(robot)
     controller = ControllerOptions() if controller is None else controller
     _planner_settings(controller, planner_options)  # the walk below reads the controller
@@ -511,52 +598,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     cpu = time.process_time()
     plan, wall = run_through_stop(simulator, handles.planner, estop_time, stop_params.servo_period, after_halt,
                                   handles.planner.plans)  # the plan and its re-plans, each from its start
-    planner_context = handles.planner.GetMyContextFromRoot(context)
-    q_log = handles.loggers["ik_q"].FindLog(context)
-    com_err = handles.loggers["ik_com_error"].FindLog(context).data()[0]
-    foot_err = handles.loggers["ik_foot_error"].FindLog(context).data()[0]
-    failures = int(np.sum((com_err > IK_COM_BOUND) | (foot_err > IK_FOOT_BOUND)))
-    reference = JointReference(q_log.sample_times(), q_log.data().T, com_err, foot_err, failures, 0.0)
+    reference = _ik_reference(handles, context)
     cpu = time.process_time() - cpu
     result = analyse(handles, context, plan, reference, handles.physics, wall, robot)
-    states = handles.loggers["state"].FindLog(context).data().T
-    replans, replan_failures = handles.planner.replans(planner_context)
-    result.online = {
-        "controller": "online",
-        "tick_compute": handles.timer.summary(since=plan.signal_time),
-        # the same ticks in the controller thread's CPU time: its own work, without preemption by other
-        # processes (which the wall clock above includes on a shared machine)
-        "tick_compute_cpu": handles.timer.summary(since=plan.signal_time, clock="cpu"),
-        # where those ticks' CPU time goes: each block's own share, mean seconds a tick
-        "tick_compute_by_block": handles.timer.breakdown(since=plan.signal_time, clock="cpu"),
-        # the three slowest of those ticks (CPU) and each one's blocks: what the worst tick did
-        "tick_compute_slowest": handles.timer.slowest(since=plan.signal_time, clock="cpu", count=3),
-        "replans": int(replans),
-        "replan_failures": int(replan_failures),
-        # why the latch planned from the reference (no stop from the measured state), or None
-        "latch_fallback": handles.planner.latch_fallback(planner_context),
-        "joint_velocity_violations": int(np.count_nonzero(joint_velocity_violations(handles.plant, states))),
-        "joint_velocity_peak": joint_velocity_peak(handles.plant, states, handles.loggers["state"]
-                                                   .FindLog(context).sample_times()),
-        "com_est": handles.loggers["com_est"].FindLog(context).data().T,
-        "one_step_feasible": per_tick(handles.loggers["one_step_feasible"].FindLog(context), stop_params.servo_period),
-        # the measured state's N-step capturability: per tick (steps, -1 for none; margin [m], [m/s]) and summary
-        **monitor_results(handles.capturability, handles.loggers["capturability"], context, plan.signal_time,
-                          fall_time(result, handles.physics)),
-        # simulated seconds per CPU second of the loop (plant, contact, controller): the real-time
-        # factor on a core of its own, little changed by other processes (unlike the wall-clock one)
-        "cpu_realtime_factor": result.sim_time / cpu if cpu > 0 else float("nan"),
-        "perturbations": perturbations,
-        # the largest ankle offset of the foot-edge compliance [rad] (0 without it)
-        "ankle_offset_max": float(np.max(np.abs(handles.loggers["ankle_offsets"].FindLog(context).data())))
-        if handles.compliance is not None else 0.0,
-        # the largest correction of the swing foot's tilt compensation [rad] (0 without it)
-        "swing_tilt_max": float(np.max(np.linalg.norm(
-            handles.loggers["swing_tilt"].FindLog(context).data().reshape(2, 3, -1), axis=1)))
-        if handles.swing_tilt is not None else 0.0,
-        # the hip strategy's largest bow of the trunk [rad] (0 without it, or where it never bowed)
-        "hip_strategy_bow_max": float(np.max(np.abs(
-            handles.loggers["hip_strategy_bow"].FindLog(context).data()[0])))
-        if "hip_strategy_bow" in handles.loggers else 0.0,
-    }
+    result.online = _online_results(handles, context, plan, result, cpu, perturbations)
     return result

@@ -355,6 +355,25 @@ def _cop_corners(limits: SteppingLimits, side: str, ankle, rotation) -> np.ndarr
     return ankle + local @ rotation.T
 
 
+def _deepest(dcm, steps: int, stances: list, swings: list, limits: SteppingLimits, omega: float,
+             first_step_time: float, rotation) -> tuple:
+    """The sequence of ``steps`` steps from any of ``stances`` (``(side, ankle)``, each with its swing foot in
+    ``swings``) whose rectangle holds the DCM ``dcm`` (world xy [m]) deepest: ``(depth [m], (sequence, index,
+    the DCM in its stance frame, its stance ankle))``, ``(-inf, None)`` where no sequence exists."""
+    best = (-math.inf, None)
+    for (side, ankle), swing in zip(stances, swings):
+        sequence = _Sequences(limits, omega, side, steps, first_step_time,
+                              None if swing is None else rotation.T @ (swing - ankle))
+        if not len(sequence.boxes):
+            continue
+        local = rotation.T @ (dcm - ankle)
+        depths = _box_depth(local, sequence.boxes)
+        index = int(np.argmax(depths))
+        if depths[index] > best[0]:
+            best = (float(depths[index]), (sequence, index, local, ankle))
+    return best
+
+
 def capturability(dcm, *, omega: float, stance_ankle, stance_side: str, limits: SteppingLimits,
                   first_step_time: float, heading: float = 0.0, other_ankle=None, swing_foot=None,
                   max_steps: int = MAX_STEPS) -> Capturability:
@@ -423,17 +442,7 @@ def capturability(dcm, *, omega: float, stance_ankle, stance_side: str, limits: 
     if depth >= 0.0 or max_steps == 0:
         return Capturability(0 if depth >= 0.0 else -1, depth, depth * omega)
     for steps in range(1, max_steps + 1):
-        best = (-math.inf, None)
-        for (side, ankle), swing in zip(stances, swings):
-            sequence = _Sequences(limits, omega, side, steps, first_step_time,
-                                  None if swing is None else rotation.T @ (swing - ankle))
-            if not len(sequence.boxes):
-                continue
-            local = rotation.T @ (dcm - ankle)
-            depths = _box_depth(local, sequence.boxes)
-            index = int(np.argmax(depths))
-            if depths[index] > best[0]:
-                best = (float(depths[index]), (sequence, index, local, ankle))
+        best = _deepest(dcm, steps, stances, swings, limits, omega, first_step_time, rotation)
         margin, (sequence, index, local, ankle) = best
         if margin >= 0.0:
             return Capturability(steps, margin, margin * omega,

@@ -106,79 +106,62 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
                 crossover: bool = False) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
-    The new plan starts at ``t`` from the current plan's ZMP (value, rate and
-    acceleration: eq. 12-13) and feet, and from the measured COG position and
-    velocity (eq. 10-11):
+    The new plan starts at ``t`` from the current plan's ZMP (value, rate and acceleration: eq. 12-13) and feet, and
+    from the measured COG position and velocity (eq. 10-11):
 
-    * landing phase, while the landing can still move (before
-      ``landing_time - min_landing_time``): landing time, step length and the
-      later phases are solved again (III.A, eq. 21-26);
-    * after the landing, in the ZMP transition or the slowdown: the stop is
-      solved again as a double-support stop on the landed feet (III.B,
-      eq. 29-31).
+    * landing phase, while the landing can still move (before ``landing_time - min_landing_time``): landing time,
+      step length and the later phases are solved again (III.A, eq. 21-26);
+    * after the landing, in the ZMP transition or the slowdown: the stop is solved again as a double-support stop on
+      the landed feet (III.B, eq. 29-31).
 
-    **Ankle strategy.** The paper holds the ZMP still on the support foot until
-    the landing (eq. 19). When no landing stops the measured state that way
-    (a push towards the support foot's side puts the DCM over its outer edge;
-    a forward push needs a step longer than ``max_step_length``), the
-    single-support re-plan moves that ZMP, at rest, to :func:`ankle_zmp` (the
-    point of the support sole, less ``zmp_margin``, that brings the DCM back to
-    the plan's at its landing), then to its lateral part alone, then to its
-    sagittal part alone, and keeps the first that gives a stop. The ZMP
-    steps there at ``t`` (the COG stays continuous: position and velocity;
-    eq. 10-11 hold, eq. 12-13 do not); a physical robot's centre of pressure
-    does the same under a push. Measured on the pushed physics benchmark: see
-    ``benchmarks/ROBUSTNESS.md``.
+    **Ankle strategy.** The paper holds the ZMP still on the support foot until the landing (eq. 19). When no
+    landing stops the measured state that way (a push towards the support foot's side puts the DCM over its outer
+    edge; a forward push needs a step longer than ``max_step_length``), the single-support re-plan moves that ZMP,
+    at rest, to :func:`ankle_zmp` (the point of the support sole, less ``zmp_margin``, that brings the DCM back to
+    the plan's at its landing), then to its lateral part alone, then to its sagittal part alone, and keeps the first
+    that gives a stop. The ZMP steps there at ``t`` (the COG stays continuous: position and velocity; eq. 10-11
+    hold, eq. 12-13 do not); a physical robot's centre of pressure does the same under a push. Measured on the
+    pushed physics benchmark: see ``benchmarks/ROBUSTNESS.md``.
 
-    ``feet`` (after the landing only: ``{side: (x, y)}`` [m], either or both
-    sides) are measured footholds: the double-support stop is solved on them
-    instead of the plan's feet (a pushed swing foot lands centimetres from its
+    ``feet`` (after the landing only: ``{side: (x, y)}`` [m], either or both sides) are measured footholds: the
+    double-support stop is solved on them instead of the plan's feet (a pushed swing foot lands centimetres from its
     target; its support polygon is where it stands). Ignored before the landing.
 
-    **Recovery step** (``recovery_step=True``; after the landing only). Where
-    no double-support stop exists (a forward push puts the DCM past the fore
-    foot's ankle: stopping the COG between the feet then needs a ZMP beyond
-    the toe, or stretches the rear leg past ``max_rear_reach``), the re-plan
-    steps: the rear foot lifts at ``t`` and lands ahead
-    (:func:`~drake_estop.planning.recovery.recovery_step`), the stop solved as a single-support stop (III.A,
-    eq. 21-26) on the fore foot from the measured COG. A step out of double
-    support where a stop would end: the paper's plan has no such step (its
-    stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
-    steps towards the capture point. Only forward (the rear foot steps past
-    the fore foot), from a DCM at least
-    :func:`~drake_estop.planning.recovery.recovery_dcm_ahead` past the fore ankle, not heading for the
-    rear foot's side past the fore sole's inner edge (unless ``recovery_step_inward``: landing wider,
-    :func:`~drake_estop.planning.recovery.recovery_landing_width`), with the rear leg within
-    ``max_rear_reach``; a DCM outside the feet
-    sideways or behind is not caught (sideways no step without a crossover would:
+    **Recovery step** (``recovery_step=True``; after the landing only). Where no double-support stop exists (a
+    forward push puts the DCM past the fore foot's ankle: stopping the COG between the feet then needs a ZMP beyond
+    the toe, or stretches the rear leg past ``max_rear_reach``), the re-plan steps: the rear foot lifts at ``t`` and
+    lands ahead (:func:`~drake_estop.planning.recovery.recovery_step`), the stop solved as a single-support stop
+    (III.A, eq. 21-26) on the fore foot from the measured COG. A step out of double support where a stop would end:
+    the paper's plan has no such step (its stop lands once); the field's push recovery (Pratt et al. 2006, IHMC)
+    steps towards the capture point. Only forward (the rear foot steps past the fore foot), from a DCM at least
+    :func:`~drake_estop.planning.recovery.recovery_dcm_ahead` past the fore ankle, not heading for the rear foot's
+    side past the fore sole's inner edge (unless ``recovery_step_inward``: landing wider,
+    :func:`~drake_estop.planning.recovery.recovery_landing_width`), with the rear leg within ``max_rear_reach``; a
+    DCM outside the feet sideways or behind is not caught (sideways no step without a crossover would:
     :func:`drake_estop.planning.capture.step_out_gain`).
 
-    **Capture landing** (``capture_landing=True``, the default; before the landing only). Where a
-    sideways push sends the lateral DCM past the widest landing, or a forward push the sagittal DCM past
-    the farthest one, before the plan's touchdown, the last single-support try lands sooner, where the
-    swing can still brake (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for
-    comparison. Where that landing does not stop the robot either and ``recovery_step`` is set, it is
-    followed by a recovery step of the old support foot (N-step capture, :func:`capture_step`: the plan
-    lands once, and its :attr:`~drake_estop.planning.plan.StopPlan.next_step` is the second step).
+    **Capture landing** (``capture_landing=True``, the default; before the landing only). Where a sideways push
+    sends the lateral DCM past the widest landing, or a forward push the sagittal DCM past the farthest one, before
+    the plan's touchdown, the last single-support try lands sooner, where the swing can still brake
+    (:func:`_capture_landing`, :func:`capture_setup`); False leaves it out, for comparison. Where that landing does
+    not stop the robot either and ``recovery_step`` is set, it is followed by a recovery step of the old support
+    foot (N-step capture, :func:`capture_step`: the plan lands once, and its
+    :attr:`~drake_estop.planning.plan.StopPlan.next_step` is the second step).
 
-    **Crossover step** (``crossover=True``; before the landing only; default off). Where the lateral DCM
-    lies at the support sole's outer bound (a push towards the foot standing alone), the single-support
-    re-plan first tries a landing beyond the support foot, in front of its leg, where the legs' geometry
-    allows (:func:`drake_estop.planning.crossover.crossover_stop`); else the tries below as usual.
+    **Crossover step** (``crossover=True``; before the landing only; default off). Where the lateral DCM lies at the
+    support sole's outer bound (a push towards the foot standing alone), the single-support re-plan first tries a
+    landing beyond the support foot, in front of its leg, where the legs' geometry allows
+    (:func:`drake_estop.planning.crossover.crossover_stop`); else the tries below as usual.
 
-    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to five solves in
-    single support, two in double support) run in order until one gives a
-    stop. ``max_solves`` (None: no bound) caps the solves of this call: when
-    it runs out with tries left, :class:`ReplanPending` says where to go on
-    (``first_try``) on a later tick, from that tick's measurement. A try the
-    ankle strategy would repeat (its stance ZMP within 1 mm of the plan's)
-    is skipped and costs no solve.
+    **Bounded work.** The tries (:data:`REPLAN_TRIES`: up to five solves in single support, two in double support)
+    run in order until one gives a stop. ``max_solves`` (None: no bound) caps the solves of this call: when it runs
+    out with tries left, :class:`ReplanPending` says where to go on (``first_try``) on a later tick, from that
+    tick's measurement. A try the ankle strategy would repeat (its stance ZMP within 1 mm of the plan's) is skipped
+    and costs no solve.
 
-    Returns None where nothing is left to re-plan (the halt, a plan that has
-    not started yet, a standing plan). Raises :class:`InfeasibleStop` when no
-    stop exists from that state (:class:`ReplanPending` when tries are left),
-    ``ValueError`` for non-finite ``feet``, a ``first_try`` outside the
-    support's tries or a ``max_solves`` below 1.
+    Returns None where nothing is left to re-plan (the halt, a plan that has not started yet, a standing plan).
+    Raises :class:`InfeasibleStop` when no stop exists from that state (:class:`ReplanPending` when tries are left),
+    ``ValueError`` for non-finite ``feet``, a ``first_try`` outside the support's tries or a ``max_solves`` below 1.
     """
     footholds = _footholds(feet)
     check_solve_bound(max_solves)
@@ -191,6 +174,15 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
                          f"got {first_try!r}")
     if support == "single" and _capture_only(plan, t):
         first_try = max(first_try, tries.index("capture"))
+    return _run_tries(plan, t, com_xy, com_vel_xy, support, first_try, footholds, recovery_step=recovery_step,
+                      capture_landing=capture_landing, max_solves=max_solves, crossover=crossover)
+
+
+def _run_tries(plan: StopPlan, t: float, com_xy, com_vel_xy, support: str, first_try: int, footholds, *,
+               recovery_step: bool, capture_landing: bool, max_solves: int | None, crossover: bool) -> StopPlan:
+    """:func:`replan_stop`'s tries (:data:`REPLAN_TRIES`) from ``first_try`` on, from one :class:`_ReplanStart`, the
+    crossover step first where asked: the first stop; else raises the last failure, or :class:`ReplanPending`."""
+    tries = REPLAN_TRIES[support]
     # a push may need the early step, and a landing moved further than a low foot could on its own
     params = replace(plan.params, max_early_landing=math.inf, max_landing_shift_per_height=math.inf)
     double = support == "double"
@@ -411,13 +403,8 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     # the support ZMP at the sole's edge towards the swing side slows a DCM heading there
     edge_zmp = toward * (sole.lateral_edges(support)[0 if toward > 0 else 1] - margin)
     widest = toward * params.max_step_width
-    lateral_deadline = _capture_deadline(float(dcm[1]), edge_zmp, widest + toward * CAPTURE_DCM_PAST_ANKLE,
-                                         widest, remaining, w)
-    # sagittally the ZMP on the toe slows a DCM running past the farthest landing ankle (N-step capture: a
-    # landing that does not stop the robot is followed by the recovery step)
-    farthest = params.max_step_length
-    sagittal_deadline = _capture_deadline(float(dcm[0]), sole.toe - margin, farthest + CAPTURE_DCM_PAST_ANKLE,
-                                          farthest, remaining, w)
+    lateral_deadline, sagittal_deadline = _capture_deadlines(dcm, toward, edge_zmp, widest, sole, margin, params,
+                                                             remaining, w)
     deadlines = [d for d in (lateral_deadline, sagittal_deadline) if d is not None]
     if not deadlines:
         return None  # the DCM does not head past the widest or the farthest landing before the plan's touchdown
@@ -429,17 +416,9 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     else:
         across = widest
         zmp_local = np.array([held[0], edge_zmp])
-    soonest = snap_to_tick(soonest_capture_landing(params, changes, swing), dt)
-    landing = max(math.floor(deadline / dt + 1e-9) * dt, soonest)
-    latest = plan.landing_time - float(changes["time"]) - dt
-    swing_vel, swing_acc = (turn.T @ changes[key][swing][:2] for key in ("feet_vel", "feet_acc"))
     acceleration = capture_swing_acceleration(params)
-    reach = None
-    while landing <= latest + 1e-9:  # later where the swing cannot brake onto enough landings by then
-        reach = swing_reach(swing_local, swing_vel, swing_acc, across, landing, acceleration)
-        if reach is not None and reach[1] - reach[0] >= CAPTURE_LANDING_SPAN - 1e-9:
-            break
-        landing, reach = landing + dt, None
+    landing, reach = _capture_touchdown(plan, changes, params, swing, turn, swing_local, across, deadline,
+                                        acceleration)
     if reach is None:
         return None
     grow = math.exp(w * landing)
@@ -459,6 +438,39 @@ def capture_setup(start: _ReplanStart, com_xy, com_vel_xy):
     state = replace(plan.start_state, **dict(changes, zmp=ankle + turn @ zmp_local, zmp_rate=np.zeros(2),
                                              zmp_accel=np.zeros(2), next_landing=landing_xy))
     return state, limits, params
+
+
+def _capture_deadlines(dcm, toward: float, edge_zmp: float, widest: float, sole, margin: float,
+                       params: StopParameters, remaining: float, w: float):
+    """:func:`capture_setup`'s ``(lateral, sagittal)`` deadlines [s] (:func:`_capture_deadline`) of the DCM ``dcm``
+    (support sole's frame [m]) past the widest landing ankle ``widest`` [m], the ZMP at ``edge_zmp`` [m], and past the
+    farthest, the ZMP on the toe; None for an axis where it does not pass within ``remaining`` [s]."""
+    lateral = _capture_deadline(float(dcm[1]), edge_zmp, widest + toward * CAPTURE_DCM_PAST_ANKLE, widest, remaining, w)
+    # sagittally the ZMP on the toe slows a DCM running past the farthest landing ankle (N-step capture: a
+    # landing that does not stop the robot is followed by the recovery step)
+    farthest = params.max_step_length
+    sagittal = _capture_deadline(float(dcm[0]), sole.toe - margin, farthest + CAPTURE_DCM_PAST_ANKLE,
+                                 farthest, remaining, w)
+    return lateral, sagittal
+
+
+def _capture_touchdown(plan: StopPlan, changes: dict, params: StopParameters, swing: str, turn, swing_local,
+                       across: float, deadline: float, acceleration: float):
+    """:func:`capture_setup`'s touchdown [s from the re-plan's start] and the landing points the swing reaches by then
+    (:func:`swing_reach`), ``(landing, reach)``: by ``deadline`` on the servo grid, no sooner than the swing's descent,
+    later where it reaches less than :data:`CAPTURE_LANDING_SPAN`; ``reach`` None where it does not by the plan's."""
+    dt = params.servo_period
+    soonest = snap_to_tick(soonest_capture_landing(params, changes, swing), dt)
+    landing = max(math.floor(deadline / dt + 1e-9) * dt, soonest)
+    latest = plan.landing_time - float(changes["time"]) - dt
+    swing_vel, swing_acc = (turn.T @ changes[key][swing][:2] for key in ("feet_vel", "feet_acc"))
+    reach = None
+    while landing <= latest + 1e-9:  # later where the swing cannot brake onto enough landings by then
+        reach = swing_reach(swing_local, swing_vel, swing_acc, across, landing, acceleration)
+        if reach is not None and reach[1] - reach[0] >= CAPTURE_LANDING_SPAN - 1e-9:
+            break
+        landing, reach = landing + dt, None
+    return landing, reach
 
 
 def capture_parameters(params: StopParameters) -> StopParameters:

@@ -61,7 +61,7 @@ from drake_estop.robots.description import (
     ServoGain,
     SwingJoint,
 )
-from drake_estop.robots.loading import BUILT_IN, MissingRobotPackage, load_robot, read_description
+from drake_estop.robots.loading import BUILT_IN, MissingRobotPackage, read_description
 from drake_estop.robots.measure import (
     GaitDefaults,
     Reach,
@@ -78,6 +78,7 @@ from drake_estop.robots.parameters import (
     as_robot,
     com_height_range,
     gait_parameters,
+    load_robot,
     stepping_limits,
     stop_parameters,
 )

@@ -10,7 +10,7 @@ description only fills in a velocity or effort limit the model leaves out.
 
 The classes are frozen dataclasses whose sequences are tuples, so a
 description is hashable (the measurements of :mod:`drake_estop.robots.measure`
-are cached by it). :func:`drake_estop.robots.loading.load_robot` reads them
+are cached by it). :func:`drake_estop.robots.parameters.load_robot` reads them
 from YAML with Drake's ``yaml_load_typed``. Every class validates its values on
 construction and raises a ``ValueError`` naming the field.
 

@@ -1,8 +1,9 @@
 """Robot descriptions from YAML; model files and ``package://`` URIs.
 
-:func:`load_robot` reads a :class:`~drake_estop.robots.description.RobotDescription`
-from a built-in name (:data:`BUILT_IN`) or a YAML file with Drake's
-``yaml_load_typed`` and checks it against its model. A description file names
+:func:`read_description` reads a :class:`~drake_estop.robots.description.RobotDescription`
+from a YAML file (:func:`built_in_path`: a built-in name's, :data:`BUILT_IN`)
+with Drake's ``yaml_load_typed``; :func:`drake_estop.robots.parameters.load_robot`
+also checks it against its model. A description file names
 only what differs from the defaults of the classes, e.g.::
 
     name: my_robot
@@ -175,40 +176,6 @@ def _absolute_paths(description: RobotDescription, folder: Path) -> RobotDescrip
                      if p.path is not None and not Path(p.path).is_absolute() else p
                      for p in description.packages)
     return dataclasses.replace(description, model=model, packages=packages)
-
-
-def load_robot(name_or_path: str | Path, *, check_model: bool = True) -> RobotDescription:
-    """The description of a built-in robot or of a description YAML file, checked against its model.
-
-    Parameters
-    ----------
-    name_or_path : str or pathlib.Path
-        ``default`` (the project's HRP-2-class humanoid), ``g1`` (Unitree G1, 29 DOF), ``talos``
-        (PAL TALOS) or the path of a ``.yaml`` description file.
-    check_model : bool, optional
-        Parse the model (without geometry) and check every body, frame and joint the description
-        names (default True).
-
-    Returns
-    -------
-    RobotDescription
-        Lengths in [m], angles in [rad] unless a field's name says ``_deg``.
-
-    Raises
-    ------
-    ValueError
-        Naming the field: an unknown robot name, an unreadable model file, a body or joint that is
-        not in the model, a sole rectangle of zero size, ...; :class:`MissingRobotPackage` (a
-        ``ValueError``) names the extra to install when a package's distribution is missing.
-    """
-    text = str(name_or_path)
-    is_file = text.endswith((".yaml", ".yml")) or Path(text).is_file()
-    description = read_description(filename=text) if is_file else read_description(filename=built_in_path(text))
-    if check_model:
-        from drake_estop.robots.plant import check_description  # the plant module imports this one
-
-        check_description(description)
-    return description
 
 
 # -- packages and the model file -----------------------------------------------------------------

@@ -10,8 +10,11 @@ swing-foot lift and the crouch depth, each the description's or the default
 humanoid's scaled by the leg length (s = L / 0.705 m). For the ``default``
 robot they equal ``GaitParameters()`` and ``StopParameters()``.
 
-:func:`as_robot` turns a robot argument (None, a built-in name, a description
-file, a :class:`~drake_estop.robots.description.RobotDescription`) into a
+:func:`load_robot` reads a built-in robot's or a YAML file's description
+(:mod:`drake_estop.robots.loading`) and checks it against its model
+(:func:`~drake_estop.robots.plant.check_description`); :func:`as_robot` turns a
+robot argument (None, a built-in name, a description file, a
+:class:`~drake_estop.robots.description.RobotDescription`) into a
 description; :func:`standing_seed` is the posture the whole-body IK starts from.
 """
 
@@ -28,7 +31,7 @@ from drake_estop.planning.arms import ArmSwing
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.plan import StopParameters
 from drake_estop.robots.description import RobotDescription
-from drake_estop.robots.loading import load_robot, model_file
+from drake_estop.robots.loading import built_in_path, model_file, read_description
 from drake_estop.robots.measure import (
     REFERENCE_LEG_LENGTH,
     gait_defaults,
@@ -36,6 +39,7 @@ from drake_estop.robots.measure import (
     reach_limits,
     robot_facts,
 )
+from drake_estop.robots.plant import check_description
 
 #: The default humanoid's swing-foot apex [m], crouch depth [m], straight-leg and lowest COG heights [m]
 #: (models/README.md) and standing height [m]: what the other robots' are scaled from.
@@ -59,7 +63,7 @@ def as_robot(value=None) -> RobotDescription:
     ----------
     value : None, str, pathlib.Path or RobotDescription
         None: the ``default`` robot; a built-in name (``default``, ``g1``, ``talos``) or the path of a
-        description YAML file (:func:`~drake_estop.robots.loading.load_robot`); a description as it is.
+        description YAML file (:func:`load_robot`); a description as it is.
 
     Raises
     ------
@@ -75,6 +79,39 @@ def as_robot(value=None) -> RobotDescription:
     if isinstance(value, (str, Path)):
         return load_robot(value)
     raise TypeError(f"robot must be a robot name, a description file or a RobotDescription, got {value!r}")
+
+
+def load_robot(name_or_path: str | Path, *, check_model: bool = True) -> RobotDescription:
+    """The description of a built-in robot or of a description YAML file, checked against its model.
+
+    Parameters
+    ----------
+    name_or_path : str or pathlib.Path
+        ``default`` (the project's HRP-2-class humanoid), ``g1`` (Unitree G1, 29 DOF), ``talos``
+        (PAL TALOS) or the path of a ``.yaml`` description file.
+    check_model : bool, optional
+        Parse the model (without geometry) and check every body, frame and joint the description
+        names (default True).
+
+    Returns
+    -------
+    RobotDescription
+        Lengths in [m], angles in [rad] unless a field's name says ``_deg``.
+
+    Raises
+    ------
+    ValueError
+        Naming the field: an unknown robot name, an unreadable model file, a body or joint that is
+        not in the model, a sole rectangle of zero size, ...;
+        :class:`~drake_estop.robots.loading.MissingRobotPackage` (a ``ValueError``) names the extra to
+        install when a package's distribution is missing.
+    """
+    text = str(name_or_path)
+    is_file = text.endswith((".yaml", ".yml")) or Path(text).is_file()
+    description = read_description(filename=text) if is_file else read_description(filename=built_in_path(text))
+    if check_model:
+        check_description(description)
+    return description
 
 
 def leg_scale(description: RobotDescription) -> float:

@@ -36,6 +36,7 @@ from drake_estop.planning.planner import PHASES
 from drake_estop.robots.description import SIDES
 from drake_estop.robots.parameters import as_robot, standing_height, stop_parameters, walk_pattern
 from drake_estop.robots.plant import add_robot, sole_frame
+from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.ik import WholeBodyIK, converged_posture
 from drake_estop.systems.multibody_zmp import multibody_zmp, support_margins
 from drake_estop.systems.reference import ReferenceLayout, connect_reference, pattern_layout, reference_vector
@@ -148,7 +149,8 @@ def build_diagram(*, gait_params=None, stop_params=None, estop_time=None, meshca
     plant, scene_graph = _add_plant(builder, robot)
     trigger, planner = add_stop_controller(
         builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-        meshcat=meshcat, button_name=button_name, layout=layout, plan_ahead=plan_ahead)
+        meshcat=meshcat, button_name=button_name, layout=layout,
+        config=StopPlannerConfig(plan_ahead=plan_ahead))
     builder.ExportInput(trigger.stop_request_port, "stop_request")
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=plant, servo_period=stop_params.servo_period, robot=robot,
