@@ -60,7 +60,7 @@ def left_push_state():
 def forward_push_state():
     """The plan of a signal at 2.95 s (the online controller's settings) and the state the robot measured at
     3.1 s after a 35 N s (0.6 m/s) forward push at 2.95 s (a physics run): the left foot supports with its
-    CoP on the toe, the DCM 0.21 m past its ankle; no landing stops it (planning.replan.capture_step)."""
+    CoP on the toe, the DCM 0.21 m past its ankle; no landing stops it (planning.capture_landing.capture_step)."""
     from drake_estop.physics.online import controller_stop_parameters
 
     plan = plan_stop(NominalPattern(), 2.95, controller_stop_parameters())
@@ -68,11 +68,12 @@ def forward_push_state():
 
 
 def count_solves(monkeypatch):
-    """A list that grows by one for every stop a re-plan solves (``plan_from``)."""
-    from drake_estop.planning import replan
+    """A list that grows by one for every stop a re-plan solves (``plan_from``, the capture landing's too)."""
+    from drake_estop.planning import capture_landing, replan
 
     solves, real = [], replan.plan_from
-    monkeypatch.setattr(replan, "plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
+    for module in (replan, capture_landing):
+        monkeypatch.setattr(module, "plan_from", lambda *a, **k: solves.append(a[1].zmp.copy()) or real(*a, **k))
     return solves
 
 

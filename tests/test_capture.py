@@ -191,8 +191,8 @@ def test_a_capture_landing_without_a_braking_limit_swings_at_the_capture_acceler
     """A stop whose swing has no braking limit (``max_swing_acceleration`` inf, the planner's default) still takes
     the capture landing: its swing is bounded by ``CAPTURE_SWING_ACCELERATION`` (20 m/s^2), the same landing as
     with that limit given (it raised OverflowError in the reach search before)."""
+    from drake_estop.planning.capture_landing import CAPTURE_SWING_ACCELERATION, capture_swing_acceleration
     from drake_estop.planning.planner import replan_stop
-    from drake_estop.planning.replan import CAPTURE_SWING_ACCELERATION, capture_swing_acceleration
 
     landings = []
     for limit in (math.inf, CAPTURE_SWING_ACCELERATION):

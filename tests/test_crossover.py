@@ -20,6 +20,7 @@ from drake_estop.planning.crossover import (
 )
 from drake_estop.planning.gait import NominalPattern, Sole
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.recovery import RECOVERY_ZMP_MARGIN
 
 SLIM = LegGeometry(radius=0.03)  # a robot whose legs are thinner than the default humanoid's 5.5 cm
 SIGNAL, PUSHED = 2.95, 3.1  # the left foot stands alone, the right swings
@@ -132,7 +133,7 @@ def pushed_left():
 
 
 def _start(plan, com, vel):
-    return replan._ReplanStart(plan, PUSHED, com, vel, False, plan.params)
+    return replan.ReplanStart(plan, PUSHED, com, vel, False, plan.params)
 
 
 def test_the_crossover_stop_lands_across_the_support_foot_in_front_of_its_leg(pushed_left):
@@ -143,7 +144,7 @@ def test_the_crossover_stop_lands_across_the_support_foot_in_front_of_its_leg(pu
     assert new.crossover and new.step_kind == "crossover step" and new.landing_foot == "right"
     assert landing[1] > Sole().outer  # beyond the support ankle, past its sole's outer edge
     assert soles_apart((0.0, 0.0), landing, Sole(), "left", "right")
-    assert new.min_zmp_margin >= min(plan.params.zmp_margin, replan.RECOVERY_ZMP_MARGIN) - 1e-9
+    assert new.min_zmp_margin >= min(plan.params.zmp_margin, RECOVERY_ZMP_MARGIN) - 1e-9
     # the COG is continuous at the re-plan and at rest at the end; the LIPM holds (eq. 4)
     before, after = plan.com([PUSHED]), new.com([PUSHED])
     np.testing.assert_allclose(after[0][0], com, atol=1e-9)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from drake_estop.planning import lipm
+from drake_estop.planning.capture_landing import swing_braking_time
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.plan import landing_swing, landing_swing_polynomials
 from drake_estop.planning.planner import StopParameters, plan_stop, replan_stop
-from drake_estop.planning.replan import swing_braking_time
 
 DT = 0.005
 NOMINAL = NominalPattern()
@@ -138,11 +138,11 @@ def test_swing_braking_time_is_the_soonest_landing_within_the_limit():
 def test_swing_braking_time_searches_in_chunks_with_the_whole_grids_answer():
     """The search stops at the first chunk of durations with one within the limit; its answer is the
     whole grid's first, to the bit, also where it lies past the first chunk or nowhere."""
-    from drake_estop.planning import replan
+    from drake_estop.planning import capture_landing
 
     params = StopParameters(max_swing_acceleration=12.0)
     grid = np.arange(params.min_landing_time, params.max_landing_time - DT + 1e-9, DT)
-    terms = replan._BRAKING_TERMS
+    terms = capture_landing._BRAKING_TERMS
 
     def whole_grid(pos, vel, acc, target):
         distance = np.asarray(target, float)[:2] - pos[:2]
@@ -160,7 +160,7 @@ def test_swing_braking_time_searches_in_chunks_with_the_whole_grids_answer():
         answers.append(swing_braking_time(pos, vel, acc, target, params))
         assert answers[-1] == whole_grid(pos, vel, acc, target)
     index = np.round((np.array(answers) - params.min_landing_time) / DT)
-    assert np.sum(index >= replan._BRAKING_CHUNK) >= 10  # answers past the first chunk were searched too
+    assert np.sum(index >= capture_landing._BRAKING_CHUNK) >= 10  # answers past the first chunk were searched too
     assert np.sum(index == 0) >= 10  # and the first duration (or none within the limit)
 
 

@@ -333,7 +333,7 @@ def test_the_hip_strategy_stops_a_forward_push_in_double_support_in_one_recovery
 def test_a_forward_push_no_single_landing_stops_takes_a_second_step():
     """35 N s forward at 2.95 s (0.6 m/s, early in single support): no landing the swing reaches stops the
     robot (the stop condition asks for a step past the reach at every landing time) and the CoP sits on the
-    support toe. N-step capture (planning.replan.capture_step): the swing foot lands as soon as it can,
+    support toe. N-step capture (planning.capture_landing.capture_step): the swing foot lands as soon as it can,
     the old support foot steps past it, and the stop meets every criterion. Without the second step (no
     recovery step) the plan keeps its one landing, 0.57 s after the push, and the robot falls over the toe
     of the landed foot."""

@@ -277,7 +277,7 @@ def test_every_replan_after_a_landing_stands_on_the_measured_feet(pattern, param
 def _pushed_forward_at_3_1(**kwargs):
     """StopPlannerSystem (``kwargs`` over the defaults) latched at 2.95 s from the reference (the online
     controller's parameters), given at 3.1 s the state measured after a 35 N s forward push (no landing
-    stops it: planning.replan.capture_step). Returns the planner, its context and simulator."""
+    stops it: planning.capture_landing.capture_step). Returns the planner, its context and simulator."""
     from drake_estop.physics.online import controller_stop_parameters
     from drake_estop.planning.gait import NominalPattern
 

@@ -17,10 +17,12 @@ from planner_helpers import (
     state_at,
 )
 
+from drake_estop.planning import capture_landing
 from drake_estop.planning.capture import MAX_STEP_WIDTH
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.geometry import SupportPolygon
 from drake_estop.planning.planner import InfeasibleStop, StopParameters, plan_stop, replan_stop
+from drake_estop.planning.recovery import RECOVERY_ZMP_MARGIN
 from drake_estop.planning.replan import replan_support
 from drake_estop.systems.plan_sequence import PlanSequence
 
@@ -476,7 +478,7 @@ def test_a_push_towards_the_swing_foot_lands_sooner_at_the_widest_step(monkeypat
     start = caught.swing_start
     soonest = replan.swing_braking_time(start["pos"], start["vel"], start["acc"], caught.landing_position,
                                         replace(caught.params, min_landing_time=DT,
-                                                max_swing_acceleration=replan.CAPTURE_SWING_ACCELERATION))
+                                                max_swing_acceleration=capture_landing.CAPTURE_SWING_ACCELERATION))
     assert soonest <= caught.landing_time - t + 1e-9
     monkeypatch.setattr(replan, "capture_setup", lambda *args: None)
     with pytest.raises(InfeasibleStop):
@@ -487,7 +489,7 @@ def test_the_capture_landing_is_not_tried_for_a_push_towards_the_support_foot(mo
     from drake_estop.planning import replan
 
     tried = []
-    monkeypatch.setattr(replan, "_capture_landing", lambda *args: tried.append(args))
+    monkeypatch.setattr(replan, "capture_landing_plan", lambda *args: tried.append(args))
     capture = replan.REPLAN_TRIES["single"].index("capture")
     for plan, t, com, vel in (_hopeless_left_push(), left_push_state()):  # 29 N s at 3.05 s, 17 N s at 3.175 s
         with pytest.raises(InfeasibleStop):
@@ -496,7 +498,7 @@ def test_the_capture_landing_is_not_tried_for_a_push_towards_the_support_foot(mo
 
 
 def test_swing_reach_grows_with_the_time_to_land():
-    from drake_estop.planning.replan import swing_reach
+    from drake_estop.planning.capture_landing import swing_reach
 
     rest = np.zeros(2)
     near = swing_reach(rest, rest, rest, 0.0, 0.2, 15.0)
@@ -542,7 +544,7 @@ def test_every_capture_landing_lands_sooner_at_the_widest_step_and_stops_within_
             assert caught.landing_position[1] == pytest.approx(0.095 - MAX_STEP_WIDTH)
             start = caught.swing_start
             braking = replace(caught.params, min_landing_time=DT,
-                              max_swing_acceleration=replan.CAPTURE_SWING_ACCELERATION)
+                              max_swing_acceleration=capture_landing.CAPTURE_SWING_ACCELERATION)
             assert replan.swing_braking_time(start["pos"], start["vel"], start["acc"], caught.landing_position,
                                              braking) <= caught.landing_time - t + 1e-9
             landed, landed_speed, _, _ = caught.com([caught.landing_time])
@@ -579,8 +581,8 @@ def test_swing_reach_is_the_grid_search_of_the_braking_limit():
     """The closed-form reach equals checking every landing point of its 5 mm grid with the landing swing's
     acceleration on its check grid (the definition), over random swings, durations and limits."""
     from drake_estop.planning import lipm
+    from drake_estop.planning.capture_landing import swing_reach
     from drake_estop.planning.plan import SWING_GRID
-    from drake_estop.planning.replan import swing_reach
 
     terms = [lipm.poly_eval(c, SWING_GRID, 2) for c in (lipm.SMOOTHSTEP, lipm.HERMITE_D1, lipm.HERMITE_D2)]
 
@@ -610,7 +612,6 @@ def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     landing time): one step alone raises; with the recovery step the swing lands as soon as it can and the
     old support foot steps past it out of double support. The plan is one LIPM motion: the support ZMP held
     until the touchdown (eq. 19), then the recovery step's, continuous there and at rest at the end."""
-    from drake_estop.planning import replan
 
     plan, t, com, vel = forward_push_state()
     with pytest.raises(InfeasibleStop, match="capture landing"):
@@ -629,15 +630,15 @@ def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     # landed sole, under the DCM: the recovery step's)
     times = np.linspace(t, caught.landing_time - 1e-9, 7)
     pos, speed, accel, zmp = caught.com(times)
-    assert zmp[0][0] == pytest.approx(support_x + plan.pattern.params.sole.toe - replan.RECOVERY_ZMP_MARGIN)  # the toe
+    assert zmp[0][0] == pytest.approx(support_x + plan.pattern.params.sole.toe - RECOVERY_ZMP_MARGIN)  # the toe
     np.testing.assert_allclose(zmp, np.repeat(zmp[:1], len(times), axis=0), atol=1e-12)
     np.testing.assert_allclose(accel, w**2 * (pos - zmp), atol=1e-9)  # the LIPM (eq. 4)
     # the DCM at the touchdown lies CAPTURE_STEP_DCM_AHEAD past the landed ankle (the reach allowed it)
     dcm = pos[-1] + speed[-1] / w
-    assert dcm[0] - caught.landing_position[0] == pytest.approx(replan.CAPTURE_STEP_DCM_AHEAD, abs=1e-6)
+    assert dcm[0] - caught.landing_position[0] == pytest.approx(capture_landing.CAPTURE_STEP_DCM_AHEAD, abs=1e-6)
     # ... and laterally inside the landed sole's inner edge less the margin: the recovery step lifts the
     # other foot (the landing is narrower than the walk's 0.19 m for it)
-    inner = plan.pattern.params.sole.inner - replan.RECOVERY_ZMP_MARGIN
+    inner = plan.pattern.params.sole.inner - RECOVERY_ZMP_MARGIN
     assert dcm[1] - caught.landing_position[1] <= inner + 1e-9
     assert 0.15 - 1e-9 <= 0.095 - caught.landing_position[1] < 0.19
     # after the touchdown the plan is the recovery step's motion, continuous at the touchdown
@@ -654,6 +655,6 @@ def test_a_forward_push_no_landing_stops_is_caught_in_two_steps(monkeypatch):
     assert [s["kind"] for s in summary["steps"]] == ["capture landing", "recovery step"]
     assert summary["steps_after_signal"] == 2 and summary["capture_landings"] == 1
     # without the recovery step's stop the two steps are not planned
-    monkeypatch.setattr(replan, "recovery_step_plan", lambda *args: (_ for _ in ()).throw(args[-1]))
+    monkeypatch.setattr(capture_landing, "recovery_step_plan", lambda *args: (_ for _ in ()).throw(args[-1]))
     with pytest.raises(InfeasibleStop, match="capture step"):
         replan_stop(plan, t, com, vel, recovery_step=True)

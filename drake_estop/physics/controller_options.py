@@ -55,7 +55,7 @@ class ControllerOptions:
     recovery_step : bool
         A re-plan after the landing that finds no double-support stop steps the rear foot forward; and a
         single-support re-plan whose capture landing does not stop the robot takes that step right after
-        its touchdown (N-step capture, :func:`drake_estop.planning.replan.capture_step`; default on; off
+        its touchdown (N-step capture, :func:`drake_estop.planning.capture_landing.capture_step`; default on; off
         keeps the plan, for comparison).
     capture_landing : bool
         A single-support re-plan whose other tries find no stop lands sooner, at the widest step, where a

@@ -32,7 +32,7 @@ landing impacts, which brake the DCM as a push does, and lost runs).
 Measured on the default humanoid, with it against without: a 30 N s forward push in double support
 (3.55 s) stops in one recovery step, where without it two are taken and the rear sole slips 12.6 mm
 (tests/test_online_pushes.py); a 35 N s one early in single support (2.95 s) stops without it in two steps
-(the N-step capture, :func:`drake_estop.planning.replan.capture_step`) and with it takes three, the rear
+(the N-step capture, :func:`drake_estop.planning.capture_landing.capture_step`) and with it takes three, the rear
 sole slipping and the CoP leaving its support. With ``benchmarks/robustness.py --controller-option
 hip_strategy=true``: the sweep 40/40 and the matrix 44/44. Pushes sideways are not helped: the
 default model's trunk has no roll joint. Off by default (``ControllerOptions.hip_strategy``): on the

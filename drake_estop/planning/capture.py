@@ -30,7 +30,7 @@ passes the landed sole's outer edge. Measured, 29 N s to the right at 2.95 s
 (the left foot supporting): the plan's landing point lay 0.41 m ahead of the
 swing foot, which the braked swing (15 m/s^2) reached 0.44 s after the push,
 when the DCM was 0.12 m past the landed sole. The re-plan's capture landing
-(:func:`drake_estop.planning.replan.capture_setup`) lands sooner and nearer
+(:func:`drake_estop.planning.capture_landing.capture_setup`) lands sooner and nearer
 instead: by the time the DCM reaches the widest landing ankle, at a landing
 point the swing can still brake onto; that stop meets every criterion.
 

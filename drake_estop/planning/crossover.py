@@ -39,16 +39,16 @@ import numpy as np
 
 from drake_estop.planning import lipm
 from drake_estop.planning.assembly import plan_from, with_compute_time
-from drake_estop.planning.gait import SIDES, Sole, rotation
-from drake_estop.planning.plan import InfeasibleStop, StopPlan, snap_to_tick
-from drake_estop.planning.recovery import zmp_to_reach
-from drake_estop.planning.replan import (
+from drake_estop.planning.capture_landing import (
     CAPTURE_DCM_BEHIND_LANDING,
     capture_parameters,
     capture_swing_acceleration,
     soonest_capture_landing,
     swing_reach,
 )
+from drake_estop.planning.gait import SIDES, Sole, rotation
+from drake_estop.planning.plan import InfeasibleStop, StopPlan, snap_to_tick
+from drake_estop.planning.recovery import zmp_to_reach
 
 #: Clearance [m] between the soles' rectangles at a crossover's touchdown.
 SOLE_CLEARANCE = 0.01

@@ -308,7 +308,7 @@ class StopPlan:
         (:func:`drake_estop.planning.replan.replan_stop`).
     next_step : StopPlan or None
         A capture landing that does not stop the robot on its own (N-step capture,
-        :func:`drake_estop.planning.replan.capture_step`): the recovery step planned from its touchdown,
+        :func:`drake_estop.planning.capture_landing.capture_step`): the recovery step planned from its touchdown,
         whose COG and ZMP this plan follows after the landing; the online controller re-plans there
         from the measured state and takes this one where that finds no stop.
     capture_landing : bool
@@ -358,7 +358,7 @@ class StopPlan:
     heading: float = 0.0  # [rad] the frame the stop was solved in (the fore foot's heading)
     recovery_step: bool = False  # a re-plan's step out of a double-support stop (planner.replan_stop)
     # a capture landing that does not stop on its own: the recovery step planned from its touchdown
-    # (replan.capture_step), which the controller takes there (re-planned from the measured state first)
+    # (capture_landing.capture_step), which the controller takes there (re-planned from the measured state first)
     next_step: StopPlan | None = None
     capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.replan_stop)
     crossover: bool = False  # a re-plan's landing across the support foot (crossover.crossover_stop)

@@ -4,7 +4,7 @@ Where a push sends the measured DCM past the fore foot's ankle (sagittally) far 
 double-support stop exists (III.B), the rear foot lifts and lands ahead, the stop solved as a
 single-support stop (III.A, eq. 21-26) on the fore foot from the measured COG
 (:func:`recovery_step`). :func:`drake_estop.planning.replan.replan_stop` tries it after its
-double-support try, and :func:`drake_estop.planning.replan.capture_step` plans it after a capture
+double-support try, and :func:`drake_estop.planning.capture_landing.capture_step` plans it after a capture
 landing that stops nothing (N-step capture). :func:`zmp_to_reach` and :func:`on_sole` are the ZMP
 helpers the re-plans share (eq. 6-9; a point of a sole less a margin).
 """

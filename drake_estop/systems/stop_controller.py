@@ -447,7 +447,7 @@ class StopPlannerSystem(ReferenceSystem):
         return relanded, fresh
 
     def _take_next_step(self, context, state, handle, measured):
-        """At a two-step capture's touchdown (:func:`~drake_estop.planning.replan.capture_step`): its
+        """At a two-step capture's touchdown (:func:`~drake_estop.planning.capture_landing.capture_step`): its
         recovery step re-planned from the measured state, else as planned. No double-support stop: on a
         35 N s forward push one, feasible on the LIPM, fell (the body pitched about the support toe)."""
         t, plan = context.get_time(), handle.plan
