@@ -57,3 +57,21 @@ def test_modules_and_test_files_stay_readable():
     files = sorted((ROOT / "drake_estop").rglob("*.py")) + sorted((ROOT / "tests").glob("*.py"))
     long = {str(p.relative_to(ROOT)): n for p in files if (n := len(p.read_text().splitlines())) > MODULE_LIMIT}
     assert not long, f"over {MODULE_LIMIT} lines: {long}"
+
+
+#: The controller path: a function there longer than this is read in more than one screen.
+CONTROLLER_FUNCTION_LIMIT = 80  # [lines], from its def to its last line, the docstring included
+
+
+def test_no_function_in_the_controller_path_is_longer_than_a_screen():
+    import ast
+
+    paths = [*(ROOT / "drake_estop" / "physics").glob("*.py"), *(ROOT / "drake_estop" / "systems").glob("*.py"),
+             *(ROOT / "drake_estop" / "planning" / name for name in (
+                 "replan.py", "capture.py", "capture_landing.py", "crossover.py", "recovery.py", "capturability.py"))]
+    long = {}
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef) and node.end_lineno - node.lineno + 1 > CONTROLLER_FUNCTION_LIMIT:
+                long[f"{path.relative_to(ROOT)}:{node.name}"] = node.end_lineno - node.lineno + 1
+    assert not long, f"over {CONTROLLER_FUNCTION_LIMIT} lines: {long}"

@@ -226,19 +226,13 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
                          planner_options: dict | None = None, robot=None) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
-    ``perturbations`` change the simulated robot only (friction here, pushes
-    through the plant's applied-spatial-force input, sensor noise and
-    latency in the sensors; the masses in :func:`run_online`'s context).
-    ``controller`` (default ``ControllerOptions()``) says which features are
-    on: ``true_state`` feeds the estimator's outputs from the true plant
-    state (debugging); ``foot_compliance`` adds the ankles'
-    :class:`drake_estop.physics.compliance.FootEdgeCompliance` with
-    :data:`FOOT_EDGE_COMPLIANCE`; ``swing_tilt`` the swing foot's
-    :class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation` with
-    :data:`SWING_TILT_COMPENSATION`; the planner features go to
-    :class:`drake_estop.systems.stop_controller.StopPlannerSystem`, with
-    ``planner_options``, its other settings (``replan_threshold``,
-    ``replan_interval``, ...). ``controller.braked_landing`` acts through
+    ``perturbations`` change the simulated robot only (friction here, pushes through the plant's
+    applied-spatial-force input, sensor noise and latency in the sensors; the masses in
+    :func:`run_online`'s context). ``controller`` (default ``ControllerOptions()``) says which features
+    are on: ``true_state`` feeds the estimator's outputs from the true plant state (debugging); the
+    reflexes (:func:`_add_reflexes`) sit between the planner and the IK; the planner features and
+    ``planner_options`` (its other settings) make the planner's
+    :class:`~drake_estop.systems.decision.StopPlannerConfig`. ``controller.braked_landing`` acts through
     ``stop_params`` (:func:`controller_stop_parameters`).
 
     Parameters
@@ -264,7 +258,6 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         The built diagram and its systems (plant, estimator, planner, IK, loggers, ...).
     """
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
-    from drake_estop.systems.diagram import robot_layout
 
     robot = as_robot(robot)
     controller = ControllerOptions() if controller is None else controller
@@ -284,16 +277,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     q0 = pattern_initial_configuration(kin_plant, pattern, robot=robot)
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
                                      true_state=controller.true_state, initial_q=q0, timer=timer, robot=robot)
-    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
-                                           timer=timer, config=planner_config,
-                                           layout=robot_layout(robot, pattern))
-    builder.Connect(estimator.com_port, planner.measured_com_port)
-    builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
-    builder.Connect(estimator.feet_port, planner.measured_feet_port)
-    monitor = add_capturability_monitor(
-        builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
-        limits=stepping_limits(robot, stop_params),
-        report_time=report_time(estop_time, perturbations.pushes), timer=timer)
+    trigger, planner, monitor = _add_planner(builder, pattern=pattern, stop_params=stop_params,
+                                             estop_time=estop_time, config=planner_config, robot=robot,
+                                             estimator=estimator, pushes=perturbations.pushes, timer=timer)
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
@@ -308,6 +294,22 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     diagram.set_name("estop_online")
     return OnlineHandles(diagram, plant, scene_graph, instance, cop, loggers, trigger, planner, ik, estimator,
                          compliance, swing_tilt_system, push, q0, timer, physics, robot, foot_force, monitor)
+
+
+def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, estimator, pushes, timer) -> tuple:
+    """The e-stop trigger and the stop planner on the estimator's COG and soles, and the capturability
+    monitor beside them: ``(trigger, planner, monitor)``."""
+    from drake_estop.systems.diagram import robot_layout
+
+    trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
+                                           timer=timer, config=config, layout=robot_layout(robot, pattern))
+    builder.Connect(estimator.com_port, planner.measured_com_port)
+    builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
+    builder.Connect(estimator.feet_port, planner.measured_feet_port)
+    monitor = add_capturability_monitor(
+        builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
+        limits=stepping_limits(robot, stop_params), report_time=report_time(estop_time, pushes), timer=timer)
+    return trigger, planner, monitor
 
 
 def _add_reflexes(builder, *, controller, robot, planner, estimator, ik, kin_plant, plant, omega, servo_period,
@@ -457,8 +459,26 @@ def _ik_reference(handles: OnlineHandles, context) -> JointReference:
 
 
 def _online_results(handles: OnlineHandles, context, plan, result, cpu: float, perturbations) -> dict:
-    """``result.online``: the controller's tick times, re-plans, modes, capturability and reflexes of a run
-    (``cpu``: its CPU seconds)."""
+    """``result.online`` of a run (``cpu``: its CPU seconds):
+
+    ``tick_compute`` (median / p99 / max wall-clock seconds [s] of the controller's own work per
+    servo tick after the signal), ``tick_compute_cpu`` (the same in the thread's CPU time: without
+    preemption by other processes), ``tick_compute_by_block`` (those ticks' mean CPU seconds per
+    block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``tick_compute_slowest`` (the
+    three slowest of those ticks in CPU time, each with its blocks: :meth:`TickTimer.slowest`),
+    ``replans``, ``replan_failures``, ``latch_fallback`` (None, or why the latch planned from the
+    reference: no stop from the measured state), ``joint_velocity_violations`` (ticks with a joint over its
+    velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
+    offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
+    [rad]), ``hip_strategy_bow_max`` (the hip strategy's largest bow of the trunk [rad]), the
+    estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
+    from 0: 1.0 if a stop signal at that tick would stop in one step, from the planner's output, the
+    state it planned from included; after the latch the latched stop's case; NaN for a tick whose
+    update had not run).
+    ``mode`` (per tick ``[StopMode, landings left]``) and ``modes`` (where it changed:
+    :func:`drake_estop.systems.decision.mode_changes`); ``capture`` and ``capturability`` (the measured
+    state's N-step capturability: :func:`drake_estop.systems.capturability_monitor.monitor_results`).
+    """
     planner_context = handles.planner.GetMyContextFromRoot(context)
     dt = handles.planner.params.servo_period
     states = handles.loggers["state"].FindLog(context).data().T
@@ -512,9 +532,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     """Walk, stop at ``estop_time`` with the online controller on the simulated robot, and check the
     success criteria: ``drake-estop simulate --physics`` from Python.
 
-    The humanoid walks the nominal pattern in physics (a discrete SAP ``MultibodyPlant``, 1 ms)
-    under the closed-loop diagram of :func:`build_online_diagram`; the stop signal latches at
-    ``estop_time`` and the run goes on until ``after_halt`` past the plan's halt.
+    The humanoid walks in physics (SAP ``MultibodyPlant``, 1 ms) under :func:`build_online_diagram`'s
+    closed loop; the signal latches at ``estop_time``; the run ends ``after_halt`` past the plan's halt.
 
     Parameters
     ----------
@@ -533,51 +552,34 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     physics : PhysicsParameters, optional
         The plant (time step [s], contact model, servo gains); default ``PhysicsParameters()``.
     perturbations : Perturbations, optional
-        Pushes [N, s], mass and torso errors, friction, latency, sensor noise, seed: the simulated
-        robot only (the controller keeps the nominal model).
+        Pushes [N, s], mass and torso errors, friction, latency, sensor noise: the simulated robot only.
     pattern : NominalPattern, optional
-        A walk built already (the same as ``NominalPattern(gait_params)``; it must agree with
-        ``gait_params`` when both are given).
+        A walk built already (``NominalPattern(gait_params)``; it must agree with ``gait_params``).
     controller : ControllerOptions, optional
         The online controller's features, each on or off (``kind`` must be ``"online"``); default
-        ``ControllerOptions()``, every feature as benchmarked. E.g.
-        ``ControllerOptions(foot_compliance=False)`` leaves out the stance ankles' foot-edge compliance,
-        ``ControllerOptions(true_state=True)`` feeds the controller the true COG (debugging).
+        ``ControllerOptions()``, every feature as benchmarked (``foot_compliance=False`` leaves out the
+        stance ankles' foot-edge compliance, ``true_state=True`` feeds the controller the true COG).
     planner_options : dict, optional
         Other fields of :class:`drake_estop.systems.decision.StopPlannerConfig`
         (``replan_threshold`` [m], ``replan_interval`` [s], ...); its features are ``controller``'s.
     robot : RobotDescription or str, optional
         The humanoid (a description, ``"default"``, ``"g1"``, ``"talos"`` or a description file; default
-        the default humanoid): see :func:`build_online_diagram`. A push's impulse is the same whatever the
-        robot: scale it by the robot's mass for the same change of COG velocity.
+        the default humanoid). A push's impulse [N s] is the robot's mass times its COG velocity change.
 
     Returns
     -------
     drake_estop.physics.criteria.PhysicsResult
         Per-tick (5 ms) arrays [m, s, rad], ``success`` and ``criteria`` (no fall, no slip, rest near
-        the feet's midpoint, CoP in the support, joint speeds within limits), and ``online``:
-        ``tick_compute`` (median / p99 / max wall-clock seconds [s] of the controller's own work per
-        servo tick after the signal), ``tick_compute_cpu`` (the same in the thread's CPU time: without
-        preemption by other processes), ``tick_compute_by_block`` (those ticks' mean CPU seconds per
-        block, ``"WholeBodyIK._update"``: :meth:`TickTimer.breakdown`), ``tick_compute_slowest`` (the
-        three slowest of those ticks in CPU time, each with its blocks: :meth:`TickTimer.slowest`),
-        ``replans``, ``replan_failures``, ``latch_fallback`` (None, or why the latch planned from the
-        reference: no stop from the measured state), ``joint_velocity_violations`` (ticks with a joint over its
-        velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
-        offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
-        [rad]), ``hip_strategy_bow_max`` (the hip strategy's largest bow of the trunk [rad]), the
-        estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
-        from 0: 1.0 if a stop signal at that tick would stop in one step, from the planner's output, the
-        state it planned from included; after the latch the latched stop's case; NaN for a tick whose
-        update had not run).
+        the feet's midpoint, CoP in the support, joint speeds within limits), and ``online``: the
+        controller's own record (:func:`_online_results`: tick times [s], re-plans, the stop's modes,
+        one-step feasibility and capturability per tick, the reflexes' largest corrections [rad]).
 
     Raises
     ------
     ValueError
-        Naming the argument: ``estop_time`` outside the walk or not finite, ``after_halt`` under 1 s,
-        ``gait_params`` and ``pattern`` that disagree, a ``controller`` that is not an online
-        ``ControllerOptions``, an unknown ``planner_options`` setting or one of ``controller``'s (values the
-        systems reject raise their own).
+        Naming the argument: ``estop_time`` outside the walk, ``after_halt`` under 1 s, ``gait_params`` and
+        ``pattern`` that disagree, a ``controller`` that is not an online ``ControllerOptions``, an unknown
+        or bad ``planner_options`` setting or one of ``controller``'s.
     drake_estop.planning.plan.InfeasibleStop
         When no stop can be planned at the signal from the reference either, or, with
         ``ControllerOptions(reference_fallback=False)``, from the measured state (by default the latch
