@@ -21,10 +21,10 @@ def replan_params():
 
 
 def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
-    """A StopPlannerSystem (no input filtering, re-plans up to every tick; ``kwargs`` override) whose stop latched at
+    """A StopPlannerSystem (re-plans up to every tick; ``kwargs`` override) whose stop latched at
     ``t0`` from the reference, then without a measurement (NaN: no re-plan). Returns the planner, its
     context, the simulator and the first plan."""
-    kwargs = {"filter_time_constant": 1e-6, "replan_interval": DT, **kwargs}
+    kwargs = {"replan_interval": DT, **kwargs}
     planner = StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**kwargs))
     context = planner.CreateDefaultContext()
     pos, vel, _, _ = pattern.com([t0])

@@ -97,7 +97,7 @@ def test_no_stop_from_the_measured_state_plans_from_the_reference_and_keeps_tryi
     blend), says why, and the measured state is then re-planned from every tick (each try fails here)."""
     t, params = 3.1, StopParameters()
     com, com_vel = sideways_at(pattern, t, 3.0)
-    diagram, planner = _planner_diagram(pattern, params, [1.0, t], com, com_vel, filter_time_constant=1e-6,
+    diagram, planner = _planner_diagram(pattern, params, [1.0, t], com, com_vel,
                                         replan_interval=DT)
     simulator = Simulator(diagram)
     simulator.get_mutable_context().SetTime(t)
@@ -133,8 +133,7 @@ def test_an_infeasible_stop_raises_instead_of_crashing_the_simulator():
         "pattern = NominalPattern(); t = 3.1\n"
         "pos, vel, _, _ = pattern.com([t])\n"
         "diagram, planner = _planner_diagram(pattern, StopParameters(), [1.0, t], [*pos[0], 0.8],\n"
-        "                                    [vel[0][0], 3.0, 0.0], filter_time_constant=1e-6,\n"
-        "                                    reference_fallback=False)\n"
+        "                                    [vel[0][0], 3.0, 0.0], reference_fallback=False)\n"
         "simulator = Simulator(diagram)\n"
         "simulator.get_mutable_context().SetTime(t)\n"
         "try:\n"
@@ -196,7 +195,7 @@ def test_planner_replans_at_most_once_a_tick_while_the_measured_state_deviates(p
     pos, vel, _ = state_at(plan_stop(pattern, t, params), t)
     # the measured state stays frozen at the signal's: it leaves every new plan again
     diagram, planner = _planner_diagram(pattern, params, [1.0, t], [*pos, 0.8], [*vel, 0.0],
-                                        filter_time_constant=1e-6, replan_threshold=0.005, replan_interval=DT)
+                                        replan_threshold=0.005, replan_interval=DT)
     simulator = Simulator(diagram)
     simulator.get_mutable_context().SetTime(t)
     simulator.Initialize()
@@ -261,8 +260,8 @@ def test_planner_rejects_a_bad_max_latch_solves(pattern, params, value):
         StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(max_latch_solves=value))
 
 
-@pytest.mark.parametrize("name", ["replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
-                                  "replan_interval", "landed_replan_threshold", "foothold_tolerance"])
+@pytest.mark.parametrize("name", ["replan_threshold", "blend_time", "replan_interval", "landed_replan_threshold",
+                                  "foothold_tolerance"])
 @pytest.mark.parametrize("value", [0.0, -1.0, float("nan")])
 def test_planner_rejects_bad_settings(pattern, params, name, value):
     with pytest.raises(ValueError, match=name):

@@ -309,17 +309,19 @@ def test_builder_loads_the_solver_before_the_stop():
 
 
 def test_planner_looks_the_patterns_cog_up_on_every_tick_with_the_bits_of_evaluating_it(pattern, params):
-    planner = StopPlannerSystem(pattern=pattern, params=params)
+    from drake_estop.systems.stop_numerics import PatternCom
+
     dt = params.servo_period
+    lookup = PatternCom(pattern, dt)
     ticks = np.arange(int(np.ceil(pattern.end_time / dt)) + 1) * dt
     for t in ticks[::7].tolist() + [ticks[-1]]:
         pos, vel, _, _ = pattern.com([t])
-        looked_up = planner._pattern_com_at(t)
+        looked_up = lookup.at(t)
         # equal to the last bit: the bias and the deviation before the latch are what they were evaluated
         assert np.array_equal(looked_up[0], pos[0]) and np.array_equal(looked_up[1], vel[0]), t
     between = 3.4 + 0.3 * dt  # not a tick: evaluated
     pos, vel, _, _ = pattern.com([between])
-    assert np.array_equal(planner._pattern_com_at(between)[0], pos[0])
+    assert np.array_equal(lookup.at(between)[0], pos[0])
     measured = (pos[0] + [0.01, 0.0], vel[0])
-    assert planner._pattern_deviation(between, measured) == dcm_deviation(pattern, between, measured)
-    assert planner._pattern_deviation(3.4, measured) == dcm_deviation(pattern, 3.4, measured)
+    assert lookup.deviation(between, measured) == dcm_deviation(pattern, between, measured)
+    assert lookup.deviation(3.4, measured) == dcm_deviation(pattern, 3.4, measured)

@@ -70,6 +70,7 @@ from drake_estop.robots.parameters import as_robot, stepping_limits
 from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
 from drake_estop.systems.decision import StopPlannerConfig, mode_changes
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
+from drake_estop.systems.measured_com_filter import MeasuredComFilter
 from drake_estop.systems.reference import connect_reference
 from drake_estop.systems.stop_controller import add_stop_controller
 from drake_estop.timing import TickTimer, per_tick
@@ -297,14 +298,20 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
 
 
 def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, estimator, pushes, timer) -> tuple:
-    """The e-stop trigger and the stop planner on the estimator's COG and soles, and the capturability
+    """The e-stop trigger and the stop planner on the estimator's COG (through a
+    :class:`~drake_estop.systems.measured_com_filter.MeasuredComFilter`) and soles, and the capturability
     monitor beside them: ``(trigger, planner, monitor)``."""
     from drake_estop.systems.diagram import robot_layout
 
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
                                            timer=timer, config=config, layout=robot_layout(robot, pattern))
-    builder.Connect(estimator.com_port, planner.measured_com_port)
-    builder.Connect(estimator.com_vel_port, planner.measured_com_vel_port)
+    com_filter = builder.AddNamedSystem("measured_com_filter", MeasuredComFilter(
+        pattern=pattern, servo_period=stop_params.servo_period, timer=timer))
+    builder.Connect(estimator.com_port, com_filter.measured_com_port)
+    builder.Connect(estimator.com_vel_port, com_filter.measured_com_vel_port)
+    builder.Connect(trigger.stop_port, com_filter.stop_port)
+    builder.Connect(com_filter.com_port, planner.measured_com_port)
+    builder.Connect(com_filter.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
     monitor = add_capturability_monitor(
         builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,

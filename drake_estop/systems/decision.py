@@ -93,10 +93,6 @@ class StopPlannerConfig:
         DCM deviation that triggers a re-plan after the landing [m] (default 0.08).
     replan_interval : float
         Shortest time between re-plans [s] (default 0.05).
-    bias_time_constant : float
-        Time constant of the learned tracking bias [s] (default 0.5).
-    filter_time_constant : float
-        Low-pass time constant of the measured COG [s] (default 0.03).
     blend_time : float
         Duration of the COG blend into a plan from the measured state [s] (default 0.2).
     measured_footholds : bool
@@ -144,8 +140,6 @@ class StopPlannerConfig:
     replan_threshold: float = 0.05
     landed_replan_threshold: float = 0.08
     replan_interval: float = 0.05
-    bias_time_constant: float = 0.5
-    filter_time_constant: float = 0.03
     blend_time: float = 0.2
     measured_footholds: bool = True
     foothold_ticks: int = 2
@@ -162,8 +156,8 @@ class StopPlannerConfig:
     plan_ahead: bool = True
 
     def __post_init__(self):
-        for name in ("replan_threshold", "bias_time_constant", "filter_time_constant", "blend_time",
-                     "replan_interval", "landed_replan_threshold", "foothold_tolerance"):
+        for name in ("replan_threshold", "blend_time", "replan_interval", "landed_replan_threshold",
+                     "foothold_tolerance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                     math.isfinite(value) and value > 0):

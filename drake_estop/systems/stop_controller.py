@@ -18,7 +18,6 @@ planner system's numeric rules in :mod:`drake_estop.systems.stop_numerics`.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
 import numpy as np
@@ -55,7 +54,7 @@ from drake_estop.systems.reference import (
     pattern_layout,
     reference_vector,
 )
-from drake_estop.systems.stop_numerics import dcm_distance, nominal_one_step_table, relanded_soles
+from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table, relanded_soles
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
 
@@ -94,14 +93,14 @@ class StopPlannerSystem(ReferenceSystem):
         - one_step_feasible
         - mode
 
-    ``measured_com`` / ``measured_com_vel`` (3 each, optional: a state estimate) are low-passed
-    (``filter_time_constant``) less the servo's steady tracking bias learnt while walking
-    (``bias_time_constant``). ``measured_feet`` (6, optional: :class:`StateEstimator`'s ``feet``,
-    ``[x_l, y_l, x_r, y_r, loaded ticks l, loaded ticks r]``) puts a re-plan after the landing on the
-    soles' estimated positions; a sole that re-lands off its foothold re-plans at once. The COG command is
-    blended into a plan made from the measured state over ``blend_time``. :meth:`plans` returns the plan
-    and its re-plans, :meth:`replans` their count. Why each setting is what it is, with the measurements:
-    ``docs/online_controller.md``.
+    ``measured_com`` / ``measured_com_vel`` (3 each, optional): the state estimate as
+    :class:`~drake_estop.systems.measured_com_filter.MeasuredComFilter` gives it (low-passed, less the
+    servo's steady tracking bias learnt while walking). ``measured_feet`` (6, optional:
+    :class:`StateEstimator`'s ``feet``, ``[x_l, y_l, x_r, y_r, loaded ticks l, loaded ticks r]``) puts a
+    re-plan after the landing on the soles' estimated positions; a sole that re-lands off its foothold
+    re-plans at once. The COG command is blended into a plan made from the measured state over
+    ``blend_time``. :meth:`plans` returns the plan and its re-plans, :meth:`replans` their count. Why each
+    setting is what it is, with the measurements: ``docs/online_controller.md``.
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the stored StopPlan, or None before the
     latch; ``mode`` (2) is ``[StopMode, landings left]`` after the tick's update. If no feasible stop exists
@@ -165,15 +164,6 @@ class StopPlannerSystem(ReferenceSystem):
         self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
         # optional: the estimated soles; a re-plan after the landing stands on the measured foothold
         self.measured_feet_port = self.DeclareVectorInputPort("measured_feet", 6)
-        # low-passed (measured - reference) COG position and velocity while walking: the servo's
-        # steady tracking error, which a plan from the measured state must not turn into a jump
-        self._bias_alpha = params.servo_period / (config.bias_time_constant + params.servo_period)
-        # and the measured COG low-passed over filter_time_constant: landing impacts put 0.1 m/s
-        # spikes of a few ms on the COG velocity (3 cm of DCM) that are no reason to re-plan
-        self._filter_alpha = params.servo_period / (config.filter_time_constant + params.servo_period)
-        self._bias_state = self.DeclareDiscreteState(4)
-        self._filtered_state = self.DeclareDiscreteState(4)
-        self._filter_started = self.DeclareDiscreteState(1)
         # per sole (SIDES order): its SOLE_* stage since the latch (_relanded, stop_numerics.next_sole_stage)
         self._sole_stages = self.DeclareDiscreteState(2)
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
@@ -181,11 +171,8 @@ class StopPlannerSystem(ReferenceSystem):
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
         # the stop's mode after the last update and the landings left (decision.stop_mode)
         self._mode_state = self.DeclareDiscreteState([float(StopMode.WALKING), 0.0])
-        # the pattern's COG (x, y) position and velocity at every servo tick of the walk, for the tracking
-        # bias and the deviation that every tick before the latch measures against it (the pattern is the
-        # walk, computed before the run; the array path gives the bits of the one-instant one)
-        ticks = np.arange(int(math.ceil(pattern.end_time / params.servo_period)) + 1) * params.servo_period
-        self._pattern_com = pattern.com(ticks)[:2]
+        # the pattern's COG at every servo tick, for the deviation every tick before the latch measures
+        self._pattern_com = PatternCom(pattern, params.servo_period)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer,
                                         pattern_layout(pattern, layout))
         self.plan_port = self.DeclareAbstractOutputPort(
@@ -246,49 +233,31 @@ class StopPlannerSystem(ReferenceSystem):
         handle = self._handle(context)
         return handle.replans, handle.replan_failures
 
-    def _raw_measured(self, context):
+    def _measured(self, context):
+        """The measured COG ``(com_xy, com_vel_xy)`` [m, m/s] (:class:`MeasuredComFilter`'s outputs: filtered,
+        less the tracking bias), or None without a finite one."""
         if not self.measured_com_port.HasValue(context):
             return None
         com, vel = self.measured_com_port.Eval(context), self.measured_com_vel_port.Eval(context)
         if not (np.all(np.isfinite(com)) and np.all(np.isfinite(vel))):
             return None
-        return np.concatenate([com[:2], vel[:2]])
+        return com[:2], vel[:2]
 
     def _measured_feet(self, context):
         """The ``measured_feet`` input, or None where it is not connected."""
         return self.measured_feet_port.Eval(context) if self.measured_feet_port.HasValue(context) else None
 
-    def _filter(self, context, state, track_bias):
-        """Low-pass the measured COG (into ``state``); while walking, also the tracking bias against the
-        pattern. Returns this tick's filtered COG less the bias learnt up to the previous tick (what a
-        latch on this tick plans from) as ``(com_xy, com_vel_xy)``, or None without a measurement."""
-        raw = self._raw_measured(context)
-        bias = context.get_discrete_state(self._bias_state).value()
-        if raw is None:
-            return None
-        filtered = context.get_discrete_state(self._filtered_state).value()
-        started = context.get_discrete_state(self._filter_started).value()[0] != 0.0
-        filtered = filtered + self._filter_alpha * (raw - filtered) if started else raw
-        state.get_mutable_discrete_state(self._filtered_state).set_value(filtered)
-        state.get_mutable_discrete_state(self._filter_started).set_value([1.0])
-        corrected = filtered - bias
-        if track_bias:
-            pos, vel = self._pattern_com_at(context.get_time())
-            bias = bias + self._bias_alpha * (filtered - np.concatenate([pos, vel]) - bias)
-            state.get_mutable_discrete_state(self._bias_state).set_value(bias)
-        return corrected[:2], corrected[2:]
-
     def _update(self, context, state):
         """Observe, :func:`~drake_estop.systems.decision.decide`, execute the action, and keep the mode."""
         handle = self._handle(context)
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
-        measured = self._filter(context, state, track_bias=not latched)
+        measured = self._measured(context)
         t = context.get_time()
         relanded, fresh = self._relanded(context, state, handle.plan) if handle.plan is not None else ({}, False)
         observation = Observation(time=t, latched=latched, signal_time=signal_time, measured=measured,
                                   feet=self._measured_feet(context), relanded=relanded, relanded_now=fresh)
         if handle.plan is None and measured is not None:
-            observation = dataclasses.replace(observation, reference_deviation=self._pattern_deviation(
+            observation = dataclasses.replace(observation, reference_deviation=self._pattern_com.deviation(
                 planning_time(observation), measured))
         mode, _ = stop_mode(handle.plan, t, latched)
         action = decide(observation, mode, handle, self._config)
@@ -403,21 +372,6 @@ class StopPlannerSystem(ReferenceSystem):
     def one_step_feasible(self, context) -> bool:
         """The ``one_step_feasible`` output in ``context`` as a bool."""
         return bool(context.get_discrete_state(self._feasible_state).value()[0] > 0.5)
-
-    def _pattern_com_at(self, t: float):
-        """The pattern's COG (x, y) position and velocity at ``t`` [m, m/s]: looked up on a servo tick
-        of the walk, else evaluated (the same bits either way)."""
-        dt = self._params.servo_period
-        k = int(round(t / dt))
-        positions, velocities = self._pattern_com
-        if 0 <= k < len(positions) and k * dt == t:
-            return positions[k], velocities[k]
-        pos, vel, _, _ = self._pattern.com([t])
-        return pos[0], vel[0]
-
-    def _pattern_deviation(self, t: float, measured) -> float:
-        """:func:`dcm_deviation` from the pattern at ``t``, its COG looked up (:meth:`_pattern_com_at`)."""
-        return dcm_distance(measured, *self._pattern_com_at(t), self._pattern.w)
 
     def _relanded(self, context, state, plan):
         """``({side: xy}, fresh)``: the soles that landed again off the plan's foothold, and whether one

@@ -3,7 +3,8 @@
 * :func:`nominal_one_step_table`: the nominal walk's one-step feasibility at
   every servo tick, computed before the run.
 * :func:`dcm_distance` / :func:`dcm_deviation`: how far a measured DCM
-  ``x + v / omega`` lies from a reference's.
+  ``x + v / omega`` lies from a reference's; :class:`PatternCom`, the walk's
+  COG looked up on its servo ticks.
 * :func:`off_foothold` and :func:`next_sole_stage`: where a measured sole
   stands against the plan's foothold, and the stages a sole goes through
   in the stop (the re-landing rule of
@@ -65,6 +66,30 @@ def dcm_deviation(reference, t, measured) -> float:
     pos, vel, _, _ = reference.com([t])
     omega = reference.pattern.w if hasattr(reference, "pattern") else reference.w
     return dcm_distance(measured, pos[0], vel[0], omega)
+
+
+class PatternCom:
+    """The pattern's COG (x, y) position [m] and velocity [m/s] at every servo tick of the walk, computed
+    once (the array path gives the bits of the one-instant one): for the tracking bias and the deviation
+    that every tick before the latch measures against it."""
+
+    def __init__(self, pattern: NominalPattern, servo_period: float):
+        self._pattern, self._dt = pattern, servo_period
+        ticks = np.arange(int(math.ceil(pattern.end_time / servo_period)) + 1) * servo_period
+        self._positions, self._velocities = pattern.com(ticks)[:2]
+
+    def at(self, t: float):
+        """The pattern's COG (x, y) position and velocity at ``t`` [m, m/s]: looked up on a servo tick of the
+        walk, else evaluated (the same bits either way)."""
+        k = int(round(t / self._dt))
+        if 0 <= k < len(self._positions) and k * self._dt == t:
+            return self._positions[k], self._velocities[k]
+        pos, vel, _, _ = self._pattern.com([t])
+        return pos[0], vel[0]
+
+    def deviation(self, t: float, measured) -> float:
+        """:func:`dcm_distance` of ``measured`` from the pattern at ``t``, its COG looked up."""
+        return dcm_distance(measured, *self.at(t), self._pattern.w)
 
 
 def off_foothold(xy, planned, tolerance: float) -> bool:
