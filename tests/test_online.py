@@ -16,6 +16,7 @@ from drake_estop.physics.online import (
 )
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.gait import GaitParameters, NominalPattern
+from drake_estop.planning.plan import StopParameters
 
 
 def _online_with_nothing_ahead(estop_time):
@@ -196,6 +197,10 @@ def test_pushes_go_through_the_plants_applied_spatial_force_input():
     ({"controller": "online"}, "controller must be a ControllerOptions"),
     ({"controller": ControllerOptions(kind="offline-filter")}, "controller.kind"),
     ({"gait_params": GaitParameters(step_length=0.2), "pattern": NominalPattern()}, "gait_params and pattern"),
+    # a feature that acts through the stop parameters is not silently dropped with stop parameters of one's own
+    ({"stop_params": StopParameters()}, r"controller.braked_landing is True but stop_params have no braked"),
+    ({"stop_params": controller_stop_parameters(), "controller": ControllerOptions(braked_landing=False)},
+     r"braked_landing is False but stop_params have the braked landing.*braked_landing=False\)"),
 ])
 def test_run_online_rejects_bad_arguments_naming_them(arguments, named, monkeypatch):
     import drake_estop.physics.online as online

@@ -71,7 +71,8 @@ class ControllerOptions:
         The controller's braked landing (:data:`drake_estop.physics.online.BRAKED_LANDING`): a
         single-support re-plan lands no sooner than the swing can brake to its point at 15 m/s^2, and then
         comes down at a slope (default on; off lands the paper's quintic swing, for comparison). It acts
-        through the stop parameters: :func:`drake_estop.physics.online.controller_stop_parameters`.
+        through the stop parameters: :func:`drake_estop.physics.online.controller_stop_parameters`; stop
+        parameters given to :func:`~drake_estop.physics.online.run_online` that disagree with it raise.
     reference_fallback : bool
         Where no stop exists from the measured state at the signal, the latch plans the paper's stop from
         the reference and re-plans from the measured state (default on; off ends the run with

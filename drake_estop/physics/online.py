@@ -158,6 +158,26 @@ def controller_stop_parameters(params: StopParameters | None = None, *, braked_l
     return params
 
 
+def has_braked_landing(params: StopParameters) -> bool:
+    """Whether ``params`` carry the braked landing (:data:`BRAKED_LANDING`: a swing braking limit and an
+    approach slope at least as strict)."""
+    return (params.max_swing_acceleration <= BRAKED_LANDING["max_swing_acceleration"]
+            and params.landing_approach_slope >= BRAKED_LANDING["landing_approach_slope"])
+
+
+def _braked_as_asked(stop_params: StopParameters | None, controller: ControllerOptions) -> StopParameters | None:
+    """``stop_params`` where they agree with ``controller.braked_landing`` (a feature that acts through the
+    stop parameters is never silently dropped); ValueError naming both where they do not."""
+    if stop_params is None or has_braked_landing(stop_params) == controller.braked_landing:
+        return stop_params
+    has = "have the" if has_braked_landing(stop_params) else "have no"
+    raise ValueError(
+        f"controller.braked_landing is {controller.braked_landing} but stop_params {has} braked landing "
+        f"(max_swing_acceleration {stop_params.max_swing_acceleration:g} m/s^2, landing_approach_slope "
+        f"{stop_params.landing_approach_slope:g}): give stop_params=controller_stop_parameters(params, "
+        f"braked_landing={controller.braked_landing}), or leave stop_params out")
+
+
 def controller_settings(robot=None) -> dict:
     """The robot's own settings of the physics controller, each None where it keeps the controller's:
     ``zmp_margin`` (the stop plan's, [m]), ``zmp_weight`` (its J_ds ``a_ds``, [1/m^2]), ``swing_tilt_deadband``
@@ -549,9 +569,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
         (:func:`drake_estop.robots.gait_parameters`; the paper's for the default humanoid). Give this or
         ``pattern``.
     stop_params : StopParameters, optional
-        Used as given (the CLI gives ``controller_stop_parameters(params, braked_landing=...)``); default
-        :func:`robot_stop_parameters` with ``controller.braked_landing`` (the robot's reach and crouch with
-        the controller's margins).
+        Used as given, with the braked landing or without it as ``controller.braked_landing`` says (build them
+        with ``controller_stop_parameters(params, braked_landing=...)``); default :func:`robot_stop_parameters`.
     estop_time : float, optional
         Time of the stop signal [s], within the walk (0 to the pattern's end); default 3.4 (the paper's).
     after_halt : float, optional
@@ -598,7 +617,8 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern = _checked_pattern(gait_params, pattern, robot, controller.whole_body_walk)
     _check_run_arguments(pattern, estop_time, after_halt)
     perturbations = perturbations or Perturbations()
-    stop_params = stop_params or robot_stop_parameters(robot, braked_landing=controller.braked_landing)
+    stop_params = _braked_as_asked(stop_params, controller) or robot_stop_parameters(
+        robot, braked_landing=controller.braked_landing)
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
                                    perturbations=perturbations, controller=controller,
                                    planner_options=planner_options, robot=robot)
