@@ -271,8 +271,8 @@ def test_the_g1_controller_settings_come_from_its_description():
     assert robot_stop_parameters("talos").a_ds == 50.0 != controller_stop_parameters().a_ds
     handles = build_online_diagram(NominalPattern(gait_parameters(robot)), robot_stop_parameters(robot), 1.5,
                                    robot=robot)
-    assert handles.swing_tilt._deadband == robot.swing_tilt_deadband != SWING_TILT_COMPENSATION["deadband"]
-    assert robot.foot_edge_margin != FOOT_EDGE_COMPLIANCE["edge_margin"]
+    assert handles.swing_tilt._deadband == robot.swing_tilt_deadband != SWING_TILT_COMPENSATION.deadband
+    assert robot.foot_edge_margin != FOOT_EDGE_COMPLIANCE.edge_margin
     assert handles.compliance._safe[0][0] == pytest.approx(-robot.sole().heel + robot.foot_edge_margin)
     assert handles.foot_force is None and gait_parameters(robot).zmp_offset == 0.0
     # a description's foot_force_damping puts the feet's force difference control between the swing-tilt

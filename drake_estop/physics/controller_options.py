@@ -12,6 +12,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from drake_estop.planning.replan import MAX_REPLAN_SOLVES, MAX_STOP_STEPS, check_solve_bound, check_step_bound
+from drake_estop.robots.parameters import as_robot
 
 #: The physics controllers: the online controller, and the offline preview filter it is compared with.
 CONTROLLER_KINDS = ("online", "offline-filter")
@@ -151,3 +152,18 @@ class ControllerOptions:
         default = ControllerOptions()
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                 if f.name != "kind" and getattr(self, f.name) != getattr(default, f.name)}
+
+
+def controller_settings(robot=None) -> dict:
+    """The robot's own settings of the physics controller, each None where it keeps the controller's, from
+    its description: ``zmp_margin`` (the stop plan's [m], ``stop_zmp_margin``), ``zmp_weight`` (its J_ds
+    ``a_ds`` [1/m^2], ``stop_zmp_weight``), ``swing_tilt_deadband`` ([rad],
+    :class:`~drake_estop.physics.reflexes.SwingTiltConfig`), ``edge_margin`` ([m], ``foot_edge_margin``,
+    :class:`~drake_estop.physics.reflexes.FootEdgeComplianceConfig`), ``foot_force_damping`` ([N s/m], the feet's
+    force difference control, :class:`~drake_estop.physics.reflexes.FootForceConfig`, only for a robot that
+    gives it) and ``foot_force_engage_time`` ([s]: how long both soles stand before that control acts)."""
+    description = as_robot(robot)
+    return {"zmp_margin": description.stop_zmp_margin, "zmp_weight": description.stop_zmp_weight,
+            "swing_tilt_deadband": description.swing_tilt_deadband,
+            "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping,
+            "foot_force_engage_time": description.foot_force_engage_time}

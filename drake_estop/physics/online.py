@@ -35,8 +35,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from drake_estop.physics.compliance import add_foot_edge_compliance
-from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
+from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions, controller_settings
 from drake_estop.physics.criteria import (
     JointReference,
     analyse,
@@ -45,8 +44,6 @@ from drake_estop.physics.criteria import (
     joint_velocity_violations,
 )
 from drake_estop.physics.estimation import add_state_estimation
-from drake_estop.physics.foot_force import add_foot_force_control
-from drake_estop.physics.hip_strategy import HIP_STRATEGY, add_hip_strategy
 from drake_estop.physics.perturbations import (
     Perturbations,
     add_pelvis_push,
@@ -63,7 +60,13 @@ from drake_estop.physics.plant import (
     run_through_stop,
     sole_bodies,
 )
-from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
+from drake_estop.physics.reflexes import (  # noqa: F401  FootForceConfig: the foot force control's settings
+    FootEdgeComplianceConfig,
+    FootForceConfig,
+    Reflexes,
+    SwingTiltConfig,
+    apply_reflexes,
+)
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot, stepping_limits
@@ -71,7 +74,6 @@ from drake_estop.systems.capturability_monitor import add_capturability_monitor,
 from drake_estop.systems.decision import StopPlannerConfig, mode_changes
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.measured_com_filter import MeasuredComFilter
-from drake_estop.systems.reference import connect_reference
 from drake_estop.systems.stop_controller import add_stop_controller
 from drake_estop.timing import TickTimer, per_tick
 
@@ -104,7 +106,7 @@ BRAKED_LANDING = {"max_swing_acceleration": 15.0, "landing_approach_slope": 0.6}
 IK_MIN_KNEE_BEND = 0.15
 
 #: Settings of the stance ankles' foot-edge compliance (:class:`drake_estop.physics.compliance.FootEdgeCompliance`).
-FOOT_EDGE_COMPLIANCE = {"edge_margin": 0.015, "damping": 80.0, "return_time": 0.3, "max_offset": 0.05}
+FOOT_EDGE_COMPLIANCE = FootEdgeComplianceConfig()
 
 #: The servo command's rate limit, as a fraction of the model's joint velocity limits: the stiff PD servo
 #: overshoots a command at the limit by about 1 % (measured 6.08 rad/s on a knee commanded at 6).
@@ -113,12 +115,11 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 #: Settings of the swing foot's tilt compensation (:class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation`):
 #: a 0.01 rad dead band (the walk's own base sway against the command is a few mrad), hrpsys-base's
 #: 10 degree cap, a 0.3 s return after the touchdown, and 50 N of measured force for contact.
-SWING_TILT_COMPENSATION = {"deadband": 0.01, "max_tilt": 0.17, "return_time": 0.3, "contact_force": 50.0}
+SWING_TILT_COMPENSATION = SwingTiltConfig()
 
 #: Settings of the feet's force difference control (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`)
 #: for a robot whose description gives its ``foot_force_damping`` [N s/m] (and its ``foot_force_engage_time``
-#: [s]; the default humanoid gives both, TALOS a damping only, the G1 neither).
-FOOT_FORCE_CONTROL = {"return_time": 0.5, "max_offset": 0.02}
+#: [s]; the default humanoid gives both, TALOS a damping only, the G1 neither): :class:`FootForceConfig`.
 
 
 def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True,
@@ -178,27 +179,6 @@ def _braked_as_asked(stop_params: StopParameters | None, controller: ControllerO
         f"braked_landing={controller.braked_landing}), or leave stop_params out")
 
 
-def controller_settings(robot=None) -> dict:
-    """The robot's own settings of the physics controller, each None where it keeps the controller's:
-    ``zmp_margin`` (the stop plan's, [m]), ``zmp_weight`` (its J_ds ``a_ds``, [1/m^2]), ``swing_tilt_deadband``
-    ([rad]: :data:`SWING_TILT_COMPENSATION`) and ``edge_margin`` ([m]: :data:`FOOT_EDGE_COMPLIANCE`), from its
-    description's ``stop_zmp_margin``, ``stop_zmp_weight``, ``swing_tilt_deadband`` and ``foot_edge_margin``;
-    ``foot_force_damping`` ([N s/m]: the feet's force difference control, :data:`FOOT_FORCE_CONTROL`, only for a
-    robot that gives it) and ``foot_force_engage_time`` ([s]: how long both soles stand before that control
-    acts)."""
-    description = as_robot(robot)
-    return {"zmp_margin": description.stop_zmp_margin, "zmp_weight": description.stop_zmp_weight,
-            "swing_tilt_deadband": description.swing_tilt_deadband,
-            "edge_margin": description.foot_edge_margin, "foot_force_damping": description.foot_force_damping,
-            "foot_force_engage_time": description.foot_force_engage_time}
-
-
-def _robot_setting(settings: dict, robot_settings: dict, key: str, name: str) -> dict:
-    """``settings`` with ``key`` set to the robot's ``name`` setting, where it has one."""
-    value = robot_settings[name]
-    return settings if value is None else {**settings, key: value}
-
-
 def _controller_stop_parameters(params, braked_landing):
     base = params or StopParameters()
     controller = CONTROLLER_STOP_PARAMETERS
@@ -251,8 +231,8 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     applied-spatial-force input, sensor noise and latency in the sensors; the masses in
     :func:`run_online`'s context). ``controller`` (default ``ControllerOptions()``) says which features
     are on: ``true_state`` feeds the estimator's outputs from the true plant state (debugging); the
-    reflexes (:func:`_add_reflexes`) sit between the planner and the IK; the planner features and
-    ``planner_options`` (its other settings) make the planner's
+    reflexes (:func:`~drake_estop.physics.reflexes.apply_reflexes`) sit between the planner and the IK;
+    the planner features and ``planner_options`` (its other settings) make the planner's
     :class:`~drake_estop.systems.decision.StopPlannerConfig`. ``controller.braked_landing`` acts through
     ``stop_params`` (:func:`controller_stop_parameters`).
 
@@ -304,8 +284,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
-    reflexes = _add_reflexes(builder, controller=controller, robot=robot, planner=planner, estimator=estimator,
-                             ik=ik, kin_plant=kin_plant, plant=plant, omega=pattern.w, servo_period=dt, timer=timer)
+    reflexes = apply_reflexes(builder, Reflexes.of(controller, robot), robot=robot, planner=planner,
+                              estimator=estimator, ik=ik, kin_plant=kin_plant, plant=plant, omega=pattern.w,
+                              servo_period=dt, timer=timer)
     swing_tilt_system, foot_force, hip, compliance = reflexes
     add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
@@ -337,43 +318,6 @@ def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, es
         builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
         limits=stepping_limits(robot, stop_params), report_time=report_time(estop_time, pushes), timer=timer)
     return trigger, planner, monitor
-
-
-def _add_reflexes(builder, *, controller, robot, planner, estimator, ik, kin_plant, plant, omega, servo_period,
-                  timer) -> tuple:
-    """The controller's reflexes between the planner and the IK, each where ``controller`` turns it on:
-    ``(swing tilt, foot force control, hip strategy, foot-edge compliance)`` (None where off); the
-    reference connected to the IK through them."""
-    settings = controller_settings(robot)
-    swing_tilt_system = None
-    if controller.swing_tilt:
-        swing_tilt_system = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
-                                                        estimator=estimator, servo_period=servo_period, timer=timer,
-                                                        robot=robot, **_robot_setting(
-                                                            SWING_TILT_COMPENSATION, settings, "deadband",
-                                                            "swing_tilt_deadband"))
-    feet = swing_tilt_system
-    foot_force = None
-    if controller.foot_force_control and settings["foot_force_damping"] is not None:
-        foot_force = add_foot_force_control(builder, feet=swing_tilt_system or planner, zmp_source=planner,
-                                            sensors=estimator.sensors, servo_period=servo_period, timer=timer,
-                                            damping=settings["foot_force_damping"], **_robot_setting(
-                                                FOOT_FORCE_CONTROL, settings, "engage_time",
-                                                "foot_force_engage_time"))
-        feet = foot_force
-    hip = None
-    if controller.hip_strategy:
-        hip = add_hip_strategy(builder, reference=planner, estimator=estimator, plant=kin_plant, robot=robot,
-                               layout=planner.layout, omega=omega, servo_period=servo_period, timer=timer,
-                               **HIP_STRATEGY)
-    connect_reference(builder, planner, ik, feet=feet, upper_body=hip)
-    compliance = None
-    if controller.foot_compliance:
-        compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, servo_period, timer=timer,
-                                              robot=robot, **_robot_setting(
-                                                  FOOT_EDGE_COMPLIANCE, settings, "edge_margin",
-                                                  "edge_margin"))
-    return swing_tilt_system, foot_force, hip, compliance
 
 
 def _add_loggers(builder, *, plant, cop, ik, estimator, planner, monitor, reflexes, period, servo_period) -> dict:
