@@ -17,7 +17,7 @@ from drake_estop.physics.hip_strategy import (
     push_rate,
     trunk_pitch_setup,
 )
-from drake_estop.planning.plan import PHASES
+from drake_estop.systems.decision import StopMode
 
 PROFILE = {name: HIP_STRATEGY[name] for name in ("rise_time", "hold_time", "return_time")}
 OMEGA = math.sqrt(9.80665 / 0.814)
@@ -52,7 +52,7 @@ def _system(**settings):
                           "upper": 1.0472, "max_speed": 3.0, **settings})
 
 
-def _fix(system, context, *, ahead=0.0, phase="landing", yaw=0.0, trunk=0.0, zmp_behind=0.0):
+def _fix(system, context, *, ahead=0.0, mode=StopMode.SINGLE_SUPPORT_STOP, yaw=0.0, trunk=0.0, zmp_behind=0.0):
     """Inputs with the estimated DCM ``ahead`` [m] of the reference's along the feet's heading ``yaw``,
     the reference ZMP ``zmp_behind`` [m] behind the estimated DCM."""
     heading = np.array([math.cos(yaw), math.sin(yaw)])
@@ -62,7 +62,7 @@ def _fix(system, context, *, ahead=0.0, phase="landing", yaw=0.0, trunk=0.0, zmp
     system.GetInputPort("com_vel").FixValue(context, [0.3, 0.0, 0.0])
     system.GetInputPort("left_foot").FixValue(context, sole)
     system.GetInputPort("right_foot").FixValue(context, sole)
-    system.GetInputPort("phase").FixValue(context, [float(PHASES.index(phase))])
+    system.GetInputPort("mode").FixValue(context, [float(mode), 1.0])
     system.GetInputPort("measured_com").FixValue(context, [0.5, 0.0, 0.8])
     measured_vel = np.array([0.3 + ahead * OMEGA * heading[0], ahead * OMEGA * heading[1]])
     system.GetInputPort("measured_com_vel").FixValue(context, [*measured_vel, 0.0])
@@ -85,7 +85,7 @@ def _state_after_update(system, context):
 def test_ports():
     system = _system()
     assert [system.get_input_port(i).get_name() for i in range(system.num_input_ports())] == [
-        "upper_body", "com", "com_vel", "zmp", "left_foot", "right_foot", "phase", "measured_com",
+        "upper_body", "com", "com_vel", "zmp", "left_foot", "right_foot", "mode", "measured_com",
         "measured_com_vel"]
     assert [system.get_output_port(i).get_name() for i in range(system.num_output_ports())] == ["upper_body", "bow"]
 
@@ -136,9 +136,9 @@ def test_push_rate_is_the_dcm_rate_less_the_lipm_divergence():
 def test_no_bow_while_walking_or_stopped():
     system = _system()
     context = system.CreateDefaultContext()
-    for phase in ("walking", "stopped"):
-        _pushing(system, context, _fix(system, context, ahead=0.1, phase=phase), 2.0)
-        assert math.isnan(_state_after_update(system, context)[0]), phase
+    for mode in (StopMode.WALKING, StopMode.STANDING):
+        _pushing(system, context, _fix(system, context, ahead=0.1, mode=mode), 2.0)
+        assert math.isnan(_state_after_update(system, context)[0]), mode
 
 
 def test_a_dcm_pushed_behind_bows_back_only_where_asked():

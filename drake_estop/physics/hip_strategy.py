@@ -15,7 +15,7 @@ the landing foot carries the robot. What it buys is time, while the ankle is sat
 the air (Pratt et al. 2006 count it as a flywheel in the capture region).
 
 :class:`HipStrategy` sits between the stop planner and the whole-body IK. In the stop (the planner's
-phase past "walking"), when a push from behind is under way it bows the trunk's pitch joint forward by
+``mode`` past walking, before standing), when a push from behind is under way it bows the trunk's pitch joint forward by
 ``amplitude`` [rad] (within the joint's range and speed limit) along :func:`bow_profile`; the IK keeps the
 whole-body COG on the plan, so the pelvis moves back as the trunk goes forward. A push is two things
 measured along the feet's heading: the estimated DCM runs ahead of the reference's by more than
@@ -48,7 +48,7 @@ import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from drake_estop.planning import lipm
-from drake_estop.planning.plan import PHASES
+from drake_estop.systems.decision import StopMode
 from drake_estop.systems.ik import quaternion_to_matrix, yaw_of
 from drake_estop.timing import timed
 
@@ -59,8 +59,6 @@ HIP_STRATEGY = {"trigger": 0.04, "min_rate": 0.6, "amplitude": 0.12, "rise_time"
 #: Ticks over which the deviation's rate is measured (20 ms at the 5 ms servo tick).
 RATE_TICKS = 4
 
-_WALKING = PHASES.index("walking")
-_STOPPED = PHASES.index("stopped")
 _SMOOTHER_PEAK = float(lipm.poly_eval(lipm.SMOOTHSTEP, 0.5, 1))  # the smootherstep's largest slope, 1.875
 
 
@@ -118,7 +116,7 @@ class HipStrategy(LeafSystem):
         - zmp
         - left_foot
         - right_foot
-        - phase
+        - mode
         - measured_com
         - measured_com_vel
         output_ports:
@@ -130,7 +128,8 @@ class HipStrategy(LeafSystem):
       - ``com``, ``com_vel`` (3): the reference COG [m] and its velocity [m/s]; ``zmp`` (2): the
         reference ZMP [m]; ``left_foot``,
         ``right_foot`` (7): the reference soles ``[x, y, z, qw, qx, qy, qz]`` (their heading);
-        ``phase`` (1): the index into ``PHASES`` (the strategy acts past "walking", before "stopped").
+        ``mode`` (2): the planner's ``[StopMode, landings left]`` (the strategy acts in a stop, past
+        ``WALKING`` and before ``STANDING``).
       - ``measured_com``, ``measured_com_vel`` (3): the estimated COG and its velocity.
       - ``upper_body`` out (n): the targets with the bow added to joint ``joint_index``.
       - ``bow`` (2): the bow [rad] and its rate [rad/s].
@@ -184,7 +183,7 @@ class HipStrategy(LeafSystem):
         self.com_vel_port = self.DeclareVectorInputPort("com_vel", 3)
         self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
         self.feet_ports = [self.DeclareVectorInputPort(f"{side}_foot", 7) for side in ("left", "right")]
-        self.phase_port = self.DeclareVectorInputPort("phase", 1)
+        self.mode_port = self.DeclareVectorInputPort("mode", 2)
         self.measured_com_port = self.DeclareVectorInputPort("measured_com", 3)
         self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
         self._bow_state = self.DeclareDiscreteState(np.array([math.nan, 0.0]))
@@ -222,9 +221,10 @@ class HipStrategy(LeafSystem):
         t = context.get_time()
         if math.isfinite(start) and t < start + self._duration - 1e-9:
             return EventStatus.Succeeded()  # a bow is under way
-        phase = int(round(float(self.phase_port.Eval(context)[0])))
+        mode = int(round(float(self.mode_port.Eval(context)[0])))
         deviation = self._deviation(context, heading, dcm)
-        if not _WALKING < phase < _STOPPED or abs(deviation) <= self._trigger or (deviation < 0 and not self._backward):
+        in_the_stop = StopMode.WALKING < mode < StopMode.STANDING
+        if not in_the_stop or abs(deviation) <= self._trigger or (deviation < 0 and not self._backward):
             return EventStatus.Succeeded()
         push = push_rate(history, RATE_TICKS * self._servo_period,
                          self._omega * float(heading @ (dcm - self.zmp_port.Eval(context))))
@@ -270,7 +270,7 @@ def trunk_pitch_setup(plant, robot, layout) -> dict | None:
 def add_hip_strategy(builder, *, reference, estimator, plant, robot, layout, omega, servo_period, timer=None,
                      **settings):
     """A :class:`HipStrategy` for ``robot``'s trunk pitch joint on ``plant`` (None where the robot names
-    none), fed ``reference``'s (the planner's) upper body, COG, feet and phase and ``estimator``'s COG.
+    none), fed ``reference``'s (the planner's) upper body, COG, feet and mode and ``estimator``'s COG.
     Its ``upper_body`` output goes to the IK (``connect_reference(..., upper_body=system)``)."""
     setup = trunk_pitch_setup(plant, robot, layout)
     if setup is None:
@@ -278,7 +278,7 @@ def add_hip_strategy(builder, *, reference, estimator, plant, robot, layout, ome
     system = builder.AddNamedSystem("hip_strategy", HipStrategy(
         upper_body_size=len(layout.upper_body), omega=omega, servo_period=servo_period, timer=timer,
         **setup, **settings))
-    for name in ("upper_body", "com", "com_vel", "zmp", "left_foot", "right_foot", "phase"):
+    for name in ("upper_body", "com", "com_vel", "zmp", "left_foot", "right_foot", "mode"):
         builder.Connect(reference.GetOutputPort(name), system.GetInputPort(name))
     builder.Connect(estimator.com_port, system.measured_com_port)
     builder.Connect(estimator.com_vel_port, system.measured_com_vel_port)
