@@ -3,6 +3,7 @@ matrix's hardest pushes, to iterate on the controller in minutes instead of the 
 
     python benchmarks/push_suite.py [--workers 2]        # run, print each verdict and what changed
     python benchmarks/push_suite.py --update             # ... and keep this run as benchmarks/PUSH_SUITE.json
+    python benchmarks/push_suite.py --controller crossover_step=true   # every case with a controller option
 
 The cases come from the committed campaign (``docs/campaign/results.parquet``, seed 0), chosen by a fixed
 rule so that the suite is the same on every machine: every fourth fall by impulse, the halt's CoP exits, the
@@ -83,6 +84,14 @@ def verdict(outcome: dict) -> str:
     return "stop" if outcome["success"] else "upright" if outcome["no_fall"] else "fall"
 
 
+def with_controller(cases: list, options: list) -> list:
+    """``cases`` with the controller ``options`` (``KEY=VALUE`` strings, YAML values) in each command."""
+    if not options:
+        return cases
+    section = "{controller: {" + ", ".join(option.replace("=", ": ", 1) for option in options) + "}}"
+    return [(name, kind, [*argv, "--scenario-text", section]) for name, kind, argv in cases]
+
+
 def run_case(case) -> dict:
     from drake_estop.campaign.runner import _process, outcome_from_reply
 
@@ -98,8 +107,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--update", action="store_true", help="keep this run as the committed result")
+    parser.add_argument("--controller", action="append", default=[], metavar="KEY=VALUE",
+                        help="a controller option for every case (ControllerOptions field), repeatable")
     args = parser.parse_args(argv)
-    cases = suite()
+    if args.update and args.controller:
+        parser.error("--update keeps the default controller's result: not with --controller")
+    cases = with_controller(suite(), args.controller)
     before = {case["name"]: case["verdict"] for case in json.loads(RESULT.read_text())["cases"]} \
         if RESULT.exists() else {}
     start = time.perf_counter()

@@ -51,3 +51,11 @@ def test_the_committed_result_is_the_suite_of_the_committed_campaign():
     assert [c["name"] for c in kept["cases"]] == [name for name, _, _ in cases]
     assert [shlex.split(c["command"])[1:] for c in kept["cases"]] == [argv for _, _, argv in cases]
     assert sum(kept["counts"].values()) == len(cases)
+
+
+def test_a_controller_option_goes_into_every_command():
+    suite = load_script("benchmarks/push_suite.py")
+    cases = [("a", "fall", ["simulate", "--physics"])]
+    assert suite.with_controller(cases, []) == cases
+    assert suite.with_controller(cases, ["crossover_step=true", "max_steps=2"])[0][2] == [
+        "simulate", "--physics", "--scenario-text", "{controller: {crossover_step: true, max_steps: 2}}"]
