@@ -111,11 +111,10 @@ def test_a_stepping_plan_is_its_own_mode(plan_3_4):
 
 def test_before_the_latch_the_walk_plays_and_a_latch_plans_from_the_reference_at_the_signal():
     measured = (np.zeros(2), np.zeros(2))
-    walk = decide(Observation(time=3.0, measured=measured, reference_deviation=0.01), StopMode.WALKING,
-                  PlanHandle(), CONFIG)
+    walk = decide(Observation(time=3.0, measured=measured, reference_deviation=0.01), PlanHandle(), CONFIG)
     assert (walk.kind, walk.plan_time, walk.from_measured) == (ActionKind.WALK, 3.0, False)
     latch = decide(Observation(time=3.405, latched=True, signal_time=3.402, measured=measured,
-                               reference_deviation=0.05), StopMode.LATCHED, PlanHandle(), CONFIG)
+                               reference_deviation=0.05), PlanHandle(), CONFIG)
     assert (latch.kind, latch.plan_time, latch.from_measured) == (ActionKind.LATCH, 3.402, False)
 
 
@@ -124,11 +123,11 @@ def test_a_latch_off_the_walk_plans_from_the_measured_state_at_its_tick():
     of the tick and the signal); without a measurement, from the reference whatever the deviation."""
     observation = Observation(time=3.405, latched=True, signal_time=3.402, measured=(np.zeros(2), np.zeros(2)),
                               reference_deviation=0.0501)
-    latch = decide(observation, StopMode.LATCHED, PlanHandle(), CONFIG)
+    latch = decide(observation, PlanHandle(), CONFIG)
     assert (latch.kind, latch.plan_time, latch.from_measured) == (ActionKind.LATCH, 3.405, True)
-    assert not decide(observation, StopMode.LATCHED, PlanHandle(), CONFIG.replaced(replan_threshold=0.06)
+    assert not decide(observation, PlanHandle(), CONFIG.replaced(replan_threshold=0.06)
                       ).from_measured
-    assert not decide(dataclasses.replace(observation, measured=None), StopMode.LATCHED, PlanHandle(),
+    assert not decide(dataclasses.replace(observation, measured=None), PlanHandle(),
                       CONFIG).from_measured
 
 
@@ -144,7 +143,7 @@ def _pushed(plan, t, lateral_speed):
 def _decide(plan, t, measured, *, config=CONFIG, **handle_changes):
     handle = PlanHandle(plan).replaced(**handle_changes)
     observation = Observation(time=t, latched=True, signal_time=plan.signal_time, measured=measured)
-    return decide(observation, stop_mode(plan, t, True)[0], handle, config)
+    return decide(observation, handle, config)
 
 
 def test_a_push_in_the_air_replans_the_landing_with_room_for_two_steps(plan_3_2):
@@ -187,15 +186,15 @@ def test_a_push_in_double_support_replans_on_the_measured_feet(plan_3_4):
     feet = np.array([3.0, 0.1, 2.8, -0.1, 5.0, 5.0])
     handle = PlanHandle(plan_3_4)
     observation = Observation(time=t, latched=True, signal_time=3.4, measured=_pushed(plan_3_4, t, 0.4), feet=feet)
-    action = decide(observation, StopMode.DOUBLE_SUPPORT_STOP, handle, CONFIG)
+    action = decide(observation, handle, CONFIG)
     assert action.kind is ActionKind.REPLAN and action.recovery_step
     np.testing.assert_array_equal(action.feet["left"], feet[:2])
     np.testing.assert_array_equal(action.feet["right"], feet[2:4])
     landed_side = 4 + ("left", "right").index(plan_3_4.landing_foot)
     feet[landed_side] = 1.0  # the landed sole loaded one tick: not a foothold yet
-    assert decide(dataclasses.replace(observation, feet=feet), StopMode.DOUBLE_SUPPORT_STOP, handle,
+    assert decide(dataclasses.replace(observation, feet=feet), handle,
                   CONFIG).feet is None
-    assert decide(observation, StopMode.DOUBLE_SUPPORT_STOP, handle, CONFIG.replaced(measured_footholds=False)
+    assert decide(observation, handle, CONFIG.replaced(measured_footholds=False)
                   ).feet is None
 
 
@@ -215,14 +214,14 @@ def test_a_sole_that_landed_again_replans_at_once(plan_3_4, plan_3_2):
     observation = Observation(time=3.7, latched=True, signal_time=3.4, measured=on_plan, relanded=relanded,
                               relanded_now=True)
     handle = PlanHandle(plan_3_4).replaced(last_try=3.69)
-    action = decide(observation, StopMode.DOUBLE_SUPPORT_STOP, handle, CONFIG)
+    action = decide(observation, handle, CONFIG)
     assert action.kind is ActionKind.REPLAN and not action.recovery_step
     np.testing.assert_array_equal(action.feet["left"], relanded["left"])
-    later = decide(dataclasses.replace(observation, relanded_now=False), StopMode.DOUBLE_SUPPORT_STOP, handle,
+    later = decide(dataclasses.replace(observation, relanded_now=False), handle,
                    CONFIG)
     assert later.kind is ActionKind.WAIT  # not on its first tick: the interval holds it
     early = dataclasses.replace(observation, time=3.25, measured=_pushed(plan_3_2, 3.25, 0.0))
-    assert decide(early, StopMode.SINGLE_SUPPORT_STOP, PlanHandle(plan_3_2), CONFIG).kind is ActionKind.WAIT
+    assert decide(early, PlanHandle(plan_3_2), CONFIG).kind is ActionKind.WAIT
 
 
 def test_a_capture_landing_takes_its_next_step_at_the_touchdown_and_no_measurement_holds(plan_3_4):

@@ -271,12 +271,13 @@ def planning_time(observation: Observation) -> float:
     return observation.time
 
 
-def decide(observation: Observation, mode: StopMode, handle, config: StopPlannerConfig) -> Action:
+def decide(observation: Observation, handle, config: StopPlannerConfig) -> Action:
     """The stop controller's choice at a tick: the only code that decides what it does.
 
-    ``mode`` is :func:`stop_mode` of the plan in force at the tick, ``handle`` the planner system's
-    :class:`~drake_estop.systems.plan_sequence.PlanHandle` (the plan, its history, the last re-plan's tick
-    and tries left), ``config`` the limits. Situations are taken top down; the first that holds decides.
+    ``handle`` is the planner system's :class:`~drake_estop.systems.plan_sequence.PlanHandle` (the plan in
+    force, its history, the last re-plan's tick and tries left), ``config`` the limits. The mode column is
+    :func:`stop_mode` of that plan at the tick, which the plan and the time say. Situations are taken top
+    down; the first that holds decides.
 
     ==========================  ===============================================  =============
     mode                        situation                                        action

@@ -259,8 +259,7 @@ class StopPlannerSystem(ReferenceSystem):
         if handle.plan is None and measured is not None:
             observation = dataclasses.replace(observation, reference_deviation=self._pattern_com.deviation(
                 planning_time(observation), measured))
-        mode, _ = stop_mode(handle.plan, t, latched)
-        action = decide(observation, mode, handle, self._config)
+        action = decide(observation, handle, self._config)
         self._execute(action, context, state, handle, observation)
         after = state.get_mutable_abstract_state(self._plan_state).get_value().plan
         state.get_mutable_discrete_state(self._mode_state).set_value([float(v) for v in stop_mode(after, t, latched)])
