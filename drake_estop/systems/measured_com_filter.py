@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.systems.stop_numerics import PatternCom
@@ -82,44 +83,43 @@ class MeasuredComFilter(LeafSystem):
         self._filtered_state = self.DeclareDiscreteState(4)
         self._started_state = self.DeclareDiscreteState(1)
         self._bias_state = self.DeclareDiscreteState(4)
-        prerequisites = {self.all_input_ports_ticket(), self.xd_ticket()}
+        # this tick's filtered COG (4), it less the bias (4) and the heights (2), NaN without a measurement:
+        # computed once a tick for both outputs and the update
+        self._tick = self.DeclareCacheEntry(
+            "filtered", ValueProducer(allocate=lambda: AbstractValue.Make(np.full(10, np.nan)), calc=self._calc_tick),
+            {self.all_input_ports_ticket(), self.xd_ticket()})
         self.com_port = self.DeclareVectorOutputPort(
-            "com", 3, lambda context, out: self._calc(context, out, 0), prerequisites_of_calc=prerequisites)
+            "com", 3, lambda context, out: out.SetFromVector(self._tick.Eval(context)[[4, 5, 8]]),
+            prerequisites_of_calc={self._tick.ticket()})
         self.com_vel_port = self.DeclareVectorOutputPort(
-            "com_vel", 3, lambda context, out: self._calc(context, out, 2), prerequisites_of_calc=prerequisites)
+            "com_vel", 3, lambda context, out: out.SetFromVector(self._tick.Eval(context)[[6, 7, 9]]),
+            prerequisites_of_calc={self._tick.ticket()})
         # unrestricted, as the planner's: both read the estimate of the tick before any update of it (a discrete
         # update runs after the unrestricted ones, when the new reference has reached the simulated robot's
         # actuation and, through its accelerometer, the estimate)
         self.DeclarePeriodicUnrestrictedUpdateEvent(servo_period, 0.0, timed(self._update, timer))
 
-    def _measured(self, context):
-        """``(x, y, vx, vy)`` of the inputs and their heights, or None without a finite measurement."""
-        if not self.measured_com_port.HasValue(context):
-            return None
-        com, vel = self.measured_com_port.Eval(context), self.measured_com_vel_port.Eval(context)
-        if not (np.all(np.isfinite(com)) and np.all(np.isfinite(vel))):
-            return None
-        return np.concatenate([com[:2], vel[:2]]), (com[2], vel[2])
-
-    def _filtered(self, context, raw):
-        filtered = context.get_discrete_state(self._filtered_state).value()
-        started = context.get_discrete_state(self._started_state).value()[0] != 0.0
-        return filtered + self._filter_alpha * (raw - filtered) if started else raw
-
-    def _calc(self, context, output: BasicVector, first: int):
-        measured = self._measured(context)
-        if measured is None:
-            output.SetFromVector(np.full(3, np.nan))
-            return
-        raw, heights = measured
-        corrected = self._filtered(context, raw) - context.get_discrete_state(self._bias_state).value()
-        output.SetFromVector([corrected[first], corrected[first + 1], heights[first // 2]])
+    def _calc_tick(self, context, value):
+        """``[filtered (4), filtered - bias (4), heights (2)]``: ``filtered + alpha (measured - filtered)`` (the
+        measurement itself on the first tick), the bias learnt up to the previous tick; NaN without a finite
+        measurement."""
+        out = np.full(10, np.nan)
+        if self.measured_com_port.HasValue(context):
+            com, vel = self.measured_com_port.Eval(context), self.measured_com_vel_port.Eval(context)
+            if np.all(np.isfinite(com)) and np.all(np.isfinite(vel)):
+                raw = np.concatenate([com[:2], vel[:2]])
+                filtered = context.get_discrete_state(self._filtered_state).value()
+                started = context.get_discrete_state(self._started_state).value()[0] != 0.0
+                filtered = filtered + self._filter_alpha * (raw - filtered) if started else raw
+                out = np.concatenate([filtered, filtered - context.get_discrete_state(self._bias_state).value(),
+                                      [com[2], vel[2]]])
+        value.set_value(out)
 
     def _update(self, context, state):
-        measured = self._measured(context)
-        if measured is None:
+        tick = self._tick.Eval(context)
+        if not np.isfinite(tick[0]):
             return EventStatus.DidNothing()
-        filtered = self._filtered(context, measured[0])
+        filtered = tick[:4]
         state.get_mutable_discrete_state(self._filtered_state).set_value(filtered)
         state.get_mutable_discrete_state(self._started_state).set_value([1.0])
         latched, _ = EStopTrigger.latched(self.stop_port.Eval(context))
