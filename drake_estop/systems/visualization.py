@@ -479,6 +479,23 @@ def _phase_lines(ax, plan):
         ax.axvline(t, color="0.6", lw=0.8, ls=":")
 
 
+def _pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (files, no display)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(plt, fig, path):
+    """Lay ``fig`` out, write it to ``path`` (PNG, 120 dpi), close it; returns ``path``."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def plot_cog_zmp(times, com, zmp, plan, path, title):
     """COG and ZMP against time, x and y, with the signal and the phase boundaries (paper Fig. 9 / Fig. 12).
 
@@ -500,10 +517,7 @@ def plot_cog_zmp(times, com, zmp, plan, path, title):
     str or pathlib.Path
         ``path``.
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for axis, ax in enumerate(axes):
         ax.plot(times, com[:, axis], "b-", label="COG")
@@ -514,10 +528,7 @@ def plot_cog_zmp(times, com, zmp, plan, path, title):
     axes[0].legend(loc="upper left")
     axes[0].set_title(title)
     axes[1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def plot_knees(knees: dict, plan, path, title):
@@ -539,10 +550,7 @@ def plot_knees(knees: dict, plan, path, title):
     str or pathlib.Path
         ``path``.
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     styles = {"left": "-", "right": "--"}
     for label, (times, angles) in knees.items():
@@ -554,10 +562,7 @@ def plot_knees(knees: dict, plan, path, title):
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def describe(result):
