@@ -17,6 +17,7 @@ criterion missed) or ``fall``; ``changed`` compares it with the committed result
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import shlex
 import sys
@@ -29,10 +30,18 @@ CAMPAIGN = ROOT / "docs" / "campaign" / "results.parquet"
 RESULT = Path(__file__).resolve().parent / "PUSH_SUITE.json"
 TIMEOUT = 900.0  # [s] a run, on a shared machine
 
-#: The robustness benchmark's signal phases [s after the third step's liftoff] (benchmarks/robustness.py).
-PHASES = {"early single support": 0.10, "mid single support": 0.30, "late single support": 0.52,
-          "double support": 0.70}
-PUSH_DURATION = 0.1  # [s]
+
+
+def _robustness():
+    """``benchmarks/robustness.py``, whose signal phases, push directions, duration and target impulse the
+    matrix cases are."""
+    spec = importlib.util.spec_from_file_location("robustness", Path(__file__).resolve().parent / "robustness.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+ROBUSTNESS = _robustness()
 
 
 def campaign_cases(rows: list) -> list:
@@ -50,21 +59,25 @@ def campaign_cases(rows: list) -> list:
 
 
 def matrix_cases(liftoff: float) -> list:
-    """The 29 N s sideways pushes at the signal (early and late single support, double support, both ways)
-    and the 35 N s backward push at mid stance, on the default walk whose third step lifts off at
+    """The robustness benchmark's target pushes (29 N s) sideways at the signal in its push phases, both
+    ways, and a 35 N s backward push at mid stance, on the default walk whose third step lifts off at
     ``liftoff`` [s]."""
     cases = []
-    for phase in ("early single support", "late single support", "double support"):
-        t = round(liftoff + PHASES[phase], 3)
-        for side, sign in (("left", 1.0), ("right", -1.0)):
-            push = ["--push", f"{t}", "0.0", f"{sign * 29.0 / PUSH_DURATION}", f"{PUSH_DURATION}"]
-            cases.append((f"29 N s {side}, {phase}", "matrix push", ["simulate", "--physics", "--estop-time",
-                                                                    f"{t}", *push]))
-    t = round(liftoff + PHASES["mid single support"], 3)
+    for phase in ROBUSTNESS.PUSH_PHASES:
+        for side in ("left", "right"):
+            cases.append((f"{ROBUSTNESS.TARGET_IMPULSE:g} N s {side}, {phase}", "matrix push",
+                          _pushed_at(liftoff, phase, side, ROBUSTNESS.TARGET_IMPULSE)))
     cases.append(("35 N s backward, mid single support", "matrix push",
-                  ["simulate", "--physics", "--estop-time", f"{t}", "--push", f"{t}", f"{-35.0 / PUSH_DURATION}",
-                   "0.0", f"{PUSH_DURATION}"]))
+                  _pushed_at(liftoff, "mid single support", "backward", 35.0)))
     return cases
+
+
+def _pushed_at(liftoff: float, phase: str, direction: str, impulse: float) -> list:
+    """``simulate --physics`` with the signal and a push of ``impulse`` [N s] along ``direction`` at ``phase``."""
+    t = round(liftoff + ROBUSTNESS.PHASES[phase], 3)
+    duration = ROBUSTNESS.PUSH_DURATION
+    fx, fy = (component * impulse / duration for component in ROBUSTNESS.DIRECTIONS[direction])
+    return ["simulate", "--physics", "--estop-time", f"{t}", "--push", f"{t}", f"{fx}", f"{fy}", f"{duration}"]
 
 
 def suite() -> list:
