@@ -60,13 +60,7 @@ from drake_estop.physics.plant import (
     run_through_stop,
     sole_bodies,
 )
-from drake_estop.physics.reflexes import (  # noqa: F401  FootForceConfig: the foot force control's settings
-    FootEdgeComplianceConfig,
-    FootForceConfig,
-    Reflexes,
-    SwingTiltConfig,
-    apply_reflexes,
-)
+from drake_estop.physics.reflexes import FootEdgeComplianceConfig, Reflexes, SwingTiltConfig, apply_reflexes
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot, stepping_limits
@@ -116,10 +110,6 @@ SERVO_VELOCITY_LIMIT_FRACTION = 0.95
 #: a 0.01 rad dead band (the walk's own base sway against the command is a few mrad), hrpsys-base's
 #: 10 degree cap, a 0.3 s return after the touchdown, and 50 N of measured force for contact.
 SWING_TILT_COMPENSATION = SwingTiltConfig()
-
-#: Settings of the feet's force difference control (:class:`drake_estop.physics.foot_force.FootForceDifferenceControl`)
-#: for a robot whose description gives its ``foot_force_damping`` [N s/m] (and its ``foot_force_engage_time``
-#: [s]; the default humanoid gives both, TALOS a damping only, the G1 neither): :class:`FootForceConfig`.
 
 
 def controller_stop_parameters(params: StopParameters | None = None, *, braked_landing: bool = True,

@@ -122,8 +122,8 @@ class StopPlannerSystem(ReferenceSystem):
     params : StopParameters
         Weights, limits and servo period [s] of the planner.
     config : StopPlannerConfig, optional
-        The re-planning settings: thresholds [m], intervals and time constants [s], the tries, the
-        footholds (default ``StopPlannerConfig()``).
+        The re-planning settings: thresholds [m], intervals [s], the tries, the footholds (default
+        ``StopPlannerConfig()``).
     timer : drake_estop.timing.TickTimer, optional
         Records the wall-clock time of every update [s].
     layout : drake_estop.systems.reference.ReferenceLayout, optional
