@@ -3,7 +3,7 @@ matrix's hardest pushes, to iterate on the controller in minutes instead of the 
 
     python benchmarks/push_suite.py [--workers 2]        # run, print each verdict and what changed
     python benchmarks/push_suite.py --update             # ... and keep this run as benchmarks/PUSH_SUITE.json
-    python benchmarks/push_suite.py --controller crossover_step=true   # every case with a controller option
+    python benchmarks/push_suite.py --controller planner.crossover_step=true   # every case with a controller option
 
 The cases come from the committed campaign (``docs/campaign/results.parquet``, seed 0), chosen by a fixed
 rule so that the suite is the same on every machine: every fourth fall by impulse, the halt's CoP exits, the
@@ -24,6 +24,8 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN = ROOT / "docs" / "campaign" / "results.parquet"
@@ -98,10 +100,14 @@ def verdict(outcome: dict) -> str:
 
 
 def with_controller(cases: list, options: list) -> list:
-    """``cases`` with the controller ``options`` (``KEY=VALUE`` strings, YAML values) in each command."""
+    """``cases`` with the controller ``options`` (``KEY=VALUE`` strings, the key dotted inside a section, the
+    value in YAML) in each command, as its scenario's controller section."""
+    from drake_estop.physics.controller_options import as_section
+
     if not options:
         return cases
-    section = "{controller: {" + ", ".join(option.replace("=", ": ", 1) for option in options) + "}}"
+    changes = {key: yaml.safe_load(value) for key, _, value in (option.partition("=") for option in options)}
+    section = json.dumps({"controller": as_section(changes)})
     return [(name, kind, [*argv, "--scenario-text", section]) for name, kind, argv in cases]
 
 
@@ -121,7 +127,8 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--update", action="store_true", help="keep this run as the committed result")
     parser.add_argument("--controller", action="append", default=[], metavar="KEY=VALUE",
-                        help="a controller option for every case (ControllerOptions field), repeatable")
+                        help="a controller option for every case (ControllerOptions field, dotted inside a "
+                             "section: planner.crossover_step=true, hip_strategy={}), repeatable")
     args = parser.parse_args(argv)
     if args.update and args.controller:
         parser.error("--update keeps the default controller's result: not with --controller")

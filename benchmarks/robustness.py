@@ -63,25 +63,26 @@ PUSH_DURATION = 0.1  # [s]
 #: the push-recovery target: 0.5 m/s on the 58 kg robot, forward and backward (all four directions run)
 TARGET_IMPULSE = 29.0  # [N s]
 
-#: The ablation's rows: the defaults, then one change each, as a scenario file says it (section: fields;
-#: the controller section is drake_estop.physics.controller_options.ControllerOptions).
+#: The ablation's rows: the defaults, then one change each, as a scenario file says it (section: fields, a
+#: dotted name inside a sub-section; the controller section is
+#: drake_estop.physics.controller_options.ControllerOptions: null turns a reflex off, {} on).
 ABLATION = (
     {},
-    {"controller": {"foot_compliance": False}},
-    {"controller": {"swing_tilt": False}},
-    {"controller": {"measured_footholds": False}},
+    {"controller": {"foot_compliance": None}},
+    {"controller": {"swing_tilt": None}},
+    {"controller": {"planner.measured_footholds": False}},
     {"controller": {"braked_landing": False}},
-    {"controller": {"relanded_footholds": False}},
-    {"controller": {"recovery_step": False}},
-    {"controller": {"capture_landing": False}},
-    {"controller": {"reference_fallback": False}},
-    {"controller": {"foothold_replan": True}},
-    {"controller": {"foot_force_control": False}},
-    {"controller": {"max_replan_solves": None}},
+    {"controller": {"planner.relanded_footholds": False}},
+    {"controller": {"planner.recovery_step": False}},
+    {"controller": {"planner.capture_landing": False}},
+    {"controller": {"planner.reference_fallback": False}},
+    {"controller": {"planner.foothold_replan": True}},
+    {"controller": {"foot_force": None}},
+    {"controller": {"planner.max_replan_solves": None}},
     {"controller": {"whole_body_walk": True}},
-    {"controller": {"hip_strategy": True}},
-    {"controller": {"max_steps": 1}},
-    {"controller": {"crossover_step": True}},
+    {"controller": {"hip_strategy": {}}},
+    {"controller": {"planner.max_steps": 1}},
+    {"controller": {"planner.crossover_step": True}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.
@@ -89,11 +90,11 @@ ABLATION_BEGIN = "<!-- ablation: written by `python benchmarks/robustness.py --a
 ABLATION_END = "<!-- end of ablation -->"
 
 
-def settings(*, controller=None, time_step=None, planner_options=None, stop_overrides=None) -> dict:
-    """What a run changes from the default controller and plant: ControllerOptions fields, the plant's time
-    step [s], other StopPlannerSystem settings, StopParameters over the controller's."""
-    return {"controller": dict(controller or {}), "time_step": time_step,
-            "planner_options": dict(planner_options or {}), "stop_overrides": dict(stop_overrides or {})}
+def settings(*, controller=None, time_step=None, stop_overrides=None) -> dict:
+    """What a run changes from the default controller and plant: ControllerOptions fields by dotted name
+    (:meth:`~drake_estop.physics.controller_options.ControllerOptions.with_changes`), the plant's time step
+    [s], StopParameters over the controller's."""
+    return {"controller": dict(controller or {}), "time_step": time_step, "stop_overrides": dict(stop_overrides or {})}
 
 
 def change_settings(change: dict) -> dict:
@@ -102,12 +103,12 @@ def change_settings(change: dict) -> dict:
 
 
 def change_key(change: dict) -> str:
-    """``"defaults"``, or the field an :data:`ABLATION` row changes: ``"controller.swing_tilt"``."""
+    """``"defaults"``, or the field an :data:`ABLATION` row changes: ``"controller.planner.recovery_step"``."""
     return ", ".join(f"{section}.{name}" for section, fields in change.items() for name in fields) or "defaults"
 
 
 def change_label(change: dict) -> str:
-    """The row's change as a scenario file writes it: ``controller.swing_tilt: false``."""
+    """The row's change as a scenario file writes it: ``controller.swing_tilt: null``."""
     return ", ".join(f"{section}.{name}: {json.dumps(value)}" for section, fields in change.items()
                      for name, value in fields.items()) or "defaults"
 
@@ -129,12 +130,11 @@ def _run(job):
     pushes = (Push(t, push[0], push[1], PUSH_DURATION),) if push else ()
     start = time.perf_counter()
     physics = PhysicsParameters() if setup["time_step"] is None else PhysicsParameters(time_step=setup["time_step"])
-    controller = ControllerOptions(**setup["controller"])
+    controller = ControllerOptions().with_changes(setup["controller"])
     stop_params = controller_stop_parameters(replace(StopParameters(), **setup["stop_overrides"]),
                                              braked_landing=controller.braked_landing)
     try:
-        result = run_online(estop_time=t, pattern=NominalPattern(), controller=controller,
-                            planner_options=setup["planner_options"] or None, stop_params=stop_params,
+        result = run_online(estop_time=t, pattern=NominalPattern(), controller=controller, stop_params=stop_params,
                             perturbations=Perturbations(pushes=pushes, **options), physics=physics)
     except Exception as error:  # noqa: BLE001 - a run that raises is a failed row, not a stopped benchmark
         return {"t": t, "options": job[1], "success": False, "error": f"{type(error).__name__}: {error}"}
@@ -174,9 +174,8 @@ def _parser():
     parser.add_argument("--quick", action="store_true", help="10 sweep signals and a coarse push search")
     parser.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE",
                         help="a field of the scenario's controller section (ControllerOptions) for every run, "
-                             "the value in YAML, e.g. foot_compliance=false or max_replan_solves=null (repeatable)")
-    parser.add_argument("--planner-option", action="append", default=[], metavar="NAME=VALUE",
-                        help="another StopPlannerSystem setting, e.g. landed_replan_threshold=0.065 (repeatable)")
+                             "dotted inside a section, the value in YAML, e.g. foot_compliance=null or "
+                             "planner.landed_replan_threshold=0.065 (repeatable)")
     parser.add_argument("--stop-parameter", action="append", default=[], metavar="NAME=VALUE",
                         help="a StopParameters setting over the controller's, e.g. max_swing_acceleration=15 "
                              "(repeatable; the braked landing: drake_estop.physics.online.BRAKED_LANDING)")
@@ -203,21 +202,20 @@ def _parser():
 
 
 def _controller_options(parser, items) -> dict:
-    """``--controller-option NAME=VALUE`` items as ControllerOptions fields (values read as YAML), checked."""
+    """``--controller-option NAME=VALUE`` items as ControllerOptions changes by dotted name (values read as
+    YAML), checked."""
     from drake_estop.physics.controller_options import ControllerOptions
 
     changes = {}
     for item in items:
         name, _, value = item.partition("=")
         if not value or name == "kind":
-            parser.error(f"--controller-option: NAME=VALUE with NAME a feature of ControllerOptions, got {item!r}")
+            parser.error(f"--controller-option: NAME=VALUE with NAME a field of ControllerOptions (dotted inside "
+                         f"a section: planner.recovery_step=false), got {item!r}")
         changes[name] = yaml.safe_load(value)
     try:
-        ControllerOptions(**changes)
-    except TypeError:
-        parser.error(f"--controller-option: unknown name in {sorted(changes)}; known: "
-                     f"{sorted(set(ControllerOptions.__dataclass_fields__) - {'kind'})}")
-    except ValueError as error:
+        ControllerOptions().with_changes(changes)
+    except (TypeError, ValueError) as error:
         parser.error(f"--controller-option: {error}")
     return changes
 
@@ -239,7 +237,6 @@ def main(argv=None):
     jobs += [(phase_times[p], _push(d, i)) for p in PUSH_PHASES for d in DIRECTIONS.values()
              for i in [*impulses, TARGET_IMPULSE]]
     setup = settings(controller=_controller_options(parser, args.controller_option), time_step=args.time_step,
-                     planner_options={k: float(v) for k, v in (item.split("=", 1) for item in args.planner_option)},
                      stop_overrides={k: float(v) for k, v in (item.split("=", 1) for item in args.stop_parameter)})
     jobs = [(t, options, setup) for t, options in jobs]
     if args.recheck_only:
@@ -271,8 +268,6 @@ def settings_notes(setup: dict) -> list:
     if setup["controller"]:
         notes.append("Controller settings changed from the defaults (the scenario's controller section): "
                      + ", ".join(f"{name}: {json.dumps(value)}" for name, value in setup["controller"].items()) + ".")
-    if setup["planner_options"]:
-        notes.append(f"Planner settings changed from the defaults: {setup['planner_options']}.")
     if setup["stop_overrides"]:
         notes.append(f"Stop-planner settings over the controller's: {setup['stop_overrides']}.")
     if setup["time_step"] is not None:
@@ -285,10 +280,9 @@ def settings_notes(setup: dict) -> list:
 
 def ablation_main(parser, args):
     """Run the ablation (the selected rows, cells and phases) and write its section and JSON rows."""
-    if args.quick or args.recheck_only or args.controller_option or args.planner_option or args.stop_parameter \
-            or args.time_step is not None:
+    if args.quick or args.recheck_only or args.controller_option or args.stop_parameter or args.time_step is not None:
         parser.error("--ablation runs the matrix with the defaults and ABLATION's changes: no --quick, "
-                     "--recheck-only, --controller-option, --planner-option, --stop-parameter or --time-step")
+                     "--recheck-only, --controller-option, --stop-parameter or --time-step")
     changes = [c for c in ABLATION if args.changes is None or change_key(c) in args.changes]
     cells = [c for c in MATRIX_CELLS if args.cells is None or c in args.cells]
     phase_times = {p: t for p, t in _phase_times().items() if args.phases is None or p in args.phases}

@@ -21,8 +21,10 @@ the planner itself: `plan_stop` returning a `StopPlan` (or raising
 `InfeasibleStop`), and `one_step_feasible`, whether a signal now would stop
 within one step; the online controller on the simulated robot: `run_online`
 (``drake-estop simulate --physics`` from Python) with
-`controller_stop_parameters` and `ControllerOptions` (the controller's
-features, on or off; a scenario's ``controller`` section); what can be caught
+`controller_stop_parameters` and `ControllerOptions` (a scenario's
+``controller`` section: the planner's `StopPlannerConfig`, and each reflex's
+config, `SwingTiltConfig`, `FootForceConfig`, `FootEdgeComplianceConfig`,
+`HipStrategyConfig`, or None for off); what can be caught
 at all: `capturability` / `state_capturability` (N-step capturability with
 finite feet, `SteppingLimits`, a `Capturability` verdict) and the
 `CapturabilityMonitor` system; the paper-style figures `plot_cog_zmp` and
@@ -69,6 +71,10 @@ _EXPORTS = {
     "build_online_diagram": "drake_estop.physics.online",
     "controller_stop_parameters": "drake_estop.physics.online",
     "ControllerOptions": "drake_estop.physics.controller_options",
+    "SwingTiltConfig": "drake_estop.physics.controller_options",
+    "FootForceConfig": "drake_estop.physics.controller_options",
+    "FootEdgeComplianceConfig": "drake_estop.physics.controller_options",
+    "HipStrategyConfig": "drake_estop.physics.controller_options",
     "Perturbations": "drake_estop.physics.perturbations",
     "Push": "drake_estop.physics.perturbations",
     "Scenario": "drake_estop.scenario",

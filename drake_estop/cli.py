@@ -55,7 +55,8 @@ def _add_scenario_options(p):
                    help="start from this scenario (drake_estop.scenario.Scenario: gait, stop, estop_time, "
                         "simulation, controller, plant, perturbations, after_halt; see --print-scenario); the "
                         "online controller's features are set in its controller section, e.g. "
-                        "'controller: {foot_compliance: false}' (drake_estop.physics.controller_options)")
+                        "'controller: {foot_compliance: null, planner: {recovery_step: false}}' "
+                        "(drake_estop.physics.controller_options)")
     s.add_argument("--scenario-text", metavar="YAML", help="the same, inline, e.g. '{gait: {step_length: 0.2}}'")
     s.add_argument("--print-scenario", action="store_true",
                    help="print the effective scenario as YAML (every field) and exit")

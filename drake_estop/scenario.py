@@ -16,7 +16,8 @@ what differs, e.g.::
     simulation: physics
     controller:
       kind: online
-      foot_compliance: false
+      planner: {recovery_step: false}
+      foot_compliance: null
 
 ``drake-estop simulate --scenario-file FILE.yaml`` (or ``--scenario-text
 '{...}'``) starts from it; options given on the command line override it.
@@ -45,11 +46,19 @@ import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.plant import MultibodyPlantConfig
 
-from drake_estop.physics.controller_options import ControllerOptions
+from drake_estop.physics.controller_options import (
+    ControllerOptions,
+    FootEdgeComplianceConfig,
+    FootForceConfig,
+    HipStrategyConfig,
+    SwingTiltConfig,
+    check_key,
+)
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.planning.arms import ArmSwing
 from drake_estop.planning.gait import Footstep, GaitParameters
 from drake_estop.planning.planner import StopParameters
+from drake_estop.systems.decision import StopPlannerConfig
 
 SIMULATIONS = ("kinematic", "diagram", "physics")
 
@@ -110,7 +119,7 @@ class Scenario:
             raise ValueError(f"simulation must be one of {SIMULATIONS}, got {self.simulation!r}")
         if not isinstance(self.controller, ControllerOptions):
             raise ValueError(f"controller must be a ControllerOptions (in YAML a mapping, e.g. "
-                             f"{{kind: online, foot_compliance: false}}), got {self.controller!r}")
+                             f"{{kind: online, foot_compliance: null}}), got {self.controller!r}")
         if not self.after_halt >= 1.0:
             raise ValueError(f"after_halt must be at least 1 s, got {self.after_halt!r}")
         if self.estop_time is not None and not self.estop_time >= 0.0:
@@ -139,10 +148,23 @@ def _element_type(cls, f):
     return yaml_schema(kind) if dataclasses.is_dataclass(kind) else kind
 
 
+def _nested_dataclass(hint):
+    """The dataclass of a field typed ``X`` or ``X | None`` with ``X`` a dataclass, else None."""
+    if dataclasses.is_dataclass(hint):
+        return hint
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        kinds = [k for k in typing.get_args(hint) if k is not type(None)]
+        if len(kinds) == 1 and dataclasses.is_dataclass(kinds[0]):
+            return kinds[0]
+    return None
+
+
 def _field_type(cls, f, hints):
     hint = hints[f.name]
-    if dataclasses.is_dataclass(hint):
-        return yaml_schema(hint)
+    nested = _nested_dataclass(hint)
+    if nested is not None:
+        schema = yaml_schema(nested)
+        return schema if nested is hint else schema | None
     if hint is tuple:
         return list[_element_type(cls, f)]
     return hint
@@ -155,8 +177,26 @@ def yaml_schema(cls):
     if not dataclasses.is_dataclass(cls):
         return cls
     hints = typing.get_type_hints(cls)
-    fields = [(f.name, _field_type(cls, f, hints), dataclasses.field(default=None)) for f in dataclasses.fields(cls)]
+    fields = [(f.name, _field_type(cls, f, hints), _schema_default(f, hints[f.name])) for f in dataclasses.fields(cls)]
     return dataclasses.make_dataclass(f"{cls.__name__}Schema", fields)
+
+
+def _schema_default(f, hint):
+    """The schema twin's default of field ``f``: the original's, so that a section given as ``{}`` where the
+    default is null reads as its class's defaults (None where the original has no default)."""
+    if f.default is not dataclasses.MISSING:
+        default = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        default = f.default_factory()
+    else:
+        return dataclasses.field(default=None)
+    nested = _nested_dataclass(hint)
+    if default is not None and nested is not None:
+        return dataclasses.field(default_factory=lambda: _to_schema(default, nested))
+    if isinstance(default, tuple):
+        return dataclasses.field(default_factory=lambda: [_to_schema(x, type(x)) if dataclasses.is_dataclass(x) else x
+                                                          for x in default])
+    return dataclasses.field(default=default)
 
 
 def _to_schema(value, cls):
@@ -168,8 +208,9 @@ def _to_schema(value, cls):
     kwargs = {}
     for f in dataclasses.fields(cls):
         item = getattr(value, f.name)
-        if dataclasses.is_dataclass(hints[f.name]):
-            item = _to_schema(item, hints[f.name])
+        nested = _nested_dataclass(hints[f.name])
+        if nested is not None and item is not None:
+            item = _to_schema(item, nested)
         elif hints[f.name] is tuple:
             item = [_to_schema(x, type(x)) if dataclasses.is_dataclass(x) else x for x in item]
         kwargs[f.name] = item
@@ -185,8 +226,9 @@ def _from_schema(value, cls):
     for f in dataclasses.fields(cls):
         item = getattr(value, f.name)
         hint = hints[f.name]
-        if dataclasses.is_dataclass(hint):
-            item = _from_schema(item, hint)
+        nested = _nested_dataclass(hint)
+        if nested is not None and item is not None:
+            item = _from_schema(item, nested)
         elif hint is tuple:
             element = _element_type(cls, f)
             item = tuple(_from_schema(x, _ORIGINAL[element]) if element in _ORIGINAL else x for x in item)
@@ -293,11 +335,21 @@ def _check_document(document, cls, path=()):
         raise ValueError(f"{'.'.join(path) or 'the scenario'} must be a mapping of fields, got {document!r}")
     hints = typing.get_type_hints(cls)
     for key, value in document.items():
+        if cls is ControllerOptions:
+            check_key(key)  # names where a key of the controller's former flat form moved
         hint = hints.get(key)
-        if dataclasses.is_dataclass(hint):
-            _check_document(value, hint, (*path, key))
-        else:
+        nested = _nested_dataclass(hint)
+        if nested is None:
             _check_scalar(value, hint, (*path, key))
+        elif value is not None or nested is hint:
+            _check_section(value, nested, (*path, key), optional=nested is not hint)
+
+
+def _check_section(value, cls, path, *, optional):
+    if not isinstance(value, dict) and optional:
+        raise ValueError(f"{'.'.join(path)} must be a mapping of its settings ({{}} for the defaults) or null "
+                         f"(off), got {value!r}")
+    _check_document(value, cls, path)
 
 
 def _check_scalar(value, hint, path):
@@ -341,4 +393,5 @@ def _null_paths(value, path=()) -> list:
     return paths
 
 
-_register(Push, Perturbations, Footstep, ArmSwing, GaitParameters, StopParameters, ControllerOptions, Scenario)
+_register(Push, Perturbations, Footstep, ArmSwing, GaitParameters, StopParameters, StopPlannerConfig, SwingTiltConfig,
+          FootForceConfig, FootEdgeComplianceConfig, HipStrategyConfig, ControllerOptions, Scenario)

@@ -93,13 +93,18 @@ def test_the_ablation_covers_every_controller_feature_and_the_2_ms_plant(bench):
 
     assert bench.ABLATION[0] == {}  # the defaults first
     controller = [change["controller"] for change in bench.ABLATION if "controller" in change]
-    assert all(ControllerOptions(**fields).changed() == fields for fields in controller)  # each off its default
-    features = set(ControllerOptions.__dataclass_fields__) - {"kind", "true_state"}
+    # each off its default
+    assert all(ControllerOptions().with_changes(fields).changed() == fields for fields in controller)
+    features = set(ControllerOptions.__dataclass_fields__) - {"kind", "true_state", "planner"} | {
+        "planner.measured_footholds", "planner.relanded_footholds", "planner.recovery_step", "planner.capture_landing",
+        "planner.reference_fallback", "planner.foothold_replan", "planner.max_replan_solves", "planner.max_steps",
+        "planner.crossover_step"}  # the planner's features; its thresholds and times are not ablated
     assert {name for fields in controller for name in fields} == features and len(controller) == len(features)
     assert {"plant": {"time_step": 0.002}} in bench.ABLATION
     keys = [bench.change_key(change) for change in bench.ABLATION]
     assert len(set(keys)) == len(keys) == 17 and keys[0] == "defaults"
-    assert bench.change_label({"controller": {"max_replan_solves": None}}) == "controller.max_replan_solves: null"
+    assert bench.change_label({"controller": {"planner.max_replan_solves": None}}) == (
+        "controller.planner.max_replan_solves: null")
     assert bench.change_settings({"plant": {"time_step": 0.002}})["time_step"] == 0.002
 
 
@@ -107,7 +112,7 @@ def test_an_ablation_row_counts_passes_falls_and_names_the_failing_cells(bench):
     rows = [_matrix_row(), _matrix_row(False, ["no_fall", "comes_to_rest"]),
             _matrix_row(False, ["cop_in_support"]), {"t": 3.55, "options": {}, "success": False,
                                                      "error": "InfeasibleStop: no stop"}]
-    row = bench.ablation_row({"controller": {"swing_tilt": False}}, rows, ["push left 17 N s", "mass x1.1"],
+    row = bench.ablation_row({"controller": {"swing_tilt": None}}, rows, ["push left 17 N s", "mass x1.1"],
                              PHASE_TIMES)
     assert (row["passed"], row["runs"], row["falls"], row["errors"]) == (1, 4, 1, 1)
     assert [(f["cell"], f["phase"]) for f in row["failed"]] == [
@@ -123,7 +128,7 @@ def _ablation_data(bench, cells=None, phases=None):
     runs = len(cells) * len(phases)
     fallen = [_matrix_row(False, ["no_fall"])] + [_matrix_row()] * (runs - 1)
     table = [bench.ablation_row({}, [_matrix_row()] * runs, cells, phases),
-             bench.ablation_row({"controller": {"foot_compliance": False}}, fallen, cells, phases)]
+             bench.ablation_row({"controller": {"foot_compliance": None}}, fallen, cells, phases)]
     return {"rows": table, "cells": cells, "phases": phases, "runs": 2 * runs, "wall_s": 120.0, "workers": 2}
 
 
@@ -134,7 +139,7 @@ def test_the_ablation_section_is_one_table_row_per_change(bench):
     assert "## Ablation: the perturbation matrix with one setting changed" in lines
     assert "88 runs on 2 workers in 2.0 min" in section and "Only part" not in section
     assert "| defaults | 44/44 | 0 | - |" in lines
-    assert ("| `controller.foot_compliance: false` | 43/44 | 1 | push forward 17 N s, early single support: "
+    assert ("| `controller.foot_compliance: null` | 43/44 | 1 | push forward 17 N s, early single support: "
             "no_fall (tilt 0.40 rad) |") in lines
     part = bench.ablation_section(_ablation_data(bench, ["mass x1.1"], {"double support": 3.55}))
     assert "Only part of the matrix: mass x1.1 at double support." in part and "| defaults | 1/1 | 0 | - |" in part
@@ -203,22 +208,23 @@ def test_the_ablation_command_runs_the_selection_and_writes_its_section(bench, t
                 "--changes", "plant.time_step"])
     assert [(job[1], job[2]["controller"], job[2]["time_step"]) for job in jobs] == [
         ({"push": (0.0, -170.0)}, {}, None), ({"mass_scale": 0.9}, {}, None),
-        ({"push": (0.0, -170.0)}, {"swing_tilt": False}, None), ({"mass_scale": 0.9}, {"swing_tilt": False}, None),
+        ({"push": (0.0, -170.0)}, {"swing_tilt": None}, None), ({"mass_scale": 0.9}, {"swing_tilt": None}, None),
         ({"push": (0.0, -170.0)}, {}, 0.002), ({"mass_scale": 0.9}, {}, 0.002)]
     text = out.read_text()
     assert text.startswith(MAIN)
-    assert "| `controller.swing_tilt: false` | 0/2 | 0 | push right 17 N s, mid single support: cop_in_support" in text
+    assert "| `controller.swing_tilt: null` | 0/2 | 0 | push right 17 N s, mid single support: cop_in_support" in text
     assert "| `plant.time_step: 0.002` | 2/2 | 0 | - |" in text
     assert [row["label"] for row in json.loads(out.with_suffix(".json").read_text())["ablation"]["rows"]] == [
-        "defaults", "controller.swing_tilt: false", "plant.time_step: 0.002"]
+        "defaults", "controller.swing_tilt: null", "plant.time_step: 0.002"]
 
 
 @pytest.mark.parametrize("argv, named", [
     (["--cells", "mass x0.9"], "only with --ablation"),
-    (["--ablation", "--controller-option", "swing_tilt=false"], "--controller-option"),
+    (["--ablation", "--controller-option", "swing_tilt=null"], "--controller-option"),
     (["--ablation", "--cells", "mass x2"], "--cells"),
-    (["--controller-option", "swing_tlt=false"], "unknown name"),
-    (["--controller-option", "max_replan_solves=0"], "controller.max_replan_solves"),
+    (["--controller-option", "swing_tlt=null"], "controller.swing_tlt is not a controller field"),
+    (["--controller-option", "recovery_step=false"], "controller.recovery_step is now controller.planner."),
+    (["--controller-option", "planner.max_replan_solves=0"], "max_replan_solves"),
     (["--controller-option", "kind=offline-filter"], "--controller-option"),
 ])
 def test_bad_benchmark_options_exit_2_naming_them(bench, argv, named, capsys):
@@ -229,8 +235,8 @@ def test_bad_benchmark_options_exit_2_naming_them(bench, argv, named, capsys):
 
 def test_controller_options_are_read_as_yaml(bench):
     parser = bench._parser()
-    assert bench._controller_options(parser, ["foot_compliance=false", "max_replan_solves=null"]) == {
-        "foot_compliance": False, "max_replan_solves": None}
-    assert bench.settings_notes(bench.settings(controller={"foot_compliance": False}, time_step=0.002)) == [
-        "Controller settings changed from the defaults (the scenario's controller section): foot_compliance: false.",
+    assert bench._controller_options(parser, ["foot_compliance=null", "planner.max_replan_solves=null"]) == {
+        "foot_compliance": None, "planner.max_replan_solves": None}
+    assert bench.settings_notes(bench.settings(controller={"foot_compliance": None}, time_step=0.002)) == [
+        "Controller settings changed from the defaults (the scenario's controller section): foot_compliance: null.",
         "Plant time step: 2 ms."]

@@ -199,15 +199,15 @@ def test_sweep_runs_the_scenarios_controller_section(monkeypatch, tmp_path):
     monkeypatch.setattr(sweep_module, "sweep", fake_sweep)
     monkeypatch.setattr(sweep_module, "write_sweep", lambda *args: None)
     assert main(["sweep", "--no-progress", "--scenario-text",
-                 "{controller: {swing_tilt: false, braked_landing: false}}",
+                 "{controller: {swing_tilt: null, braked_landing: false}}",
                  "--csv", str(tmp_path / "s.csv"), "--png", str(tmp_path / "m.png")]) == 0
-    assert seen["run"].keywords["controller"] == ControllerOptions(swing_tilt=False, braked_landing=False)
+    assert seen["run"].keywords["controller"] == ControllerOptions(swing_tilt=None, braked_landing=False)
     assert seen["stop"].landing_approach_slope == 0.0  # the paper's landing swing
 
 
 def test_sweep_rejects_online_features_for_the_offline_filter(capsys):
     assert main(["sweep", "--controller", "offline-filter",
-                 "--scenario-text", "{controller: {swing_tilt: false}}"]) == 2
+                 "--scenario-text", "{controller: {swing_tilt: null}}"]) == 2
     assert "controller.swing_tilt: only with controller.kind online" in capsys.readouterr().err
 
 

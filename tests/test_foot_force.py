@@ -84,7 +84,7 @@ def test_the_settings_are_checked():
 
 def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
     """The default humanoid's description gives a damping: the online diagram puts the control between the
-    swing-tilt compensation and the IK, logs its height difference, and ``foot_force_control=False``
+    swing-tilt compensation and the IK, logs its height difference, and ``foot_force=None``
     leaves it out."""
     from drake_estop.physics.controller_options import ControllerOptions
     from drake_estop.physics.online import build_online_diagram, controller_stop_parameters
@@ -99,7 +99,7 @@ def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
     assert handles.foot_force is not None and handles.foot_force._damping == damping
     assert handles.foot_force._engage == engage
     assert "foot_height_difference" in handles.loggers
-    handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions(foot_force_control=False))
+    handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions(foot_force=None))
     assert handles.foot_force is None and "foot_height_difference" not in handles.loggers
 
 
@@ -122,7 +122,7 @@ def test_the_force_control_stops_a_pushed_robot_rocking_off_its_planned_support(
     with_control, without = tmp_path / "with.json", tmp_path / "without.json"
     assert main([*ROCKING_RUN, "--summary", str(with_control)]) == 0
     assert main([*ROCKING_RUN, "--summary", str(without),
-                 "--scenario-text", "{controller: {foot_force_control: false}}"]) == 1
+                 "--scenario-text", "{controller: {foot_force: null}}"]) == 1
     rocked = json.loads(without.read_text())["physics"]
     assert [name for name, ok in rocked["criteria"].items() if not ok] == ["cop_in_support"]
     assert rocked["numbers"]["cop_margin_plan_min_m"] < 0.0

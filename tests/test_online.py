@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from drake_estop.physics import offline
-from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions
+from drake_estop.physics.controller_options import ControllerOptions
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.online import (
     build_online_diagram,
@@ -191,9 +191,6 @@ def test_pushes_go_through_the_plants_applied_spatial_force_input():
     ({"estop_time": "3.4 s"}, "estop_time"),
     ({"after_halt": 0.5}, "after_halt"),
     ({"after_halt": float("inf")}, "after_halt"),
-    ({"planner_options": {"replan_treshold": 0.05}}, "planner_options"),
-    ({"planner_options": True}, "planner_options"),
-    ({"planner_options": {"recovery_step": False}}, r"controller=ControllerOptions\(recovery_step"),
     ({"controller": "online"}, "controller must be a ControllerOptions"),
     ({"controller": ControllerOptions(kind="offline-filter")}, "controller.kind"),
     ({"gait_params": GaitParameters(step_length=0.2), "pattern": NominalPattern()}, "gait_params and pattern"),
@@ -246,17 +243,17 @@ def test_online_simulator_starts_the_robot_in_its_pose_with_the_model_errors_in_
 
 
 def test_the_controller_options_default_to_the_stop_planner_systems_own():
-    """The planner features left at their defaults change nothing: StopPlannerConfig has the same defaults."""
+    """The planner's settings left at their defaults change nothing: StopPlannerConfig()."""
     from drake_estop.systems.decision import StopPlannerConfig
 
-    own = StopPlannerConfig()
-    assert ControllerOptions().planner_options() == {name: getattr(own, name) for name in PLANNER_FEATURES}
+    assert ControllerOptions().planner == StopPlannerConfig()
 
 
 def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
     """ControllerOptions to the diagram: the planner features reach StopPlannerSystem, true_state the
-    estimator, and foot_compliance / swing_tilt False leave those systems out."""
+    estimator, and foot_compliance / swing_tilt None leave those systems out."""
     import drake_estop.physics.online as online
+    from drake_estop.systems.decision import StopPlannerConfig
 
     seen = {}
 
@@ -270,21 +267,18 @@ def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
 
     for name in ("add_stop_controller", "add_state_estimation"):
         monkeypatch.setattr(online, name, spy(name))
-    controller = ControllerOptions(true_state=True, foot_compliance=False, swing_tilt=False, recovery_step=False,
-                                   foothold_replan=True, max_replan_solves=None)
-    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller,
-                                   planner_options={"replan_threshold": 0.06})
-    config = seen["add_stop_controller"]["config"]
-    assert {name: getattr(config, name) for name in PLANNER_FEATURES} == controller.planner_options()
-    assert config.replan_threshold == 0.06
+    planner = StopPlannerConfig(recovery_step=False, foothold_replan=True, max_replan_solves=None,
+                                replan_threshold=0.06)
+    controller = ControllerOptions(true_state=True, foot_compliance=None, swing_tilt=None, planner=planner)
+    handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller)
+    assert seen["add_stop_controller"]["config"] is planner
     assert seen["add_state_estimation"]["true_state"] is True
     assert handles.compliance is None and handles.swing_tilt is None
     assert "ankle_offsets" not in handles.loggers and "swing_tilt" not in handles.loggers
     default = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
     assert default.compliance is not None and default.swing_tilt is not None
     assert seen["add_state_estimation"]["true_state"] is False
-    default_features = {name: getattr(seen["add_stop_controller"]["config"], name) for name in PLANNER_FEATURES}
-    assert default_features == ControllerOptions().planner_options()
+    assert seen["add_stop_controller"]["config"] == StopPlannerConfig()
 
 
 @pytest.mark.slow

@@ -3,13 +3,15 @@ the online run, bad ones exit 2 naming the option, the summary reports the contr
 
 import json
 import math
+import re
 
 import pytest
 
 from drake_estop.cli import main
-from drake_estop.physics.controller_options import ControllerOptions
+from drake_estop.physics.controller_options import MOVED_KEYS, ControllerOptions, SwingTiltConfig, as_section
 from drake_estop.physics.criteria import CRITERIA
 from drake_estop.physics.perturbations import Push
+from drake_estop.systems.decision import StopPlannerConfig
 
 
 @pytest.mark.parametrize("args, option", [
@@ -69,31 +71,52 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
     assert not tighter.landing_approach_when_braking  # a slope given shapes every swing
 
 
-#: One value off its default for every field of the controller section but ``kind``.
-CHANGED = {"true_state": True, "foot_compliance": False, "swing_tilt": False, "measured_footholds": False,
-           "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "braked_landing": False,
-           "reference_fallback": False, "foothold_replan": True, "foot_force_control": False,
-           "max_replan_solves": None, "whole_body_walk": True, "hip_strategy": True, "max_steps": 2,
-           "crossover_step": True}
+#: One value off its default for every field of the controller section but ``kind``, by dotted name.
+CHANGED = {"true_state": True, "whole_body_walk": True, "braked_landing": False,
+           "swing_tilt": None, "foot_force": None, "foot_compliance": None, "hip_strategy": {},
+           "swing_tilt.deadband": 0.02, "foot_compliance.edge_margin": 0.02, "foot_force.damping": 3000.0,
+           **{f"planner.{name}": value for name, value in {
+               "replan_threshold": 0.06, "landed_replan_threshold": 0.09, "replan_interval": 0.1, "blend_time": 0.3,
+               "measured_footholds": False, "foothold_ticks": 3, "foothold_replan": True, "foothold_tolerance": 0.01,
+               "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "crossover_step": True,
+               "max_steps": 2, "max_replan_solves": None, "max_latch_solves": 3, "reference_fallback": False,
+               "plan_ahead": False}.items()}}
 
 
 def _controller_text(name, value) -> str:
-    """``--scenario-text`` setting one field of the controller section (JSON values are YAML)."""
-    return f"{{controller: {{{name}: {json.dumps(value)}}}}}"
+    """``--scenario-text`` setting one field of the controller section, dotted inside a sub-section (JSON is
+    YAML)."""
+    return json.dumps({"controller": as_section({name: value})})
 
 
 def test_every_controller_field_has_a_changed_value_here():
-    assert set(CHANGED) == {name for name in ControllerOptions.__dataclass_fields__} - {"kind"}
+    names = {name.partition(".")[0] for name in CHANGED}
+    assert names == {name for name in ControllerOptions.__dataclass_fields__} - {"kind", "planner"} | {"planner"}
+    assert {name.partition(".")[2] for name in CHANGED if name.startswith("planner.")} == set(
+        StopPlannerConfig.field_names())
+
+
+@pytest.mark.parametrize("old, new", MOVED_KEYS.items())
+def test_a_key_of_the_former_flat_controller_section_exits_2_naming_its_new_place(old, new, capsys):
+    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{{old}: false}}}}"]) == 2
+    assert f"controller.{old} is now controller.{new}" in capsys.readouterr().err
+
+
+def test_a_reflex_given_true_or_false_exits_2_asking_for_its_settings_or_null(capsys):
+    assert main(["simulate", "--physics", "--scenario-text", "{controller: {foot_compliance: false}}"]) == 2
+    assert "controller.foot_compliance must be a mapping of its settings ({} for the defaults) or null" in (
+        capsys.readouterr().err)
 
 
 def test_the_scenarios_controller_section_reaches_the_online_run(monkeypatch, tmp_path):
     """A scenario file's controller section is what run_online receives, with --true-state on top."""
     path = tmp_path / "scenario.yaml"
-    path.write_text("controller:\n  kind: online\n  foot_compliance: false\n  recovery_step: false\n"
-                    "  max_replan_solves: 5\n")
+    path.write_text("controller:\n  kind: online\n  foot_compliance: null\n  planner:\n    recovery_step: false\n"
+                    "    max_replan_solves: 5\n  swing_tilt: {deadband: 0.02}\n")
     seen = _online_run_keywords(monkeypatch, ["--scenario-file", str(path), "--true-state"])
-    assert seen["controller"] == ControllerOptions(foot_compliance=False, recovery_step=False, max_replan_solves=5,
-                                                   true_state=True)
+    planner = StopPlannerConfig(recovery_step=False, max_replan_solves=5)
+    assert seen["controller"] == ControllerOptions(foot_compliance=None, true_state=True, planner=planner,
+                                                   swing_tilt=SwingTiltConfig(deadband=0.02))
     assert _online_run_keywords(monkeypatch, [])["controller"] == ControllerOptions()
 
 
@@ -101,6 +124,7 @@ def test_the_scenarios_controller_section_reaches_the_online_run(monkeypatch, tm
 def test_each_controller_field_reaches_the_online_run(monkeypatch, name):
     seen = _online_run_keywords(monkeypatch, ["--scenario-text", _controller_text(name, CHANGED[name])])
     assert seen["controller"].changed() == {name: CHANGED[name]}  # the others at their defaults
+    assert ControllerOptions().with_changes({name: CHANGED[name]}) == seen["controller"]
 
 
 @pytest.mark.parametrize("name", CHANGED)
@@ -109,7 +133,7 @@ def test_each_controller_field_needs_the_online_physics_run(name, mode, capsys):
     assert main(["simulate", *mode, "--scenario-text", _controller_text(name, CHANGED[name])]) == 2
     err = capsys.readouterr().err
     assert f"controller.{name}: only with" in err
-    assert all(f"controller.{other}" not in err for other in CHANGED if other != name)
+    assert all(not re.search(rf"controller\.{re.escape(other)}(?![.\w])", err) for other in CHANGED if other != name)
 
 
 def test_the_offline_filter_needs_physics(capsys):
@@ -128,13 +152,15 @@ def test_the_controller_features_are_not_command_line_options(flag, capsys):
 
 @pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan", "true"])
 def test_a_bad_max_steps_exits_2_naming_it(value, capsys):
-    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{max_steps: {value}}}}}"]) == 2
+    text = f"{{controller: {{planner: {{max_steps: {value}}}}}}}"
+    assert main(["simulate", "--physics", "--scenario-text", text]) == 2
     assert "max_steps" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "1.5", "two", ".nan"])
 def test_a_bad_max_replan_solves_exits_2_naming_it(value, capsys):
-    assert main(["simulate", "--physics", "--scenario-text", f"{{controller: {{max_replan_solves: {value}}}}}"]) == 2
+    text = f"{{controller: {{planner: {{max_replan_solves: {value}}}}}}}"
+    assert main(["simulate", "--physics", "--scenario-text", text]) == 2
     assert "max_replan_solves" in capsys.readouterr().err
 
 
@@ -197,7 +223,7 @@ RUN_181 = ["simulate", "--physics", "--estop-time", "3.275", "--step-length", "0
 
 
 def test_without_the_reference_fallback_that_push_ends_the_run_with_the_planners_reason(capsys):
-    assert main([*RUN_181, "--scenario-text", "{controller: {reference_fallback: false}}"]) == 2
+    assert main([*RUN_181, "--scenario-text", "{controller: {planner: {reference_fallback: false}}}"]) == 2
     assert "stop planning failed at t = 3.280 s: no feasible stop in the first 4 tries" in capsys.readouterr().err
 
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drake_estop.physics.controller_options import ControllerOptions
+from drake_estop.physics.controller_options import ControllerOptions, HipStrategyConfig
 from drake_estop.physics.online import (
     build_online_diagram,
     controller_stop_parameters,
@@ -19,6 +19,7 @@ from drake_estop.physics.plant import actuated_indices
 from drake_estop.planning.capture import MAX_STEP_WIDTH
 from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.landing import PAPER_A_DS
+from drake_estop.systems.decision import StopPlannerConfig
 
 
 @pytest.mark.slow
@@ -73,7 +74,7 @@ def test_lift_off_signal_stops_without_rocking(monkeypatch):
     assert bounded.numbers()["torso_tilt_max_rad"] < 0.03
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_early_landing=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    rocking = run_online(estop_time=2.85, pattern=pattern, controller=ControllerOptions(foot_compliance=False))
+    rocking = run_online(estop_time=2.85, pattern=pattern, controller=ControllerOptions(foot_compliance=None))
     assert rocking.plan.plans[0].landing_time < bounded.plan.plans[0].landing_time - 0.1
     assert not rocking.criteria["comes_to_rest"]
     assert rocking.numbers()["torso_tilt_max_rad"] > 0.05
@@ -96,7 +97,7 @@ def test_double_support_forward_push_keeps_both_feet_on_the_floor(monkeypatch):
     assert np.all(np.isfinite(bent.cop_margin_plan[1:]))
     monkeypatch.setattr(online, "IK_MIN_KNEE_BEND", 0.0)
     straight = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                          controller=ControllerOptions(foot_compliance=False))
+                          controller=ControllerOptions(foot_compliance=None))
     assert not straight.criteria["cop_in_support"]
     assert not np.all(np.isfinite(straight.cop_margin_plan[1:]))  # a tick with no contact
 
@@ -113,11 +114,11 @@ def test_foot_edge_compliance_keeps_the_backward_pushed_robot_on_the_floor():
     assert compliant.success, [name for name, ok in compliant.criteria.items() if not ok]
     assert compliant.online["ankle_offset_max"] > 1e-3
     stiff = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                       controller=ControllerOptions(foot_compliance=False, foot_force_control=False))
+                       controller=ControllerOptions(foot_compliance=None, foot_force=None))
     assert not stiff.criteria["cop_in_support"]
     assert stiff.online["ankle_offset_max"] == 0.0
     loaded = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                        controller=ControllerOptions(foot_compliance=False))
+                        controller=ControllerOptions(foot_compliance=None))
     assert loaded.success, [name for name, ok in loaded.criteria.items() if not ok]
 
 
@@ -137,7 +138,8 @@ def test_a_low_swing_foot_is_not_dragged_to_a_far_landing(monkeypatch):
     assert limited.success, [name for name, ok in limited.criteria.items() if not ok]
     free = replace(online.CONTROLLER_STOP_PARAMETERS, max_landing_shift_per_height=math.inf)
     monkeypatch.setattr(online, "CONTROLLER_STOP_PARAMETERS", free)
-    dragged = run_online(estop_time=3.45, pattern=pattern, controller=ControllerOptions(measured_footholds=False))
+    dragged = run_online(estop_time=3.45, pattern=pattern,
+                         controller=ControllerOptions(planner=StopPlannerConfig(measured_footholds=False)))
     assert not dragged.criteria["cop_in_support"]
     rescued = run_online(estop_time=3.45, pattern=pattern,
                          stop_params=replace(robot_stop_parameters(), a_ds=PAPER_A_DS))
@@ -183,7 +185,7 @@ def test_swing_tilt_compensation_lands_the_foot_of_a_robot_pushed_towards_it():
     assert compensated.success, [name for name, ok in compensated.criteria.items() if not ok]
     assert compensated.online["swing_tilt_max"] > 0.02
     tilted = run_online(estop_time=3.15, pattern=pattern, perturbations=pushes,
-                        controller=ControllerOptions(swing_tilt=False))
+                        controller=ControllerOptions(swing_tilt=None))
     assert tilted.online["swing_tilt_max"] == 0.0
     assert not tilted.criteria["cop_in_support"]
 
@@ -203,7 +205,7 @@ def test_measured_footholds_keep_the_cop_of_a_robot_pushed_towards_its_swing_foo
     landed = measured.plan.final_feet["right"]
     assert abs(landed[1] - measured.plan.plans[1].final_feet["right"][1]) > 0.01  # re-planned where it landed
     planned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                         controller=ControllerOptions(measured_footholds=False))
+                         controller=ControllerOptions(planner=StopPlannerConfig(measured_footholds=False)))
     assert not planned.criteria["cop_in_support"]
 
 
@@ -216,7 +218,7 @@ def test_a_foot_landed_off_its_foothold_replans_the_stop_on_the_measured_feet():
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 0.0, 150.0, 0.1),))
     replanned = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes,
-                           controller=ControllerOptions(foothold_replan=True))
+                           controller=ControllerOptions(planner=StopPlannerConfig(foothold_replan=True)))
     assert replanned.success, [name for name, ok in replanned.criteria.items() if not ok]
     first, replan = replanned.plan.plans
     assert replanned.online["replans"] == 1 and replan.start_time > first.landing_time  # after the landing
@@ -234,7 +236,7 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
     without it the robot falls (with the force control, the default, it takes two and its rear sole slips
     12.6 mm: a known limit)."""
     pattern = NominalPattern()
-    for impulse, options in ((250.0, {}), (300.0, {"foot_force_control": False})):
+    for impulse, options in ((250.0, {}), (300.0, {"foot_force": None})):
         pushes = Perturbations(pushes=(Push(3.55, impulse, 0.0, 0.1),))
         stepped = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
                              controller=ControllerOptions(**options))
@@ -243,7 +245,7 @@ def test_a_recovery_step_catches_a_forward_push_in_double_support():
         assert summary["recovery_steps"] == 1 and summary["steps_after_signal"] == 1
         assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the rear foot stepped
         held = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                          controller=ControllerOptions(recovery_step=False, **options))
+                          controller=ControllerOptions(planner=StopPlannerConfig(recovery_step=False), **options))
         assert not held.criteria["cop_in_support"]
         assert held.criteria["no_fall"] == (impulse < 300.0)
 
@@ -279,17 +281,17 @@ def test_a_rear_sole_that_relands_off_its_foothold_replans_the_stop_where_it_sta
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(2.95, 170.0, 0.0, 0.1),))
     braked = controller_stop_parameters(replace(StopParameters(), **BRAKED_LANDING))
-    unloaded = ControllerOptions(foot_force_control=False)
+    unloaded = ControllerOptions(foot_force=None)
     stopped = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
                          controller=unloaded)
     assert stopped.success, [name for name, ok in stopped.criteria.items() if not ok]
     on_the_plan = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
-                             controller=replace(unloaded, relanded_footholds=False))
+                             controller=replace(unloaded, planner=StopPlannerConfig(relanded_footholds=False)))
     assert not on_the_plan.criteria["cop_in_support"]
     assert np.nanmin(on_the_plan.cop_margin_plan[1:]) > -0.002  # a near miss, not a fall
     assert stopped.online["replans"] > on_the_plan.online["replans"]
     loaded = run_online(estop_time=2.95, pattern=pattern, perturbations=pushes, stop_params=braked,
-                        controller=ControllerOptions(relanded_footholds=False))
+                        controller=ControllerOptions(planner=StopPlannerConfig(relanded_footholds=False)))
     assert loaded.success, [name for name, ok in loaded.criteria.items() if not ok]
 
 
@@ -306,7 +308,8 @@ def test_a_capture_landing_stops_a_half_metre_per_second_push_towards_the_swing_
     assert caught.plan.landing_foot == "right" and caught.plan.landing_time < 3.4
     assert caught.plan.landing_position[1] == pytest.approx(0.095 - MAX_STEP_WIDTH)
     assert caught.plan.summary()["steps"][-1]["kind"] == "capture landing"
-    fell = run_online(estop_time=2.95, perturbations=push, controller=ControllerOptions(capture_landing=False))
+    fell = run_online(estop_time=2.95, perturbations=push,
+                      controller=ControllerOptions(planner=StopPlannerConfig(capture_landing=False)))
     assert not fell.criteria["no_fall"]
 
 
@@ -318,7 +321,7 @@ def test_the_hip_strategy_stops_a_forward_push_in_double_support_in_one_recovery
     pattern = NominalPattern()
     pushes = Perturbations(pushes=(Push(3.55, 300.0, 0.0, 0.1),))
     bowed = run_online(estop_time=3.55, pattern=pattern, perturbations=pushes,
-                       controller=ControllerOptions(hip_strategy=True))
+                       controller=ControllerOptions(hip_strategy=HipStrategyConfig()))
     assert bowed.success, [name for name, ok in bowed.criteria.items() if not ok]
     assert bowed.plan.summary()["recovery_steps"] == 1
     bow = bowed.online["hip_strategy_bow_max"]
@@ -344,5 +347,6 @@ def test_a_forward_push_no_single_landing_stops_takes_a_second_step():
     assert [step["kind"] for step in summary["steps"]] == ["capture landing", "recovery step"]
     assert summary["steps_after_signal"] == 2
     assert stepped.plan.final_feet["left"][0] > stepped.plan.final_feet["right"][0]  # the old support foot leads
-    fell = run_online(estop_time=2.95, perturbations=push, controller=ControllerOptions(recovery_step=False))
+    fell = run_online(estop_time=2.95, perturbations=push,
+                      controller=ControllerOptions(planner=StopPlannerConfig(recovery_step=False)))
     assert not fell.criteria["no_fall"]

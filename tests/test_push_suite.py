@@ -57,5 +57,7 @@ def test_a_controller_option_goes_into_every_command():
     suite = load_script("benchmarks/push_suite.py")
     cases = [("a", "fall", ["simulate", "--physics"])]
     assert suite.with_controller(cases, []) == cases
-    assert suite.with_controller(cases, ["crossover_step=true", "max_steps=2"])[0][2] == [
-        "simulate", "--physics", "--scenario-text", "{controller: {crossover_step: true, max_steps: 2}}"]
+    options = ["planner.crossover_step=true", "planner.max_steps=2", "hip_strategy={}"]
+    assert suite.with_controller(cases, options)[0][2] == [
+        "simulate", "--physics", "--scenario-text",
+        '{"controller": {"planner": {"crossover_step": true, "max_steps": 2}, "hip_strategy": {}}}']

@@ -70,3 +70,14 @@ def test_the_readme_robot_description_loads_measures_and_stops(tmp_path):
     data = json.loads(summary.read_text())
     assert data["case"] == "one-step" and data["ik"]["ik_com_err_max_m"] < 1e-3
     assert data["ik"]["velocity_limit_violations"] == 0
+
+
+def test_the_readmes_controller_section_is_the_default_controller():
+    """The controller section README.md shows loads as a scenario and is ``ControllerOptions()``: every value
+    it lists is the benchmarked default."""
+    from drake_estop.physics.controller_options import ControllerOptions
+    from drake_estop.scenario import load_scenario
+
+    (block,) = [b for b in re.findall(r"^```yaml\n(.*?)^```", (ROOT / "README.md").read_text(), flags=re.S | re.M)
+                if b.startswith("controller:")]
+    assert load_scenario(text=block).controller == ControllerOptions()

@@ -10,12 +10,13 @@ from pydrake.multibody.plant import ContactModel, DiscreteContactApproximation
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_estop.cli import main
-from drake_estop.physics.controller_options import ControllerOptions
+from drake_estop.physics.controller_options import ControllerOptions, HipStrategyConfig, SwingTiltConfig
 from drake_estop.physics.perturbations import Perturbations, Push
 from drake_estop.physics.plant import PhysicsParameters, add_physics_plant, plant_config
 from drake_estop.planning.gait import GaitParameters, NominalPattern, Sole
 from drake_estop.planning.planner import StopParameters, plan_stop
 from drake_estop.scenario import Scenario, dump_scenario, load_scenario
+from drake_estop.systems.decision import StopPlannerConfig
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "diagrams" / "scenarios").glob("*.yaml"))
 
@@ -25,7 +26,8 @@ def _unusual():
         gait=GaitParameters(step_length=0.22, num_steps=6, sole=Sole(toe=0.14)),
         stop=StopParameters(zmp_margin=0.02, halt_durations=(0.9, 1.4), crouch=False),
         estop_time=3.3, simulation="physics",
-        controller=ControllerOptions(true_state=True, swing_tilt=False, foothold_replan=True, max_replan_solves=3),
+        controller=ControllerOptions(true_state=True, swing_tilt=None,
+                                     planner=StopPlannerConfig(foothold_replan=True, max_replan_solves=3)),
         perturbations=Perturbations(pushes=(Push(3.3, 100.0, -20.0, 0.1), Push(3.5, 0.0, 50.0, 0.05)),
                                     mass_scale=1.1, friction=0.6, latency_ticks=2, sensor_noise=True, seed=7),
         after_halt=2.0)
@@ -45,9 +47,10 @@ def test_dump_and_load_round_trip():
 def test_optional_fields_round_trip_null_included(estop_time, max_replan_solves):
     """A None (the Meshcat button's stop, an unbounded re-plan in the controller section) is written as null:
     left out it would read back as the default (3.4 s, 2 solves)."""
-    scenario = Scenario(estop_time=estop_time, controller=ControllerOptions(max_replan_solves=max_replan_solves))
+    planner = StopPlannerConfig(max_replan_solves=max_replan_solves)
+    scenario = Scenario(estop_time=estop_time, controller=ControllerOptions(planner=planner))
     loaded = load_scenario(text=dump_scenario(scenario))
-    assert (loaded.estop_time, loaded.controller.max_replan_solves) == (estop_time, max_replan_solves)
+    assert (loaded.estop_time, loaded.controller.planner.max_replan_solves) == (estop_time, max_replan_solves)
     assert loaded.controller == scenario.controller
 
 
@@ -65,13 +68,16 @@ def test_a_partial_document_keeps_the_defaults():
     ("{perturbations: {pushes: [{time: 3.4, force_x: 1, force_y: 0, duration: 0}]}}", "duration"),
     ("{simulation: walking}", "simulation"),
     ("{after_halt: 0.5}", "after_halt"),
-    ("{controller: {max_replan_solves: 0}}", "controller.max_replan_solves"),
+    ("{controller: {planner: {max_replan_solves: 0}}}", "max_replan_solves"),
     ("{controller: {kind: walking}}", "controller.kind"),
     ("{controller: {swing_tlt: false}}", "swing_tlt"),
     ("{controller: {foot_compliance: 3}}", "foot_compliance"),
     ("{controller: online}", "controller must be a mapping"),
     ("{max_replan_solves: 2}", "max_replan_solves"),  # a controller field, not a scenario one
-    ("{controller: {max_replan_solves: two}}", "controller.max_replan_solves must be a whole number or null"),
+    ("{controller: {planner: {max_replan_solves: two}}}",
+     "controller.planner.max_replan_solves must be a whole number or null"),
+    ("{controller: {max_steps: 2}}", "controller.max_steps is now controller.planner.max_steps"),
+    ("{controller: {swing_tilt: true}}", r"controller.swing_tilt must be a mapping of its settings \({} for the"),
     ("{estop_time: abc}", "estop_time must be a number or null"),
     ("{gait: {num_steps: 2.5}}", "gait.num_steps must be a whole number"),
     ("{gait: 3}", "gait must be a mapping"),
@@ -84,23 +90,48 @@ def test_bad_documents_name_what_is_wrong(text, named):
 
 
 def test_a_controller_section_reads_into_controller_options():
-    scenario = load_scenario(text="controller:\n  kind: offline-filter\n  foot_compliance: false\n"
-                                  "  max_replan_solves: null\n")
-    assert scenario.controller == ControllerOptions(kind="offline-filter", foot_compliance=False,
-                                                    max_replan_solves=None)
-    assert load_scenario(text="{controller: {swing_tilt: false}}").controller == ControllerOptions(swing_tilt=False)
+    scenario = load_scenario(text="controller:\n  kind: offline-filter\n  foot_compliance: null\n"
+                                  "  planner: {max_replan_solves: null}\n  hip_strategy: {amplitude: 0.1}\n")
+    assert scenario.controller == ControllerOptions(kind="offline-filter", foot_compliance=None,
+                                                    planner=StopPlannerConfig(max_replan_solves=None),
+                                                    hip_strategy=HipStrategyConfig(amplitude=0.1))
+    assert load_scenario(text="{controller: {swing_tilt: null}}").controller == ControllerOptions(swing_tilt=None)
+    assert load_scenario(text="{controller: {hip_strategy: {}}}").controller.hip_strategy == HipStrategyConfig()
+    assert load_scenario(text=dump_scenario(scenario)).controller == scenario.controller  # None reads back as None
 
 
 @pytest.mark.parametrize("fields, named", [
     ({"kind": "online-ish"}, "controller.kind"),
     ({"foot_compliance": "no"}, "controller.foot_compliance"),
+    ({"foot_compliance": False}, "controller.foot_compliance must be a FootEdgeComplianceConfig or None"),
+    ({"hip_strategy": True}, "controller.hip_strategy"),
+    ({"planner": {"recovery_step": False}}, "controller.planner must be a StopPlannerConfig"),
     ({"true_state": 1}, "controller.true_state"),
-    ({"max_replan_solves": 0}, "controller.max_replan_solves"),
-    ({"max_replan_solves": 1.5}, "controller.max_replan_solves"),
 ])
 def test_controller_options_reject_bad_values_naming_the_field(fields, named):
     with pytest.raises(ValueError, match=named):
         ControllerOptions(**fields)
+
+
+@pytest.mark.parametrize("changes, named", [
+    ({"recovery_step": False}, "controller.recovery_step is now controller.planner.recovery_step"),
+    ({"foot_force_control": False}, "controller.foot_force_control is now controller.foot_force"),
+    ({"planner.recovry_step": False}, r"controller.planner: unknown setting\(s\) \['recovry_step'\]"),
+    ({"planner.max_replan_solves": 0}, "max_replan_solves"),
+    ({"swing_tlt": None}, "controller.swing_tlt is not a controller field"),
+])
+def test_changes_by_dotted_name_reject_unknown_and_moved_keys_naming_them(changes, named):
+    with pytest.raises(ValueError, match=named):
+        ControllerOptions().with_changes(changes)
+
+
+def test_changes_by_dotted_name_read_back_what_changed_reports():
+    controller = ControllerOptions(planner=StopPlannerConfig(recovery_step=False), foot_compliance=None,
+                                   swing_tilt=SwingTiltConfig(deadband=0.02), hip_strategy=HipStrategyConfig())
+    assert controller.changed() == {"planner.recovery_step": False, "foot_compliance": None,
+                                    "swing_tilt.deadband": 0.02, "hip_strategy": {}}
+    assert ControllerOptions().with_changes(controller.changed()) == controller
+    assert ControllerOptions().changed() == {}
 
 
 def test_a_scenario_takes_only_controller_options_as_its_controller():
@@ -134,19 +165,19 @@ def test_cli_takes_the_scenario_and_options_override_it(tmp_path):
 
 
 def test_print_scenario_shows_the_effective_scenario(capsys):
-    assert main(["simulate", "--scenario-text", "{gait: {step_length: 0.25}, controller: {swing_tilt: false, "
-                 "max_replan_solves: null}}", "--physics", "--mass-scale", "1.2", "--push", "3.4", "100", "0", "0.1",
-                 "--true-state", "--print-scenario"]) == 0
+    assert main(["simulate", "--scenario-text", "{gait: {step_length: 0.25}, controller: {swing_tilt: null, "
+                 "planner: {max_replan_solves: null}}}", "--physics", "--mass-scale", "1.2", "--push", "3.4", "100",
+                 "0", "0.1", "--true-state", "--print-scenario"]) == 0
     text = capsys.readouterr().out
     scenario = load_scenario(text=text)
     assert scenario.gait.step_length == 0.25 and scenario.simulation == "physics"
     assert scenario.perturbations.mass_scale == 1.2 and scenario.perturbations.pushes == (Push(3.4, 100.0, 0.0, 0.1),)
-    assert scenario.controller == ControllerOptions(swing_tilt=False, max_replan_solves=None, true_state=True)
-    section = text[text.index("\ncontroller:\n"):].split("\n")[2:19]  # every field of the section, by name
-    assert [line.split(":")[0].strip() for line in section] == [
-        "kind", "true_state", "foot_compliance", "swing_tilt", "measured_footholds", "relanded_footholds",
-        "recovery_step", "capture_landing", "crossover_step", "braked_landing", "reference_fallback", "foothold_replan",
-        "foot_force_control", "whole_body_walk", "hip_strategy", "max_steps", "max_replan_solves"]
+    assert scenario.controller == ControllerOptions(swing_tilt=None, true_state=True,
+                                                    planner=StopPlannerConfig(max_replan_solves=None))
+    section = text[text.index("\ncontroller:\n"):text.index("\nplant:\n")].split("\n")[2:]
+    fields = [line.split(":")[0].strip() for line in section if line.startswith("  ") and not line.startswith("   ")]
+    assert fields == ["kind", "true_state", "whole_body_walk", "braked_landing", "planner", "foot_force",
+                      "foot_compliance", "swing_tilt", "hip_strategy"]  # every field of the section (None ones last)
 
 
 @pytest.mark.parametrize("args,named", [

@@ -1,33 +1,156 @@
-"""The physics stop's controller as configuration: which controller runs, and which features of the online
-controller are on.
+"""The physics stop's controller as configuration: which controller runs, the stop planner's settings and
+each reflex's, as typed data in the manner of Drake's ``examples/hardware_sim``.
 
 :class:`ControllerOptions` is the ``controller`` section of a scenario
-(:class:`drake_estop.scenario.Scenario`, YAML ``controller: {kind: online, foot_compliance: false}``) and the
-``controller`` argument of :func:`drake_estop.physics.online.run_online`. The features default to the
-controller as benchmarked; the switches exist for comparison runs (``benchmarks/robustness.py --ablation``
-turns each off in turn).
+(:class:`drake_estop.scenario.Scenario`) and the ``controller`` argument of
+:func:`drake_estop.physics.online.run_online`::
+
+    controller:
+      kind: online
+      planner: {recovery_step: false, replan_threshold: 0.06}   # StopPlannerConfig
+      foot_compliance: null                                     # a reflex off
+      swing_tilt: {deadband: 0.02}                              # a reflex with a setting of its own
+
+The planner's settings are :class:`drake_estop.systems.decision.StopPlannerConfig`; each reflex is its
+config or None (off). A reflex setting left None is the robot's own, from its description, else the
+default (:meth:`drake_estop.physics.reflexes.Reflexes.of`). The defaults are the controller as benchmarked;
+the changes exist for comparison runs (``benchmarks/robustness.py --ablation`` makes one at a time).
 """
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from drake_estop.planning.replan import MAX_REPLAN_SOLVES, MAX_STOP_STEPS, check_solve_bound, check_step_bound
+from drake_estop.physics.hip_strategy import HIP_STRATEGY
 from drake_estop.robots.parameters import as_robot
+from drake_estop.systems.decision import StopPlannerConfig
 
 #: The physics controllers: the online controller, and the offline preview filter it is compared with.
 CONTROLLER_KINDS = ("online", "offline-filter")
 
-#: The fields that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` options.
-PLANNER_FEATURES = ("measured_footholds", "relanded_footholds", "recovery_step", "capture_landing",
-                    "reference_fallback", "foothold_replan", "max_replan_solves", "max_steps", "crossover_step")
+
+@dataclass(frozen=True)
+class SwingTiltConfig:
+    """The swing foot's tilt compensation (:class:`drake_estop.physics.swing_tilt.SwingFootTiltCompensation`).
+
+    Attributes
+    ----------
+    deadband : float or None
+        Base tilt left alone [rad] (the walk's own sway against the command is a few mrad); None: the
+        robot's ``swing_tilt_deadband``, else 0.01.
+    max_tilt : float
+        The largest correction [rad] (hrpsys-base's 10 degree cap); default 0.17.
+    return_time : float
+        The correction's return after the touchdown [s]; default 0.3.
+    contact_force : float
+        Measured normal force that means contact [N]; default 50.
+    """
+
+    deadband: float | None = None
+    max_tilt: float = 0.17
+    return_time: float = 0.3
+    contact_force: float = 50.0
+
+
+@dataclass(frozen=True)
+class FootForceConfig:
+    """The feet's force difference control in double support (Kajita et al. 2010,
+    :class:`drake_estop.physics.foot_force.FootForceDifferenceControl`).
+
+    Attributes
+    ----------
+    damping : float or None
+        Force difference damping [N s/m]; None: the robot's ``foot_force_damping``, and where its
+        description gives none the control does not act.
+    return_time : float
+        The height difference's return once the control stops acting [s]; default 0.5.
+    max_offset : float
+        The largest height difference [m]; default 0.02.
+    engage_time : float or None
+        How long both soles stand before it acts [s]; None: the robot's ``foot_force_engage_time``, else
+        the system's default.
+    """
+
+    damping: float | None = None
+    return_time: float = 0.5
+    max_offset: float = 0.02
+    engage_time: float | None = None
+
+    def settings(self) -> dict:
+        """The keyword arguments of :func:`drake_estop.physics.foot_force.add_foot_force_control`."""
+        return {name: value for name, value in dataclasses.asdict(self).items()
+                if not (name == "engage_time" and value is None)}
+
+
+@dataclass(frozen=True)
+class FootEdgeComplianceConfig:
+    """The stance ankles' foot-edge compliance (:class:`drake_estop.physics.compliance.FootEdgeCompliance`).
+
+    Attributes
+    ----------
+    edge_margin : float or None
+        How near a sole edge the measured CoP makes the ankle yield [m]; None: the robot's
+        ``foot_edge_margin``, else 0.015.
+    damping : float
+        The ankle's damping [N m s/rad]; default 80.
+    return_time : float
+        The ankle offset's return once the CoP is back inside [s]; default 0.3.
+    max_offset : float
+        The largest ankle offset [rad]; default 0.05.
+    """
+
+    edge_margin: float | None = None
+    damping: float = 80.0
+    return_time: float = 0.3
+    max_offset: float = 0.05
+
+
+@dataclass(frozen=True)
+class HipStrategyConfig:
+    """The trunk's bow into a push from behind (:class:`drake_estop.physics.hip_strategy.HipStrategy`); acts
+    only where the robot's description names its ``trunk_pitch_joint``.
+
+    Attributes
+    ----------
+    trigger : float
+        DCM deviation ahead of the reference that starts a bow [m].
+    min_rate : float
+        The push rate that tells a push from a drift [m/s].
+    amplitude : float
+        The bow [rad].
+    rise_time, hold_time, return_time : float
+        The bow's profile [s].
+    backward : bool
+        Bow back into a push from the front too.
+    """
+
+    trigger: float = HIP_STRATEGY["trigger"]
+    min_rate: float = HIP_STRATEGY["min_rate"]
+    amplitude: float = HIP_STRATEGY["amplitude"]
+    rise_time: float = HIP_STRATEGY["rise_time"]
+    hold_time: float = HIP_STRATEGY["hold_time"]
+    return_time: float = HIP_STRATEGY["return_time"]
+    backward: bool = HIP_STRATEGY["backward"]
+
+
+#: The reflexes' fields of :class:`ControllerOptions` and their configs.
+REFLEX_CONFIGS = {"swing_tilt": SwingTiltConfig, "foot_force": FootForceConfig,
+                  "foot_compliance": FootEdgeComplianceConfig, "hip_strategy": HipStrategyConfig}
+
+#: Keys of the flat form the controller section had, and where each lives now.
+MOVED_KEYS = {**{name: f"planner.{name}" for name in (
+    "measured_footholds", "relanded_footholds", "recovery_step", "capture_landing", "reference_fallback",
+    "foothold_replan", "max_replan_solves", "max_steps", "crossover_step")},
+    "foot_force_control": "foot_force"}
 
 
 @dataclass
 class ControllerOptions:
-    """The controller of a physics stop and the online controller's features.
+    """The controller of a physics stop: which one runs, the online controller's planner settings and its
+    reflexes.
 
-    Every feature but ``kind`` acts on the online controller only; the defaults are the controller the
-    benchmarks and the campaign measure.
+    Every field but ``kind`` acts on the online controller only; the defaults are the controller the
+    benchmarks and the campaign measure. Why each part exists, with its measurements:
+    ``docs/online_controller.md`` and the ablation in ``benchmarks/ROBUSTNESS.md``.
 
     Attributes
     ----------
@@ -39,129 +162,143 @@ class ControllerOptions:
     true_state : bool
         Feed the controller the true COG instead of the state estimate (default off: the robot has only its
         sensors; on for debugging the estimator's share of a failure).
-    foot_compliance : bool
-        The stance ankles' foot-edge compliance (:data:`drake_estop.physics.online.FOOT_EDGE_COMPLIANCE`): an
-        ankle yields when the measured CoP nears a sole edge, so a pushed robot does not rock on its heels
-        or toes and leave the floor (default on; off for comparison).
-    swing_tilt : bool
-        The swing foot's tilt compensation (:data:`drake_estop.physics.online.SWING_TILT_COMPENSATION`): the
-        swing sole turned against the body's measured roll and pitch, so a foot lands flat under a tilted
-        body (default on; off for comparison).
-    measured_footholds : bool
-        Re-plans after the landing stand on the estimated footholds, where the soles are, rather than on
-        the plan's feet (default on; off for comparison).
-    relanded_footholds : bool
-        A sole that lost contact after the landing and landed again off the plan's foothold re-plans the
-        stop where it stands (default on; off for comparison).
-    recovery_step : bool
-        A re-plan after the landing that finds no double-support stop steps the rear foot forward; and a
-        single-support re-plan whose capture landing does not stop the robot takes that step right after
-        its touchdown (N-step capture, :func:`drake_estop.planning.capture_landing.capture_step`; default on; off
-        keeps the plan, for comparison).
-    capture_landing : bool
-        A single-support re-plan whose other tries find no stop lands sooner, at the widest step, where a
-        sideways push sends the lateral DCM past it before the plan's touchdown
-        (:func:`drake_estop.planning.replan.replan_stop`; default on; off for comparison).
-    crossover_step : bool
-        A single-support re-plan whose lateral DCM lies over the support sole's outer edge (a sideways push
-        towards the foot standing alone) first tries a crossover step: the swing foot lands beyond the support
-        foot, in front of its leg, where the legs' geometry allows
-        (:func:`drake_estop.planning.crossover.crossover_stop`; default off: on the default humanoid the support
-        knee bars every landing the falling pushes asked for, and its runs are unchanged).
-    braked_landing : bool
-        The controller's braked landing (:data:`drake_estop.physics.online.BRAKED_LANDING`): a
-        single-support re-plan lands no sooner than the swing can brake to its point at 15 m/s^2, and then
-        comes down at a slope (default on; off lands the paper's quintic swing, for comparison). It acts
-        through the stop parameters: :func:`drake_estop.physics.online.controller_stop_parameters`; stop
-        parameters given to :func:`~drake_estop.physics.online.run_online` that disagree with it raise.
-    reference_fallback : bool
-        Where no stop exists from the measured state at the signal, the latch plans the paper's stop from
-        the reference and re-plans from the measured state (default on; off ends the run with
-        :class:`drake_estop.planning.plan.InfeasibleStop`, exit status 2 on the command line, for comparison).
-    foothold_replan : bool
-        A loaded sole measured more than 5 mm off the plan's foot after the landing re-plans the stop on
-        the measured feet, again each time it moves that far (default off: on the seed-0 campaign 382/500
-        against 376, but 49 falls against 43; on for comparison).
-    foot_force_control : bool
-        The feet's force difference control in double support (Kajita et al. 2010,
-        :class:`drake_estop.physics.foot_force.FootForceDifferenceControl`) at the robot's
-        ``foot_force_damping``: the soles' heights share the load as the plan's ZMP asks, so a pushed robot
-        does not rock from one sole edge to the other after its landing (default on; acts only where the
-        robot's description gives a damping; off for comparison).
-    max_replan_solves : int or None
-        Stop solves a re-plan may do in one servo tick, dimensionless (default 2: the tries left go on at
-        the next tick, which bounds a tick's work); None puts every try on one tick (for comparison).
-    max_steps : int
-        The most landings a stop takes after its signal, the walk's own included (default
-        :data:`drake_estop.planning.replan.MAX_STOP_STEPS`, 3): a re-plan takes a recovery step, or the two
-        steps of an N-step capture, only within it.
     whole_body_walk : bool
         Walk the pattern with its COG corrected for the limbs' momentum
-        (:func:`drake_estop.systems.whole_body_walk.whole_body_pattern`: the whole-body ZMP of the IK's
-        walk is the planned one), computed before the run (5-8 s; once per robot and gait in a process);
-        a given pattern that carries a correction already is walked as it is. Default off: on 70 hard runs
-        of the campaign it stopped 35 (33 without) with 6 falls (11 without), but the perturbation matrix
-        drops to 43/44 with it (a fall: the 17 N s push to the right early in single support); not
-        measured on the whole campaign.
-    hip_strategy : bool
-        The trunk bows forward into a push from behind in the stop
-        (:class:`drake_estop.physics.hip_strategy.HipStrategy`, :data:`drake_estop.physics.hip_strategy.HIP_STRATEGY`):
-        its angular momentum decelerates the COG
-        while the ankle is saturated; acts only where the robot's description names its ``trunk_pitch_joint``.
-        Default off: a 30 N s forward push in double support stops with it in one recovery step (without:
-        two, the rear sole slipping 12.6 mm), but on the first 120 runs of the campaign it lost 2 that stop
-        without it (forward bows after a sideways or backward push, when the robot ran forward on its own) and
-        gained 1.
+        (:func:`drake_estop.systems.whole_body_walk.whole_body_pattern`), computed before the run (5-8 [s];
+        once per robot and gait in a process). Default off: on 70 hard runs of the campaign it stopped 35
+        (33 without) with 6 falls (11 without), but the perturbation matrix drops to 43/44 with it.
+    braked_landing : bool
+        A single-support re-plan lands no sooner than the swing can brake to its point at 15 [m/s^2], and then
+        comes down at a slope (default on; off lands the paper's quintic swing). It acts through the stop
+        parameters (:func:`drake_estop.physics.online.controller_stop_parameters`); stop parameters given to
+        :func:`~drake_estop.physics.online.run_online` that disagree with it raise.
+    planner : StopPlannerConfig
+        The stop planner's decision: re-plan thresholds, measured footholds, the re-plan tries (capture
+        landing, recovery step, crossover step), the step and solve budgets, the reference fallback
+        (:class:`drake_estop.systems.decision.StopPlannerConfig`).
+    swing_tilt : SwingTiltConfig or None
+        The swing sole turned against the body's measured roll and pitch, so a foot lands flat under a
+        tilted body (default on).
+    foot_force : FootForceConfig or None
+        The soles' heights share the load in double support as the plan's ZMP asks, so a pushed robot does
+        not rock from one sole edge to the other (default on; acts only with a damping, the robot's own by
+        default).
+    foot_compliance : FootEdgeComplianceConfig or None
+        A stance ankle yields when the measured CoP nears a sole edge, so a pushed robot does not rock on
+        its heels or toes and leave the floor (default on).
+    hip_strategy : HipStrategyConfig or None
+        The trunk bows into a push from behind in the stop; its angular momentum decelerates the COG while
+        the ankle is saturated. Default off: a 30 N s forward push in double support stops with it in one
+        recovery step (without: two), but on the first 120 runs of the campaign it lost 2 and gained 1.
+
+    Raises
+    ------
+    ValueError
+        Naming the field (``controller.planner``, ``controller.foot_compliance``, ...) that is not of its
+        type.
     """
 
     kind: str = "online"
     true_state: bool = False
-    foot_compliance: bool = True
-    swing_tilt: bool = True
-    measured_footholds: bool = True
-    relanded_footholds: bool = True
-    recovery_step: bool = True
-    capture_landing: bool = True
-    crossover_step: bool = False
-    braked_landing: bool = True
-    reference_fallback: bool = True
-    foothold_replan: bool = False
-    foot_force_control: bool = True
-    max_replan_solves: int | None = MAX_REPLAN_SOLVES
     whole_body_walk: bool = False
-    hip_strategy: bool = False
-    max_steps: int = MAX_STOP_STEPS
+    braked_landing: bool = True
+    planner: StopPlannerConfig = field(default_factory=StopPlannerConfig)
+    swing_tilt: SwingTiltConfig | None = field(default_factory=SwingTiltConfig)
+    foot_force: FootForceConfig | None = field(default_factory=FootForceConfig)
+    foot_compliance: FootEdgeComplianceConfig | None = field(default_factory=FootEdgeComplianceConfig)
+    hip_strategy: HipStrategyConfig | None = None
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:
             raise ValueError(f"controller.kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
-        for f in dataclasses.fields(self):
-            if f.type is bool and not isinstance(getattr(self, f.name), bool):
-                raise ValueError(f"controller.{f.name} must be true or false, got {getattr(self, f.name)!r}")
-        check_solve_bound(self.max_replan_solves, "controller.max_replan_solves")
-        check_step_bound(self.max_steps, "controller.max_steps")
-
-    def planner_options(self) -> dict:
-        """The features that are :class:`drake_estop.systems.stop_controller.StopPlannerSystem` keyword
-        arguments (:data:`PLANNER_FEATURES`), by name."""
-        return {name: getattr(self, name) for name in PLANNER_FEATURES}
+        for name in ("true_state", "whole_body_walk", "braked_landing"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"controller.{name} must be true or false, got {getattr(self, name)!r}")
+        if not isinstance(self.planner, StopPlannerConfig):
+            raise ValueError(f"controller.planner must be a StopPlannerConfig (in YAML a mapping of its "
+                             f"settings), got {self.planner!r}")
+        for name, config in REFLEX_CONFIGS.items():
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, config):
+                raise ValueError(f"controller.{name} must be a {config.__name__} or None (off); in YAML a "
+                                 f"mapping of its settings ({{}} for the defaults) or null, got {value!r}")
 
     def changed(self) -> dict:
-        """The fields other than ``kind`` that differ from their defaults, by name: what only the online
-        controller takes."""
-        default = ControllerOptions()
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "kind" and getattr(self, f.name) != getattr(default, f.name)}
+        """What differs from ``ControllerOptions()`` other than ``kind``, by dotted name
+        (``{"planner.recovery_step": False, "foot_compliance": None, "hip_strategy": {}}``); a reflex turned
+        on maps to its settings that differ from its config's defaults. :meth:`with_changes` reads it back."""
+        default, changes = ControllerOptions(), {}
+        for f in dataclasses.fields(self):
+            mine, theirs = getattr(self, f.name), getattr(default, f.name)
+            if f.name == "kind" or mine == theirs:
+                continue
+            if mine is not None and theirs is not None and dataclasses.is_dataclass(mine):
+                changes.update({f"{f.name}.{name}": value for name, value in _differences(mine, theirs).items()})
+            else:
+                changes[f.name] = _differences(mine, type(mine)()) if dataclasses.is_dataclass(mine) else mine
+        return changes
+
+    def with_changes(self, changes: dict) -> "ControllerOptions":
+        """A copy with ``changes``, by field name or dotted name (``{"planner.recovery_step": False,
+        "foot_compliance": None, "swing_tilt": {"deadband": 0.02}}``; a mapping for a reflex that is off
+        turns it on with those settings). ValueError naming a key that is unknown or that moved
+        (``recovery_step`` -> ``planner.recovery_step``)."""
+        nested = as_section(changes)
+        for name in nested:
+            check_key(name)
+        return dataclasses.replace(self, **{name: self._changed_field(name, value) for name, value in nested.items()})
+
+    def _changed_field(self, name, value):
+        current = getattr(self, name)
+        if name == "planner" or name in REFLEX_CONFIGS:
+            if value is None or not isinstance(value, dict):
+                return value  # None turns a reflex off; anything else is refused by __post_init__
+            base = current if current is not None else REFLEX_CONFIGS[name]()
+            unknown = sorted(set(value) - {f.name for f in dataclasses.fields(base)})
+            if unknown:
+                raise ValueError(f"controller.{name}: unknown setting(s) {unknown}; known: "
+                                 f"{[f.name for f in dataclasses.fields(base)]}")
+            return dataclasses.replace(base, **value)
+        return value
+
+
+def as_section(changes: dict) -> dict:
+    """``changes`` by dotted name as the nested mapping a scenario's controller section writes:
+    ``{"planner.recovery_step": False}`` -> ``{"planner": {"recovery_step": False}}``."""
+    nested = {}
+    for key, value in changes.items():
+        name, _, setting = key.partition(".")
+        if setting:
+            nested.setdefault(name, {})[setting] = value
+        else:
+            nested[name] = {**nested.get(name, {}), **value} if isinstance(value, dict) else value
+    return nested
+
+
+def _differences(value, default) -> dict:
+    """The fields of the dataclass ``value`` that differ from ``default``'s, by name."""
+    return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)
+            if getattr(value, f.name) != getattr(default, f.name)}
+
+
+def check_key(name: str) -> None:
+    """ValueError naming ``name`` where it is not a field of :class:`ControllerOptions`: where it moved
+    (:data:`MOVED_KEYS`), or the fields there are."""
+    if name in MOVED_KEYS:
+        raise ValueError(f"controller.{name} is now controller.{MOVED_KEYS[name]}"
+                         + (" (a mapping of its settings, or null for off)" if name == "foot_force_control" else ""))
+    known = [f.name for f in dataclasses.fields(ControllerOptions)]
+    if name not in known:
+        raise ValueError(f"controller.{name} is not a controller field; known: {known}")
 
 
 def controller_settings(robot=None) -> dict:
     """The robot's own settings of the physics controller, each None where it keeps the controller's, from
     its description: ``zmp_margin`` (the stop plan's [m], ``stop_zmp_margin``), ``zmp_weight`` (its J_ds
-    ``a_ds`` [1/m^2], ``stop_zmp_weight``), ``swing_tilt_deadband`` ([rad],
-    :class:`~drake_estop.physics.reflexes.SwingTiltConfig`), ``edge_margin`` ([m], ``foot_edge_margin``,
-    :class:`~drake_estop.physics.reflexes.FootEdgeComplianceConfig`), ``foot_force_damping`` ([N s/m], the feet's
-    force difference control, :class:`~drake_estop.physics.reflexes.FootForceConfig`, only for a robot that
-    gives it) and ``foot_force_engage_time`` ([s]: how long both soles stand before that control acts)."""
+    ``a_ds`` [1/m^2], ``stop_zmp_weight``), ``swing_tilt_deadband`` ([rad], :class:`SwingTiltConfig`),
+    ``edge_margin`` ([m], ``foot_edge_margin``, :class:`FootEdgeComplianceConfig`), ``foot_force_damping``
+    ([N s/m], :class:`FootForceConfig`, only for a robot that gives it) and ``foot_force_engage_time`` ([s]:
+    how long both soles stand before that control acts)."""
     description = as_robot(robot)
     return {"zmp_margin": description.stop_zmp_margin, "zmp_weight": description.stop_zmp_weight,
             "swing_tilt_deadband": description.swing_tilt_deadband,

@@ -34,7 +34,7 @@ Measured on the default humanoid, with it against without: a 30 N s forward push
 (tests/test_online_pushes.py); a 35 N s one early in single support (2.95 s) stops without it in two steps
 (the N-step capture, :func:`drake_estop.planning.capture_landing.capture_step`) and with it takes three, the rear
 sole slipping and the CoP leaving its support. With ``benchmarks/robustness.py --controller-option
-hip_strategy=true``: the sweep 40/40 and the matrix 44/44. Pushes sideways are not helped: the
+hip_strategy={}``: the sweep 40/40 and the matrix 44/44. Pushes sideways are not helped: the
 default model's trunk has no roll joint. Off by default (``ControllerOptions.hip_strategy``): on the
 campaign's first 120 runs it lost 2 that stop without it (forward bows after a sideways or a backward
 push, when the robot ran forward on its own: runs 11 and 34, both falls) and gained 1.

@@ -35,7 +35,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
-from drake_estop.physics.controller_options import PLANNER_FEATURES, ControllerOptions, controller_settings
+from drake_estop.physics.controller_options import ControllerOptions, controller_settings
 from drake_estop.physics.criteria import (
     JointReference,
     analyse,
@@ -65,7 +65,7 @@ from drake_estop.planning.gait import GaitParameters, NominalPattern
 from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot, stepping_limits
 from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
-from drake_estop.systems.decision import StopPlannerConfig, mode_changes
+from drake_estop.systems.decision import mode_changes
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.measured_com_filter import MeasuredComFilter
 from drake_estop.systems.stop_controller import add_stop_controller
@@ -156,10 +156,13 @@ def has_braked_landing(params: StopParameters) -> bool:
             and params.landing_approach_slope >= BRAKED_LANDING["landing_approach_slope"])
 
 
-def _braked_as_asked(stop_params: StopParameters | None, controller: ControllerOptions) -> StopParameters | None:
-    """``stop_params`` where they agree with ``controller.braked_landing`` (a feature that acts through the
-    stop parameters is never silently dropped); ValueError naming both where they do not."""
-    if stop_params is None or has_braked_landing(stop_params) == controller.braked_landing:
+def _run_stop_parameters(stop_params: StopParameters | None, controller: ControllerOptions, robot) -> StopParameters:
+    """:func:`run_online`'s stop parameters: ``stop_params`` where they agree with ``controller.braked_landing``
+    (a feature that acts through the stop parameters is never silently dropped; ValueError naming both where
+    they do not), else the robot's with the braked landing as the controller asks."""
+    if stop_params is None:
+        return robot_stop_parameters(robot, braked_landing=controller.braked_landing)
+    if has_braked_landing(stop_params) == controller.braked_landing:
         return stop_params
     has = "have the" if has_braked_landing(stop_params) else "have no"
     raise ValueError(
@@ -213,8 +216,7 @@ class OnlineHandles:
 
 def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, estop_time: float | None, *,
                          physics: PhysicsParameters | None = None, perturbations: Perturbations | None = None,
-                         controller: ControllerOptions | None = None,
-                         planner_options: dict | None = None, robot=None) -> OnlineHandles:
+                         controller: ControllerOptions | None = None, robot=None) -> OnlineHandles:
     """The closed-loop physics diagram of the online controller (see the module docstring).
 
     ``perturbations`` change the simulated robot only (friction here, pushes through the plant's
@@ -222,8 +224,8 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     :func:`run_online`'s context). ``controller`` (default ``ControllerOptions()``) says which features
     are on: ``true_state`` feeds the estimator's outputs from the true plant state (debugging); the
     reflexes (:func:`~drake_estop.physics.reflexes.apply_reflexes`) sit between the planner and the IK;
-    the planner features and ``planner_options`` (its other settings) make the planner's
-    :class:`~drake_estop.systems.decision.StopPlannerConfig`. ``controller.braked_landing`` acts through
+    ``controller.planner`` is the planner's :class:`~drake_estop.systems.decision.StopPlannerConfig`.
+    ``controller.braked_landing`` acts through
     ``stop_params`` (:func:`controller_stop_parameters`).
 
     Parameters
@@ -234,7 +236,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
         The stop planner's parameters; its ``servo_period`` [s] is the controller's tick.
     estop_time : float or None
         Time of the stop signal [s], latched at the next servo tick; None: no scheduled stop.
-    physics, perturbations, controller, planner_options
+    physics, perturbations, controller
         As described above.
     robot : RobotDescription or str, optional
         The robot (a description, a built-in name or a description file; default the default
@@ -251,8 +253,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     from drake_estop.systems.diagram import initial_configuration as pattern_initial_configuration
 
     robot = as_robot(robot)
-    controller = ControllerOptions() if controller is None else controller
-    planner_config = _planner_settings(controller, planner_options)
+    controller = _checked_controller(controller)
     perturbations = perturbations or Perturbations()
     physics = ground_friction(perturbations, physics or PhysicsParameters()).for_robot(robot)
     dt = stop_params.servo_period
@@ -267,10 +268,12 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     kin_plant, _, _ = shared_ik(robot)
     q0 = pattern_initial_configuration(kin_plant, pattern, robot=robot)
     estimator = add_state_estimation(builder, plant, cop, servo_period=dt, perturbations=perturbations,
-                                     true_state=controller.true_state, initial_q=q0, timer=timer, robot=robot)
+                                     initial_q=q0, timer=timer, robot=robot,
+                                     true_state=controller.true_state)
     trigger, planner, monitor = _add_planner(builder, pattern=pattern, stop_params=stop_params,
-                                             estop_time=estop_time, config=planner_config, robot=robot,
-                                             estimator=estimator, pushes=perturbations.pushes, timer=timer)
+                                             estop_time=estop_time, robot=robot, estimator=estimator,
+                                             pushes=perturbations.pushes, timer=timer,
+                                             config=controller.planner)
     solver = WholeBodyIkSolver(kin_plant, min_knee_bend=IK_MIN_KNEE_BEND, robot=robot)
     ik = builder.AddNamedSystem("whole_body_ik", WholeBodyIK(
         plant=kin_plant, servo_period=dt, initial_q=q0, solver=solver, timer=timer))
@@ -376,32 +379,21 @@ def mode_results(log, servo_period: float) -> dict:
     return {"mode": modes, "modes": mode_changes(modes, servo_period)}
 
 
-def _planner_settings(controller, planner_options) -> StopPlannerConfig:
-    """The StopPlannerSystem's settings: ``controller``'s planner features and ``planner_options``, its
-    other settings; ValueError naming the argument that cannot be one."""
+def _checked_controller(controller) -> ControllerOptions:
+    """``controller`` (default ``ControllerOptions()``) where it is the online controller's; ValueError naming
+    it where it cannot be."""
+    controller = ControllerOptions() if controller is None else controller
     if not isinstance(controller, ControllerOptions):
         raise ValueError(f"controller must be a ControllerOptions, got {controller!r}")
     if controller.kind != "online":
         raise ValueError(f"controller.kind must be 'online' here, got {controller.kind!r} (the offline filter: "
                          "drake_estop.physics.offline.run_physics)")
-    if planner_options is None:
-        return StopPlannerConfig(**controller.planner_options())
-    if not isinstance(planner_options, dict):
-        raise ValueError(f"planner_options must be a dict, got {planner_options!r}")
-    features = sorted(set(planner_options) & set(PLANNER_FEATURES))
-    if features:
-        raise ValueError(f"planner_options: {features} are controller options: give them as "
-                         f"controller=ControllerOptions({features[0]}=...)")
-    known = set(StopPlannerConfig.field_names())
-    unknown = sorted(set(planner_options) - known)
-    if unknown:
-        raise ValueError(f"planner_options: unknown setting(s) {unknown}; known: {sorted(known)}")
-    return StopPlannerConfig(**{**controller.planner_options(), **planner_options})
+    return controller
 
 
 def _check_run_arguments(pattern, estop_time, after_halt):
     """ValueError naming the first of :func:`run_online`'s times that cannot run (its ``controller`` and
-    ``planner_options`` are checked before the walk is made: :func:`_planner_settings`)."""
+    is checked before the walk is made: :func:`_checked_controller`)."""
     if isinstance(estop_time, bool) or not (finite_number(estop_time) and 0.0 <= float(estop_time) <= pattern.end_time):
         raise ValueError(f"estop_time must be a time within the walk, 0 to {pattern.end_time:g} s, got {estop_time!r}")
     if isinstance(after_halt, bool) or not (finite_number(after_halt) and float(after_halt) >= 1.0):
@@ -489,7 +481,7 @@ def _online_results(handles: OnlineHandles, context, plan, result, cpu: float, p
 def run_online(gait_params: GaitParameters | None = None, stop_params: StopParameters | None = None,
                estop_time: float = 3.4, *, after_halt: float = 2.5, physics: PhysicsParameters | None = None,
                perturbations: Perturbations | None = None, pattern: NominalPattern | None = None,
-               controller: ControllerOptions | None = None, planner_options: dict | None = None, robot=None):
+               controller: ControllerOptions | None = None, robot=None):
     """Walk, stop at ``estop_time`` with the online controller on the simulated robot, and check the
     success criteria: ``drake-estop simulate --physics`` from Python.
 
@@ -516,12 +508,10 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     pattern : NominalPattern, optional
         A walk built already (``NominalPattern(gait_params)``; it must agree with ``gait_params``).
     controller : ControllerOptions, optional
-        The online controller's features, each on or off (``kind`` must be ``"online"``); default
-        ``ControllerOptions()``, every feature as benchmarked (``foot_compliance=False`` leaves out the
-        stance ankles' foot-edge compliance, ``true_state=True`` feeds the controller the true COG).
-    planner_options : dict, optional
-        Other fields of :class:`drake_estop.systems.decision.StopPlannerConfig`
-        (``replan_threshold`` [m], ``replan_interval`` [s], ...); its features are ``controller``'s.
+        The online controller (``kind`` must be ``"online"``): its planner's settings and its reflexes;
+        default ``ControllerOptions()``, as benchmarked (``ControllerOptions(foot_compliance=None)`` leaves
+        out the stance ankles' foot-edge compliance, ``ControllerOptions(planner=StopPlannerConfig(
+        recovery_step=False))`` the recovery step, ``true_state=True`` feeds the controller the true COG).
     robot : RobotDescription or str, optional
         The humanoid (a description, ``"default"``, ``"g1"``, ``"talos"`` or a description file; default
         the default humanoid). A push's impulse [N s] is the robot's mass times its COG velocity change.
@@ -538,24 +528,21 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     ------
     ValueError
         Naming the argument: ``estop_time`` outside the walk, ``after_halt`` under 1 s, ``gait_params`` and
-        ``pattern`` that disagree, a ``controller`` that is not an online ``ControllerOptions``, an unknown
-        or bad ``planner_options`` setting or one of ``controller``'s.
+        ``pattern`` that disagree, a ``controller`` that is not an online ``ControllerOptions``.
     drake_estop.planning.plan.InfeasibleStop
         When no stop can be planned at the signal from the reference either, or, with
-        ``ControllerOptions(reference_fallback=False)``, from the measured state (by default the latch
+        ``controller.planner.reference_fallback`` False, from the measured state (by default the latch
         then plans from the reference: ``online["latch_fallback"]``).
     """
     robot = as_robot(robot)
-    controller = ControllerOptions() if controller is None else controller
-    _planner_settings(controller, planner_options)  # the walk below reads the controller
+    controller = _checked_controller(controller)
     pattern = _checked_pattern(gait_params, pattern, robot, controller.whole_body_walk)
     _check_run_arguments(pattern, estop_time, after_halt)
     perturbations = perturbations or Perturbations()
-    stop_params = _braked_as_asked(stop_params, controller) or robot_stop_parameters(
-        robot, braked_landing=controller.braked_landing)
-    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics,
-                                   perturbations=perturbations, controller=controller,
-                                   planner_options=planner_options, robot=robot)
+    stop_params = _run_stop_parameters(stop_params, controller, robot)
+    handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics, perturbations=perturbations,
+                                   robot=robot,
+                                   controller=controller)
     simulator = online_simulator(handles, perturbations)
     context = simulator.get_mutable_context()
     cpu = time.process_time()

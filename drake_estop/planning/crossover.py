@@ -19,7 +19,7 @@ Whether the legs allow it is geometry, checked here on a model of each leg as tw
 :func:`crossover_landings` lists the landings that pass all three (in the support sole's frame), soonest and
 nearest first; :func:`crossover_stop` plans the stop on them (III.A, eq. 21-26), for
 :func:`drake_estop.planning.replan.replan_stop` (``crossover=True``; the online controller's
-``ControllerOptions.crossover_step``, off by default). Pure numpy.
+``ControllerOptions.planner.crossover_step``, off by default). Pure numpy.
 
 Measured on the default humanoid (capsules 5.5 cm in radius, its thigh and shank boxes 11 and 10 cm deep):
 for the sideways pushes it does not stop (29 N s to the left at 2.95 s, 25 N s there), the support knee,
