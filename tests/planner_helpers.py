@@ -1,14 +1,17 @@
 """Shared by the re-plan and recovery-step tests: StopPlannerSystem alone, the way Drake tests a
-LeafSystem (a default context, FixValue inputs, Simulator.AdvanceTo), the re-plans' stop parameters and
-measured states."""
+LeafSystem (a default context, FixValue inputs, Simulator.AdvanceTo), or beside its FootholdMonitor; the
+re-plans' stop parameters and measured states."""
 
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import PassThrough
 
 from drake_estop.planning.gait import NominalPattern
 from drake_estop.planning.planner import StopParameters, plan_stop
 from drake_estop.systems.decision import StopPlannerConfig
+from drake_estop.systems.foothold_monitor import add_foothold_monitor
 from drake_estop.systems.stop_controller import StopPlannerSystem
 
 DT = 0.005
@@ -24,20 +27,48 @@ def latched_stop_planner(pattern, params, t0=3.4, **kwargs):
     """A StopPlannerSystem (re-plans up to every tick; ``kwargs`` override) whose stop latched at
     ``t0`` from the reference, then without a measurement (NaN: no re-plan). Returns the planner, its
     context, the simulator and the first plan."""
-    kwargs = {"replan_interval": DT, **kwargs}
-    planner = StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**kwargs))
+    planner = _planner(pattern, params, kwargs)
     context = planner.CreateDefaultContext()
+    simulator = Simulator(planner, context)
+    return planner, context, simulator, _latched(planner, context, simulator, pattern, t0)
+
+
+def monitored_stop_planner(pattern, params, t0=3.4, **kwargs):
+    """:func:`latched_stop_planner` with a FootholdMonitor beside the planner (``add_foothold_monitor``), both
+    reading the diagram's ``measured_feet`` input. Returns the planner, its context, the diagram's simulator,
+    the first plan and a function that fixes the measured soles (6)."""
+    builder = DiagramBuilder()
+    planner = builder.AddSystem(_planner(pattern, params, kwargs))
+    feet = builder.AddSystem(PassThrough(6))
+    builder.Connect(feet.get_output_port(), planner.measured_feet_port)
+    add_foothold_monitor(builder, planner=planner, feet_port=feet.get_output_port())
+    builder.ExportInput(feet.get_input_port(), "measured_feet")
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    root = simulator.get_mutable_context()
+    context = planner.GetMyMutableContextFromRoot(root)
+    diagram.get_input_port().FixValue(root, np.full(6, np.nan))  # no soles until a test gives them
+    first = _latched(planner, context, simulator, pattern, t0)
+    return planner, context, simulator, first, lambda value: diagram.get_input_port().FixValue(root, value)
+
+
+def _planner(pattern, params, kwargs):
+    return StopPlannerSystem(pattern=pattern, params=params, config=StopPlannerConfig(**{"replan_interval": DT,
+                                                                                         **kwargs}))
+
+
+def _latched(planner, context, simulator, pattern, t0):
+    """Latch ``planner``'s stop at ``t0`` from the reference, then take its measurement away; the first plan."""
     pos, vel, _, _ = pattern.com([t0])
     planner.stop_port.FixValue(context, [1.0, t0])
     planner.measured_com_port.FixValue(context, [*pos[0], 0.8])
     planner.measured_com_vel_port.FixValue(context, [*vel[0], 0.0])
-    context.SetTime(t0)
-    simulator = Simulator(planner, context)
+    simulator.get_mutable_context().SetTime(t0)
     simulator.AdvanceTo(t0 + DT / 2)
     first = planner.plan(context)
     assert first.start_time == pytest.approx(t0)
     planner.measured_com_port.FixValue(context, [np.nan] * 3)  # no measurement: no re-plan
-    return planner, context, simulator, first
+    return first
 
 
 def state_at(plan, t):

@@ -268,15 +268,19 @@ def test_the_online_controller_builds_the_features_it_is_given(monkeypatch):
     for name in ("add_stop_controller", "add_state_estimation"):
         monkeypatch.setattr(online, name, spy(name))
     planner = StopPlannerConfig(recovery_step=False, foothold_replan=True, max_replan_solves=None,
-                                replan_threshold=0.06)
+                                replan_threshold=0.06, relanded_footholds=False)
     controller = ControllerOptions(true_state=True, foot_compliance=None, swing_tilt=None, planner=planner)
     handles = build_online_diagram(NominalPattern(), controller_stop_parameters(), None, controller=controller)
     assert seen["add_stop_controller"]["config"] is planner
     assert seen["add_state_estimation"]["true_state"] is True
     assert handles.compliance is None and handles.swing_tilt is None
+    assert not handles.diagram.HasSubsystemNamed("foothold_monitor")  # nobody would read it
     assert "ankle_offsets" not in handles.loggers and "swing_tilt" not in handles.loggers
     default = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
     assert default.compliance is not None and default.swing_tilt is not None
+    monitor = default.diagram.GetSubsystemByName("foothold_monitor")
+    assert default.planner.relanded_port.HasValue(default.planner.GetMyContextFromRoot(
+        default.diagram.CreateDefaultContext())) and monitor.relanded_port.get_name() == "relanded"
     assert seen["add_state_estimation"]["true_state"] is False
     assert seen["add_stop_controller"]["config"] == StopPlannerConfig()
 

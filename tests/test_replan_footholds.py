@@ -1,9 +1,10 @@
 """StopPlannerSystem's re-plans on the measured soles (``measured_feet``): after the landing, a foot
-measured off the plan (``foothold_replan``), a sole that re-lands off its foothold (``relanded_footholds``)."""
+measured off the plan (``foothold_replan``), a sole that re-lands off its foothold (``relanded_footholds``,
+with the FootholdMonitor beside the planner)."""
 
 import numpy as np
 import pytest
-from planner_helpers import DT, latched_stop_planner, moved_feet, replan_params, state_at
+from planner_helpers import DT, latched_stop_planner, monitored_stop_planner, moved_feet, replan_params, state_at
 from pydrake.systems.analysis import Simulator
 
 from drake_estop.systems.decision import StopPlannerConfig
@@ -160,28 +161,32 @@ def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs)
 
 
 def _relanding(pattern, params, shift, **kwargs):
-    """StopPlannerSystem alone: the stop latched at 3.4 s; from 20 ms after the landing the measured COG is
-    the plan's (the DCM on the plan) and both soles stand where the plan has them (loaded 40 ticks); then
-    the left sole is unloaded for 4 ticks (the robot bounced) and loaded again moved by ``shift`` (dx, dy),
-    for 1 tick, then 2. Returns the planner, its context, the first plan, the moved sole's position and the
-    tick of its second loaded tick (``foothold_ticks``)."""
-    planner, context, simulator, first, t = _on_the_plan_after_the_landing(pattern, params, **kwargs)
+    """StopPlannerSystem beside its FootholdMonitor: the stop latched at 3.4 s; from 20 ms after the landing
+    the measured COG is the plan's (the DCM on the plan) and both soles stand where the plan has them (loaded
+    40 ticks); then the left sole is unloaded for 4 ticks (the robot bounced) and loaded again moved by
+    ``shift`` (dx, dy), for 1 tick, then 2. Returns the planner, its context, the simulator, the first plan,
+    the moved sole's position, the tick of its second loaded tick (``foothold_ticks``) and the soles' input."""
+    planner, context, simulator, first, fix_feet = monitored_stop_planner(pattern, params, **kwargs)
+    t = round((first.landing_time + 0.02) / DT) * DT
+    simulator.AdvanceTo(t - DT / 2)
+    _measure_on_the_plan(planner, context, first, t)
     feet = {side: first.final_feet[side][:2] for side in ("left", "right")}
     moved = feet["left"] + np.asarray(shift)
     steps = [(feet["left"], 40.0)] * 2 + [(feet["left"], 0.0)] * 4 + [(moved, 1.0), (moved, 2.0)]
     for k, (left, ticks) in enumerate(steps):
-        planner.measured_feet_port.FixValue(context, [*left, *feet["right"], ticks, 40.0])
+        fix_feet([*left, *feet["right"], ticks, 40.0])
         simulator.AdvanceTo(t + k * DT + DT / 2)
         if k < len(steps) - 1:
             assert planner.replans(context) == (0, 0), f"re-planned on step {k}"
-    return planner, context, first, moved, t + (len(steps) - 1) * DT
+    return planner, context, simulator, first, moved, t + (len(steps) - 1) * DT, fix_feet
 
 
 def test_a_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands(pattern, params):
     """A sole that stood, lost contact (a bounce) and landed again 1 cm away re-plans the stop on its new
     foothold on its second loaded tick, with the DCM on the plan and within the re-plan interval: the other
     sole keeps the plan's foothold."""
-    planner, context, first, moved, t = _relanding(pattern, params, (-0.01, 0.0), replan_interval=0.05)
+    planner, context, simulator, first, moved, t, fix_feet = _relanding(pattern, params, (-0.01, 0.0),
+                                                                         replan_interval=0.05)
     assert planner.replans(context) == (1, 0)
     new = planner.plan(context)
     assert new.start_time == pytest.approx(t) and new.recovery_step is False
@@ -189,10 +194,9 @@ def test_a_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands(p
     np.testing.assert_allclose(new.final_feet["right"], first.final_feet["right"], atol=1e-12)
     # a second bounce 15 ms later, landing another centimetre back: re-planned at once again, within the
     # 50 ms re-plan interval (the sole's new place is a fact, not a deviation for the blend to remove)
-    simulator = Simulator(planner, context)
     again = moved + np.array([-0.01, 0.0])
     for k, (left, ticks) in enumerate([(moved, 0.0), (again, 1.0), (again, 2.0)], start=1):
-        planner.measured_feet_port.FixValue(context, [*left, *first.final_feet["right"][:2], ticks, 40.0])
+        fix_feet([*left, *first.final_feet["right"][:2], ticks, 40.0])
         simulator.AdvanceTo(t + k * DT + DT / 2)
     assert planner.replans(context) == (2, 0)
     np.testing.assert_allclose(planner.plan(context).final_feet["left"][:2], again, atol=1e-12)
@@ -204,7 +208,7 @@ def test_a_sole_that_relands_off_its_foothold_replans_the_stop_where_it_stands(p
     ((-0.01, 0.0), {"foothold_tolerance": 0.02}),
 ])
 def test_a_sole_that_relands_on_its_foothold_keeps_the_plan(pattern, params, shift, kwargs):
-    planner, context, first, _, _ = _relanding(pattern, params, shift, **kwargs)
+    planner, context, _, first, _, _, _ = _relanding(pattern, params, shift, **kwargs)
     assert planner.replans(context) == (0, 0)
     assert planner.plan(context) is first
 
@@ -212,7 +216,7 @@ def test_a_sole_that_relands_on_its_foothold_keeps_the_plan(pattern, params, shi
 def test_a_relanded_sole_off_its_foothold_replans_through_the_foothold_replan_once_loaded(pattern, params):
     """Without ``relanded_footholds`` the foothold re-plan still stands the stop on a sole re-landed 1 cm
     back, once it has been loaded ``foothold_ticks`` ticks (not on its first loaded tick)."""
-    planner, context, first, moved, t = _relanding(pattern, params, (-0.01, 0.0), relanded_footholds=False,
+    planner, context, _, first, moved, t, _ = _relanding(pattern, params, (-0.01, 0.0), relanded_footholds=False,
                                                    foothold_replan=True)
     assert planner.replans(context) == (1, 0)
     new = planner.plan(context)
@@ -225,7 +229,7 @@ def test_the_landing_itself_is_not_a_relanding(pattern, params, scuff_ticks):
     """The landing sole's touchdown 1 cm off its target does not re-plan with the DCM on the plan (that is
     the foothold re-plan's option, off by default), also when the swinging sole scuffed the floor (loaded
     ``scuff_ticks`` ticks where the plan has it in the air) before."""
-    planner, context, simulator, first = latched_stop_planner(pattern, params)
+    planner, context, simulator, first, fix_feet = monitored_stop_planner(pattern, params)
     swing = first.landing_foot
     k_swing = ("left", "right").index(swing)
     feet = {side: first.final_feet[side][:2].copy() for side in ("left", "right")}
@@ -237,7 +241,7 @@ def test_the_landing_itself_is_not_a_relanding(pattern, params, scuff_ticks):
         airborne = first.feet(t)[swing][2] > 1e-9
         ticks[k_swing] = float(k) if k <= scuff_ticks else 0.0 if airborne else min(40.0, ticks[k_swing] + 1.0)
         sole = landed if t >= first.landing_time else first.feet(t)
-        planner.measured_feet_port.FixValue(context, [*sole["left"][:2], *sole["right"][:2], *ticks])
+        fix_feet([*sole["left"][:2], *sole["right"][:2], *ticks])
         simulator.AdvanceTo(t + DT / 2)
     assert planner.replans(context) == (0, 0)
 
@@ -246,7 +250,7 @@ def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(patter
     """The support sole re-lands 1 cm back in the last ``min_landing_time`` before the touchdown, where no
     re-plan can move the landing and the double-support stop has not begun: the re-landing is kept and the
     stop is re-planned on it at the touchdown's tick."""
-    planner, context, simulator, first = latched_stop_planner(pattern, params)
+    planner, context, simulator, first, fix_feet = monitored_stop_planner(pattern, params)
     swing = first.landing_foot
     stance = next(side for side in ("left", "right") if side != swing)
     k_stance = ("left", "right").index(stance)
@@ -262,7 +266,7 @@ def test_a_relanding_too_late_to_move_the_landing_waits_for_the_touchdown(patter
         ticks[k_stance] = loaded
         ticks[1 - k_stance] = 0.0 if t < first.landing_time - 1e-9 else 40.0
         sole = {stance: home if k < 4 else moved, swing: first.final_feet[swing][:2]}
-        planner.measured_feet_port.FixValue(context, [*sole["left"], *sole["right"], *ticks])
+        fix_feet([*sole["left"], *sole["right"], *ticks])
         simulator.AdvanceTo(t + DT / 2)
         if t < first.landing_time - 1e-9:
             assert planner.replans(context) == (0, 0), f"re-planned at {t:.3f} s, before the touchdown"

@@ -66,6 +66,7 @@ from drake_estop.planning.planner import StopParameters
 from drake_estop.robots.parameters import as_robot, stepping_limits
 from drake_estop.systems.capturability_monitor import add_capturability_monitor, monitor_results, report_time
 from drake_estop.systems.decision import mode_changes
+from drake_estop.systems.foothold_monitor import add_foothold_monitor
 from drake_estop.systems.ik import WholeBodyIK, WholeBodyIkSolver, shared_ik
 from drake_estop.systems.measured_com_filter import MeasuredComFilter
 from drake_estop.systems.stop_controller import add_stop_controller
@@ -293,8 +294,9 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
 
 def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, estimator, pushes, timer) -> tuple:
     """The e-stop trigger and the stop planner on the estimator's COG (through a
-    :class:`~drake_estop.systems.measured_com_filter.MeasuredComFilter`) and soles, and the capturability
-    monitor beside them: ``(trigger, planner, monitor)``."""
+    :class:`~drake_estop.systems.measured_com_filter.MeasuredComFilter`) and soles (and, with
+    ``relanded_footholds``, a :class:`~drake_estop.systems.foothold_monitor.FootholdMonitor` on them), and the
+    capturability monitor beside them: ``(trigger, planner, monitor)``."""
     from drake_estop.systems.diagram import robot_layout
 
     trigger, planner = add_stop_controller(builder, pattern=pattern, params=stop_params, estop_time=estop_time,
@@ -307,6 +309,8 @@ def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, es
     builder.Connect(com_filter.com_port, planner.measured_com_port)
     builder.Connect(com_filter.com_vel_port, planner.measured_com_vel_port)
     builder.Connect(estimator.feet_port, planner.measured_feet_port)
+    if config.relanded_footholds:
+        add_foothold_monitor(builder, planner=planner, feet_port=estimator.feet_port, timer=timer)
     monitor = add_capturability_monitor(
         builder, estimator=estimator, reference=planner, omega=pattern.w, params=stop_params,
         limits=stepping_limits(robot, stop_params), report_time=report_time(estop_time, pushes), timer=timer)

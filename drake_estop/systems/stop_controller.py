@@ -44,6 +44,7 @@ from drake_estop.systems.decision import (
     planning_time,
     stop_mode,
 )
+from drake_estop.systems.foothold_monitor import Relanded
 from drake_estop.systems.plan_sequence import AheadPlan, PlanHandle, PlanSequence
 from drake_estop.systems.reference import (
     REFERENCE_SLICES,
@@ -54,7 +55,7 @@ from drake_estop.systems.reference import (
     pattern_layout,
     reference_vector,
 )
-from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table, relanded_soles
+from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
 
@@ -80,6 +81,7 @@ class StopPlannerSystem(ReferenceSystem):
         - measured_com
         - measured_com_vel
         - measured_feet
+        - relanded
         output_ports:
         - com
         - com_vel
@@ -97,10 +99,13 @@ class StopPlannerSystem(ReferenceSystem):
     :class:`~drake_estop.systems.measured_com_filter.MeasuredComFilter` gives it (low-passed, less the
     servo's steady tracking bias learnt while walking). ``measured_feet`` (6, optional:
     :class:`StateEstimator`'s ``feet``, ``[x_l, y_l, x_r, y_r, loaded ticks l, loaded ticks r]``) puts a
-    re-plan after the landing on the soles' estimated positions; a sole that re-lands off its foothold
-    re-plans at once. The COG command is blended into a plan made from the measured state over
-    ``blend_time``. :meth:`plans` returns the plan and its re-plans, :meth:`replans` their count. Why each
-    setting is what it is, with the measurements: ``docs/online_controller.md``.
+    re-plan after the landing on the soles' estimated positions; ``relanded`` (abstract, optional: a
+    :class:`~drake_estop.systems.foothold_monitor.FootholdMonitor`'s output,
+    :func:`~drake_estop.systems.foothold_monitor.add_foothold_monitor`) says which soles landed again off
+    the plan's footholds, and such a sole re-plans the stop at once. The COG command is blended into a plan
+    made from the measured state over ``blend_time``. :meth:`plans` returns the plan and its re-plans,
+    :meth:`replans` their count. Why each setting is what it is, with the measurements:
+    ``docs/online_controller.md``.
 
     ``phase`` is the index into ``PHASES``; ``plan`` (abstract) is the stored StopPlan, or None before the
     latch; ``mode`` (2) is ``[StopMode, landings left]`` after the tick's update. If no feasible stop exists
@@ -136,8 +141,8 @@ class StopPlannerSystem(ReferenceSystem):
     (``com`` [m], ``com_vel`` [m/s], ``zmp`` [m], sole poses [m], joint
     targets [rad], ``phase``) plus the abstract ``plan``, ``one_step_feasible`` (1, 0.0 or 1.0) and
     ``mode`` (2, dimensionless). Input ``stop`` (2) is :class:`EStopTrigger`'s output;
-    ``measured_com`` (3) [m], ``measured_com_vel`` (3) [m/s] and ``measured_feet`` (6) [m, ticks] are
-    optional.
+    ``measured_com`` (3) [m], ``measured_com_vel`` (3) [m/s], ``measured_feet`` (6) [m, ticks] and
+    ``relanded`` are optional.
 
     Raises
     ------
@@ -154,7 +159,6 @@ class StopPlannerSystem(ReferenceSystem):
         self._config = config
         self._pattern = pattern
         self._params = params
-        self._relanded_tolerance = float(config.foothold_tolerance) if config.relanded_footholds else None
         self._plan_state = self.DeclareAbstractState(AbstractValue.Make(PlanHandle()))
         # before the latch: the stop of a signal at the last tick, planned from the reference (plan_ahead)
         self._ahead_state = self.DeclareAbstractState(AbstractValue.Make(AheadPlan()))
@@ -164,8 +168,8 @@ class StopPlannerSystem(ReferenceSystem):
         self.measured_com_vel_port = self.DeclareVectorInputPort("measured_com_vel", 3)
         # optional: the estimated soles; a re-plan after the landing stands on the measured foothold
         self.measured_feet_port = self.DeclareVectorInputPort("measured_feet", 6)
-        # per sole (SIDES order): its SOLE_* stage since the latch (_relanded, stop_numerics.next_sole_stage)
-        self._sole_stages = self.DeclareDiscreteState(2)
+        # optional: the soles that landed again off the plan's footholds (foothold_monitor.FootholdMonitor)
+        self.relanded_port = self.DeclareAbstractInputPort("relanded", AbstractValue.Make(Relanded()))
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._one_step_table = nominal_one_step_table(pattern, params)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
@@ -253,7 +257,7 @@ class StopPlannerSystem(ReferenceSystem):
         latched, signal_time = EStopTrigger.latched(self.stop_port.Eval(context))
         measured = self._measured(context)
         t = context.get_time()
-        relanded, fresh = self._relanded(context, state, handle.plan) if handle.plan is not None else ({}, False)
+        relanded, fresh = self._relanded(context) if handle.plan is not None else ({}, False)
         observation = Observation(time=t, latched=latched, signal_time=signal_time, measured=measured,
                                   feet=self._measured_feet(context), relanded=relanded, relanded_now=fresh)
         if handle.plan is None and measured is not None:
@@ -372,32 +376,15 @@ class StopPlannerSystem(ReferenceSystem):
         """The ``one_step_feasible`` output in ``context`` as a bool."""
         return bool(context.get_discrete_state(self._feasible_state).value()[0] > 0.5)
 
-    def _relanded(self, context, state, plan):
-        """``({side: xy}, fresh)``: the soles that landed again off the plan's foothold, and whether one
-        of them did so on this tick.
-
-        A sole re-lands when it stood on the floor after the latch (loaded
-        ``foothold_ticks`` ticks where the plan has it down), lost contact
-        (unloaded) and has been loaded ``foothold_ticks`` ticks again, the
-        plan still having it down: the robot bounced off a hard touchdown, or
-        rocked off that sole, and came back elsewhere. A sole more than
-        ``foothold_tolerance`` from the plan's foothold (the estimate is good
-        to 3 mm) is returned with its estimated position on every tick until
-        a plan stands on it (a re-plan may have to wait for the landing's
-        tick). The stages live in the discrete state (updated into
-        ``state``); empty without ``measured_feet`` or with
-        ``relanded_footholds=False``.
-        """
-        if self._relanded_tolerance is None or not self.measured_feet_port.HasValue(context):
+    def _relanded(self, context):
+        """``({side: xy}, fresh)`` from the ``relanded`` input (a
+        :class:`~drake_estop.systems.foothold_monitor.FootholdMonitor`'s): the soles that landed again off the
+        plan's foothold, and whether one of them did so on this tick; empty where the input is not connected
+        or with ``relanded_footholds=False``."""
+        if not self._config.relanded_footholds or not self.relanded_port.HasValue(context):
             return {}, False
-        feet = self.measured_feet_port.Eval(context)
-        if not np.all(np.isfinite(feet)):
-            return {}, False
-        stages, relanded, fresh = relanded_soles(
-            context.get_discrete_state(self._sole_stages).value(), feet, plan.feet(context.get_time()),
-            self._config.foothold_ticks, self._relanded_tolerance)
-        state.get_mutable_discrete_state(self._sole_stages).set_value(stages)
-        return relanded, fresh
+        relanded = self.relanded_port.Eval(context)
+        return relanded.soles, relanded.fresh
 
     def _take_next_step(self, context, state, handle, measured):
         """At a two-step capture's touchdown (:func:`~drake_estop.planning.capture_landing.capture_step`): its
