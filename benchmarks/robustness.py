@@ -17,10 +17,11 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
   braked landing, re-landed footholds, recovery step, capture landing, reference fallback and the feet's
   force control off; the re-plan's solves a tick unbounded; the foothold re-plan, the whole-body walk, the
-  hip strategy and the crossover step on; one step at most) and with the plant at a 2 ms step: 748
-  runs, about 7 s of CPU each (about 45 min on 2 workers). Each row: the matrix's passes,
+  hip strategy, the crossover step and the touchdown by contact on; one step at most) and with the plant at
+  a 2 ms step: 792 runs, about 7 s of CPU each (about 48 min on 2 workers). Each row: the matrix's passes,
   its falls and the cells that fail.
-  ``--cells`` / ``--phases`` / ``--changes`` run a part of it.
+  ``--cells`` / ``--phases`` / ``--changes`` run a part of it; a part with every cell and phase
+  (``--changes KEY``) replaces its rows in the committed table and keeps the others.
 
 ROBUSTNESS.md holds the main report and, under its own heading between the :data:`ABLATION_BEGIN` and
 :data:`ABLATION_END` markers, the ablation; each kind of run rewrites its own part and keeps the other
@@ -83,6 +84,7 @@ ABLATION = (
     {"controller": {"hip_strategy": {}}},
     {"controller": {"planner.max_steps": 1}},
     {"controller": {"planner.crossover_step": True}},
+    {"controller": {"touchdown": {}}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.
@@ -297,8 +299,25 @@ def ablation_main(parser, args):
              for k, change in enumerate(changes)]
     data = {"rows": table, "cells": cells, "phases": phase_times, "runs": len(rows), "wall_s": wall,
             "workers": args.workers}
+    previous = json.loads(_read(Path(args.out).with_suffix(".json"), "{}")).get("ablation")
+    data = with_previous_rows(data, previous)
     write_ablation(args.out, ablation_section(data), data)
     print(ablation_section(data))
+
+
+def with_previous_rows(data: dict, previous: dict | None) -> dict:
+    """``data`` (an ablation run of some :data:`ABLATION` rows) with the ``previous`` ablation's other rows,
+    in ABLATION's order, where both ran the same cells and phases: a run of one changed row (``--changes``)
+    completes the table instead of replacing it. Runs and wall time [s] are then the rows' sums."""
+    if not previous or previous.get("cells") != data["cells"] or previous.get("phases") != data["phases"]:
+        return data
+    order = [change_label(change) for change in ABLATION]
+    rows = {row["label"]: row for row in previous["rows"] if row["label"] in order}
+    rows.update({row["label"]: row for row in data["rows"]})
+    table = sorted(rows.values(), key=lambda row: order.index(row["label"]))
+    kept = [row for row in previous["rows"] if row["label"] in rows and rows[row["label"]] is row]
+    return {**data, "rows": table, "runs": sum(row["runs"] for row in table),
+            "wall_s": data["wall_s"] + previous["wall_s"] * sum(r["runs"] for r in kept) / max(previous["runs"], 1)}
 
 
 def ablation_row(change: dict, rows: list, cells: list, phase_times: dict) -> dict:

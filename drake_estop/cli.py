@@ -366,7 +366,7 @@ def _run_physics(args, gait, stop, pattern, estop_time, perturbations, controlle
                   ("tick_compute", "tick_compute_cpu", "tick_compute_by_block", "tick_compute_slowest", "replans",
                    "replan_failures", "latch_fallback",
                    "joint_velocity_violations", "cpu_realtime_factor", "ankle_offset_max", "swing_tilt_max",
-                   "hip_strategy_bow_max", "capturability", "modes")}
+                   "hip_strategy_bow_max", "touchdown_depth_max", "capturability", "modes")}
         online["perturbations"] = perturbations.summary()
         com_est = result.online["com_est"]
         columns.update({"com_est_x": com_est[:, 0], "com_est_y": com_est[:, 1], "com_est_z": com_est[:, 2],

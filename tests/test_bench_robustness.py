@@ -102,7 +102,7 @@ def test_the_ablation_covers_every_controller_feature_and_the_2_ms_plant(bench):
     assert {name for fields in controller for name in fields} == features and len(controller) == len(features)
     assert {"plant": {"time_step": 0.002}} in bench.ABLATION
     keys = [bench.change_key(change) for change in bench.ABLATION]
-    assert len(set(keys)) == len(keys) == 17 and keys[0] == "defaults"
+    assert len(set(keys)) == len(keys) == 18 and keys[0] == "defaults"
     assert bench.change_label({"controller": {"planner.max_replan_solves": None}}) == (
         "controller.planner.max_replan_solves: null")
     assert bench.change_settings({"plant": {"time_step": 0.002}})["time_step"] == 0.002
@@ -240,3 +240,22 @@ def test_controller_options_are_read_as_yaml(bench):
     assert bench.settings_notes(bench.settings(controller={"foot_compliance": None}, time_step=0.002)) == [
         "Controller settings changed from the defaults (the scenario's controller section): foot_compliance: null.",
         "Plant time step: 2 ms."]
+
+
+def test_a_run_of_some_rows_completes_the_previous_table_in_the_ablations_order(bench):
+    cells, phases = ["mass x1.1"], {"double support": 3.55}
+    rows = {label: bench.ablation_row(change, [_matrix_row()], cells, phases)
+            for label, change in (("defaults", {}), ("swing", {"controller": {"swing_tilt": None}}),
+                                  ("plant", {"plant": {"time_step": 0.002}}))}
+    previous = {"rows": [rows["defaults"], rows["plant"]], "cells": cells, "phases": phases, "runs": 2,
+                "wall_s": 20.0, "workers": 2}
+    new = {"rows": [rows["swing"]], "cells": cells, "phases": phases, "runs": 1, "wall_s": 7.0, "workers": 2}
+    merged = bench.with_previous_rows(new, previous)
+    assert [row["label"] for row in merged["rows"]] == ["defaults", "controller.swing_tilt: null",
+                                                        "plant.time_step: 0.002"]
+    assert merged["runs"] == 3 and merged["wall_s"] == pytest.approx(27.0)
+    rerun = bench.with_previous_rows({**new, "rows": [dict(rows["plant"])]}, previous)  # a row run again replaces it
+    assert [row["label"] for row in rerun["rows"]] == ["defaults", "plant.time_step: 0.002"]
+    assert rerun["runs"] == 2 and rerun["wall_s"] == pytest.approx(7.0 + 10.0)
+    assert bench.with_previous_rows(new, {**previous, "cells": ["mass x0.9"]}) is new  # another part: replaced
+    assert bench.with_previous_rows(new, None) is new

@@ -132,9 +132,36 @@ class HipStrategyConfig:
     backward: bool = HIP_STRATEGY["backward"]
 
 
+@dataclass(frozen=True)
+class TouchdownConfig:
+    """Touchdown by contact (:class:`drake_estop.physics.touchdown.TouchdownByContact`): a landing sole keeps
+    coming down past the reference until its force sensor first measures weight.
+
+    Attributes
+    ----------
+    descent_speed : float
+        How fast a landing sole that carries no weight yet keeps coming down [m/s]; default 0.1.
+    max_depth : float
+        The most its target goes below the reference [m]; default 0.015.
+    contact_force : float
+        The normal force that means the sole carries weight [N]; default 50.
+    return_time : float
+        The depth's return from the touchdown on, and while the reference lifts the foot [s]; default 0.3.
+    grace_time : float
+        How long a sole put down may carry no weight before it is lowered [s]; default 0.02.
+    """
+
+    descent_speed: float = 0.1
+    max_depth: float = 0.015
+    contact_force: float = 50.0
+    return_time: float = 0.3
+    grace_time: float = 0.02
+
+
 #: The reflexes' fields of :class:`ControllerOptions` and their configs.
 REFLEX_CONFIGS = {"swing_tilt": SwingTiltConfig, "foot_force": FootForceConfig,
-                  "foot_compliance": FootEdgeComplianceConfig, "hip_strategy": HipStrategyConfig}
+                  "foot_compliance": FootEdgeComplianceConfig, "hip_strategy": HipStrategyConfig,
+                  "touchdown": TouchdownConfig}
 
 #: Keys of the flat form the controller section had, and where each lives now.
 MOVED_KEYS = {**{name: f"planner.{name}" for name in (
@@ -190,6 +217,9 @@ class ControllerOptions:
         The trunk bows into a push from behind in the stop; its angular momentum decelerates the COG while
         the ankle is saturated. Default off: a 30 N s forward push in double support stops with it in one
         recovery step (without: two), but on the first 120 runs of the campaign it lost 2 and gained 1.
+    touchdown : TouchdownConfig or None
+        A landing sole keeps coming down until it first carries weight, so a foot that a rolled or sunk
+        body leaves hovering lands (default off: see ``benchmarks/ROBUSTNESS.md``'s ablation).
 
     Raises
     ------
@@ -207,6 +237,7 @@ class ControllerOptions:
     foot_force: FootForceConfig | None = field(default_factory=FootForceConfig)
     foot_compliance: FootEdgeComplianceConfig | None = field(default_factory=FootEdgeComplianceConfig)
     hip_strategy: HipStrategyConfig | None = None
+    touchdown: TouchdownConfig | None = None
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:

@@ -281,7 +281,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     reflexes = apply_reflexes(builder, Reflexes.of(controller, robot), robot=robot, planner=planner,
                               estimator=estimator, ik=ik, kin_plant=kin_plant, plant=plant, omega=pattern.w,
                               servo_period=dt, timer=timer)
-    swing_tilt_system, foot_force, hip, compliance = reflexes
+    swing_tilt_system, foot_force, hip, compliance, _ = reflexes
     add_servo_targets(builder, plant, instance, compliance or ik, q0, dt,
                       velocity_limit_fraction=SERVO_VELOCITY_LIMIT_FRACTION)
     loggers = _add_loggers(builder, plant=plant, cop=cop, ik=ik, estimator=estimator, planner=planner,
@@ -320,7 +320,6 @@ def _add_planner(builder, *, pattern, stop_params, estop_time, config, robot, es
 def _add_loggers(builder, *, plant, cop, ik, estimator, planner, monitor, reflexes, period, servo_period) -> dict:
     """The run's loggers by name: the plant's and the IK's every ``period``, the planner's and the
     monitor's every servo tick, the reflexes' where they run."""
-    swing_tilt_system, foot_force, hip, compliance = reflexes
     dt = servo_period
     loggers = {
         **add_online_loggers(builder, plant, cop, ik, period),
@@ -331,14 +330,14 @@ def _add_loggers(builder, *, plant, cop, ik, estimator, planner, monitor, reflex
         "mode": LogVectorOutput(planner.mode_port, builder, dt),
         "capturability": LogVectorOutput(monitor.capturability_port, builder, dt),
     }
-    if swing_tilt_system is not None:
-        loggers["swing_tilt"] = LogVectorOutput(swing_tilt_system.tilt_port, builder, period)
-    if hip is not None:
-        loggers["hip_strategy_bow"] = LogVectorOutput(hip.bow_port, builder, period)
-    if compliance is not None:
-        loggers["ankle_offsets"] = LogVectorOutput(compliance.offsets_port, builder, period)
-    if foot_force is not None:
-        loggers["foot_height_difference"] = LogVectorOutput(foot_force.height_difference_port, builder, period)
+    reflex_logs = (("swing_tilt", reflexes.swing_tilt, "tilt_port"),
+                   ("hip_strategy_bow", reflexes.hip_strategy, "bow_port"),
+                   ("ankle_offsets", reflexes.foot_compliance, "offsets_port"),
+                   ("foot_height_difference", reflexes.foot_force, "height_difference_port"),
+                   ("touchdown_depth", reflexes.touchdown, "touchdown_depth_port"))
+    for name, system, port in reflex_logs:
+        if system is not None:
+            loggers[name] = LogVectorOutput(getattr(system, port), builder, period)
     return loggers
 
 
@@ -427,7 +426,8 @@ def _online_results(handles: OnlineHandles, context, plan, result, cpu: float, p
     reference: no stop from the measured state), ``joint_velocity_violations`` (ticks with a joint over its
     velocity limit, measured), ``ankle_offset_max`` (the foot-edge compliance's largest ankle
     offset [rad]), ``swing_tilt_max`` (the swing-foot tilt compensation's largest correction
-    [rad]), ``hip_strategy_bow_max`` (the hip strategy's largest bow of the trunk [rad]), the
+    [rad]), ``hip_strategy_bow_max`` (the hip strategy's largest bow of the trunk [rad]),
+    ``touchdown_depth_max`` (the touchdown by contact's deepest descent below the reference [m]), the
     estimator's COG log and ``one_step_feasible`` (per servo tick ``k * servo_period``
     from 0: 1.0 if a stop signal at that tick would stop in one step, from the planner's output, the
     state it planned from included; after the latch the latched stop's case; NaN for a tick whose
@@ -479,6 +479,9 @@ def _online_results(handles: OnlineHandles, context, plan, result, cpu: float, p
         "hip_strategy_bow_max": float(np.max(np.abs(
             handles.loggers["hip_strategy_bow"].FindLog(context).data()[0])))
         if "hip_strategy_bow" in handles.loggers else 0.0,
+        # the touchdown by contact's deepest descent below the reference [m] (0 without it)
+        "touchdown_depth_max": float(np.max(handles.loggers["touchdown_depth"].FindLog(context).data()))
+        if "touchdown_depth" in handles.loggers else 0.0,
     }
 
 

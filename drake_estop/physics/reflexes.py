@@ -23,11 +23,13 @@ from drake_estop.physics.controller_options import (
     FootForceConfig,
     HipStrategyConfig,
     SwingTiltConfig,
+    TouchdownConfig,
     controller_settings,
 )
 from drake_estop.physics.foot_force import add_foot_force_control
 from drake_estop.physics.hip_strategy import add_hip_strategy
 from drake_estop.physics.swing_tilt import add_swing_tilt_compensation
+from drake_estop.physics.touchdown import add_touchdown_by_contact
 from drake_estop.systems.reference import connect_reference
 
 #: The swing-tilt dead band [rad] and the foot-edge compliance's edge margin [m] of a robot that gives none.
@@ -49,12 +51,15 @@ class Reflexes:
         The trunk's bow [rad] (only for a robot that names its trunk pitch joint).
     foot_compliance : FootEdgeComplianceConfig or None
         The stance ankles' yield near a sole edge [rad].
+    touchdown : TouchdownConfig or None
+        A landed sole's descent until it carries weight [m].
     """
 
     swing_tilt: SwingTiltConfig | None = SwingTiltConfig(deadband=SWING_TILT_DEADBAND)
     foot_force: FootForceConfig | None = None
     hip_strategy: HipStrategyConfig | None = None
     foot_compliance: FootEdgeComplianceConfig | None = FootEdgeComplianceConfig(edge_margin=EDGE_MARGIN)
+    touchdown: TouchdownConfig | None = None
 
     @classmethod
     def of(cls, controller: ControllerOptions, robot=None) -> Reflexes:
@@ -72,7 +77,7 @@ class Reflexes:
         if controller.foot_compliance is not None:
             compliance = _resolved(controller.foot_compliance, edge_margin=(own["edge_margin"], EDGE_MARGIN))
         return cls(swing_tilt=swing_tilt, foot_force=foot_force, hip_strategy=controller.hip_strategy,
-                   foot_compliance=compliance)
+                   foot_compliance=compliance, touchdown=controller.touchdown)
 
 
 def _resolved(config, **fallbacks):
@@ -92,15 +97,17 @@ class ReflexSystems(NamedTuple):
     foot_force: object
     hip_strategy: object
     foot_compliance: object
+    touchdown: object = None
 
 
 def apply_reflexes(builder, reflexes: Reflexes, *, robot, planner, estimator, ik, kin_plant, plant, omega,
                    servo_period, timer=None) -> ReflexSystems:
     """Add the reflexes that are on between ``planner``'s reference and ``ik``, reading ``estimator``'s state
-    and sensors: the feet through the swing-tilt compensation, then the foot force control; the upper body
+    and sensors: the feet through the swing-tilt compensation, the foot force control, then the touchdown
+    by contact; the upper body
     through the hip strategy; the IK's joint targets then through the foot-edge compliance (its ``q_port``
     feeds the servos where it is on). ``kin_plant`` is the IK's model, ``plant`` the simulated robot's."""
-    swing_tilt = foot_force = hip = compliance = None
+    swing_tilt = foot_force = hip = compliance = touchdown = None
     if reflexes.swing_tilt is not None:
         swing_tilt = add_swing_tilt_compensation(builder, plant=kin_plant, reference=planner, ik=ik,
                                                  estimator=estimator, servo_period=servo_period, timer=timer,
@@ -111,6 +118,11 @@ def apply_reflexes(builder, reflexes: Reflexes, *, robot, planner, estimator, ik
                                             sensors=estimator.sensors, servo_period=servo_period, timer=timer,
                                             **reflexes.foot_force.settings())
         feet = foot_force
+    if reflexes.touchdown is not None:
+        touchdown = add_touchdown_by_contact(builder, feet=feet or planner, sensors=estimator.sensors,
+                                             servo_period=servo_period, timer=timer,
+                                             **dataclasses.asdict(reflexes.touchdown))
+        feet = touchdown
     if reflexes.hip_strategy is not None:
         hip = add_hip_strategy(builder, reference=planner, estimator=estimator, plant=kin_plant, robot=robot,
                                layout=planner.layout, omega=omega, servo_period=servo_period, timer=timer,
@@ -119,4 +131,4 @@ def apply_reflexes(builder, reflexes: Reflexes, *, robot, planner, estimator, ik
     if reflexes.foot_compliance is not None:
         compliance = add_foot_edge_compliance(builder, plant, estimator.sensors, ik, servo_period, timer=timer,
                                               robot=robot, **dataclasses.asdict(reflexes.foot_compliance))
-    return ReflexSystems(swing_tilt, foot_force, hip, compliance)
+    return ReflexSystems(swing_tilt, foot_force, hip, compliance, touchdown)
