@@ -548,8 +548,7 @@ def run_online(gait_params: GaitParameters | None = None, stop_params: StopParam
     perturbations = perturbations or Perturbations()
     stop_params = _run_stop_parameters(stop_params, controller, robot)
     handles = build_online_diagram(pattern, stop_params, estop_time, physics=physics, perturbations=perturbations,
-                                   robot=robot,
-                                   controller=controller)
+                                   controller=controller, robot=robot)
     simulator = online_simulator(handles, perturbations)
     context = simulator.get_mutable_context()
     cpu = time.process_time()
