@@ -25,6 +25,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 from drake_estop.physics.swing_tilt import FEET, declare_feet_outputs
 from drake_estop.systems.reference import SWING_HEIGHT
 from drake_estop.timing import timed
+from drake_estop.validation import check_positive
 
 
 def next_depth(depth: float, landed: bool, down_time: float, *, planned_down: bool, loaded: bool, dt: float,
@@ -96,9 +97,7 @@ class TouchdownByContact(LeafSystem):
         settings = {"servo_period": servo_period, "descent_speed": descent_speed, "max_depth": max_depth,
                     "contact_force": contact_force, "return_time": return_time, "grace_time": grace_time}
         for name, value in settings.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value)
-                                                                                      and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+            check_positive(name, value)
         self._settings = {name: float(settings[name])
                           for name in ("descent_speed", "max_depth", "return_time", "grace_time")}
         self._dt, self._contact_force = float(servo_period), float(contact_force)

@@ -31,6 +31,7 @@ from drake_estop.planning.replan import (
 )
 from drake_estop.systems.plan_sequence import landings_made, last_landing
 from drake_estop.systems.stop_numerics import dcm_deviation, foothold_loaded, off_foothold
+from drake_estop.validation import check_positive
 
 #: With ``foothold_replan``, a loaded sole this far [m] from the plan's foot re-plans the stop on the measured
 #: feet (``foothold_tolerance``). The estimate is good to 3 mm (a 17 N s push: both soles within 3 mm); the
@@ -158,10 +159,7 @@ class StopPlannerConfig:
     def __post_init__(self):
         for name in ("replan_threshold", "blend_time", "replan_interval", "landed_replan_threshold",
                      "foothold_tolerance"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                    math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+            check_positive(name, getattr(self, name))
         ticks = self.foothold_ticks
         if (isinstance(ticks, bool) or not isinstance(ticks, (int, float)) or not math.isfinite(ticks)
                 or ticks != int(ticks) or ticks < 1):

@@ -10,7 +10,6 @@ stop where that sole stands (:func:`drake_estop.systems.decision.decide`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +20,7 @@ from drake_estop.systems.decision import FOOTHOLD_TOLERANCE
 from drake_estop.systems.plan_sequence import PlanHandle
 from drake_estop.systems.stop_numerics import relanded_soles
 from drake_estop.timing import timed
+from drake_estop.validation import check_positive
 
 
 @dataclass(frozen=True)
@@ -85,10 +85,8 @@ class FootholdMonitor(LeafSystem):
     def __init__(self, *, servo_period: float, foothold_ticks: int = 2, tolerance: float = FOOTHOLD_TOLERANCE,
                  timer=None):
         super().__init__()
-        for name, value in (("servo_period", servo_period), ("tolerance", tolerance)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                    math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        check_positive("servo_period", servo_period)
+        check_positive("tolerance", tolerance)
         if isinstance(foothold_ticks, bool) or not isinstance(foothold_ticks, int) or foothold_ticks < 1:
             raise ValueError(f"foothold_ticks must be a positive integer, got {foothold_ticks!r}")
         self._foothold_ticks = foothold_ticks

@@ -9,8 +9,6 @@ that a plan from the measured state must not turn into a jump, hence the bias, l
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
@@ -19,6 +17,7 @@ from drake_estop.planning.gait import NominalPattern
 from drake_estop.systems.stop_numerics import PatternCom
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
+from drake_estop.validation import check_positive
 
 
 class MeasuredComFilter(LeafSystem):
@@ -71,9 +70,7 @@ class MeasuredComFilter(LeafSystem):
         super().__init__()
         for name, value in (("servo_period", servo_period), ("filter_time_constant", filter_time_constant),
                             ("bias_time_constant", bias_time_constant)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                    math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+            check_positive(name, value)
         self._pattern_com = PatternCom(pattern, servo_period)
         self._filter_alpha = servo_period / (filter_time_constant + servo_period)
         self._bias_alpha = servo_period / (bias_time_constant + servo_period)
