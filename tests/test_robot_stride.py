@@ -1,4 +1,4 @@
-"""A stop at every 4th servo tick of a stride, each through the kinematic diagram, for the G1 and TALOS
+"""A stop at every 8th servo tick of a stride, each through the kinematic diagram, for the G1 and TALOS
 (``drake_estop.systems.stride``; ``benchmarks/bench_robots.py`` runs every tick)."""
 
 import dataclasses
@@ -42,15 +42,15 @@ def test_the_sweep_refuses_a_bad_spacing():
 @pytest.mark.slow
 @needs_robots
 @pytest.mark.parametrize("name, least_one_step", [("g1", 0.85), ("talos", 0.85)])
-def test_every_4th_tick_of_a_stride_stops_with_the_ik_within_a_millimetre(name, least_one_step):
+def test_every_8th_tick_of_a_stride_stops_with_the_ik_within_a_millimetre(name, least_one_step):
     """Measured over every tick (benchmarks/bench_robots.py): G1 151/158 one-step (7 of the first 45 ms of
     single support take the next step: on its 5.6 cm wide soles no halt keeps the ZMP 10 mm inside the
     support), TALOS 161/172 (11 late double-support ticks take the next step); the IK within 0.01 mm
     of the COG at every tick of every stop, no joint over its speed or position limit."""
-    rows = sweep_stride(robot=name, every=4)
+    rows = sweep_stride(robot=name, every=8)
     summary = stride_summary(rows)
     print(name, summary)
-    assert summary["stopped"] == summary["signals"] >= 40 and summary["final_speed_max_m_s"] < 1e-9
+    assert summary["stopped"] == summary["signals"] >= 19 and summary["final_speed_max_m_s"] < 1e-9
     assert summary["ik_com_error_max_m"] < 1e-3 and summary["ik_foot_error_max_m"] < 1e-3
     assert summary["ik_ticks_over_bounds"] == 0
     assert summary["velocity_limit_violations"] == 0 and summary["joint_limit_violations"] == 0
