@@ -12,12 +12,12 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_estop.planning import planner as planner_module
 from drake_estop.planning.gait import GaitParameters, NominalPattern
-from drake_estop.planning.planner import InfeasibleStop, StopParameters, one_step_feasible, plan_stop
+from drake_estop.planning.planner import InfeasibleStop, StopParameters, first_stop, one_step_feasible, plan_stop
 from drake_estop.planning.rollout import stride_ticks
 from drake_estop.systems import stop_controller
 from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.stop_controller import StopPlannerSystem
-from drake_estop.systems.stop_numerics import nominal_one_step_table
+from drake_estop.systems.stop_numerics import nominal_one_step_table, nominal_stop, nominal_stop_table
 from drake_estop.systems.visualization import ONE_STEP_INDICATOR, StopVisualizer, make_meshcat
 
 DT = 0.005
@@ -268,3 +268,60 @@ def test_meshcat_without_the_input_draws_no_indicator(paper_pattern):
     simulator.Initialize()
     simulator.AdvanceTo(0.015)
     assert meshcat.HasPath("/estop/markers/cog") and not meshcat.HasPath("/estop/one_step")
+
+
+def _same_bits(plan, other):
+    times = np.linspace(plan.start_time, plan.halt_end + 0.5, 97)
+    return plan.case == other.case and plan.halt_end == other.halt_end and all(
+        np.array_equal(a, b) for a, b in zip(plan.com(times), other.com(times)))
+
+
+def test_the_stops_planned_before_the_run_are_the_planner_s_own():
+    """The fast gait's stride has both answers: where the search ends in the signal's own phase the table
+    holds plan_stop's stop to the bit (its first attempt), elsewhere (next-step, III.C) None; a stop taken
+    from the table is a copy, so changing it leaves the table alone."""
+    table = nominal_stop_table(FAST, PARAMS)
+    assert len(table) == len(nominal_one_step_table(FAST, PARAMS))
+    cases = set()
+    for t in stride_ticks(FAST, PARAMS)[::5]:
+        planned = plan_stop(FAST, t, PARAMS)
+        stored = table[int(round(t / DT))]
+        assert (stored is None) == (planned.case == "next-step"), t
+        assert stored is None or _same_bits(stored, planned), t
+        first = first_stop(FAST, t, PARAMS)
+        assert first is None if stored is None else _same_bits(first, planned)
+        cases.add(planned.case)
+    assert cases == {"one-step", "next-step"}
+    taken = nominal_stop(table, 3.4, DT)
+    taken.compute_time = -1.0
+    assert table[int(round(3.4 / DT))].compute_time >= 0.0
+    assert nominal_stop(table, -1.0, DT) is None and nominal_stop(table, FAST.end_time + 1.0, DT) is None
+
+
+def test_the_plan_made_ahead_is_looked_up_not_solved_on_the_tick(monkeypatch):
+    """Before the latch the planner's plan made ahead comes from the table computed at construction: where
+    the table has the stop, no stop is planned on the tick; where it has none (next-step) it still is."""
+    solved = []
+
+    def counting(*args, **kwargs):
+        solved.append(args[1])
+        return plan_stop(*args, **kwargs)
+
+    monkeypatch.setattr(stop_controller, "plan_stop", counting)
+    planner = StopPlannerSystem(pattern=FAST, params=PARAMS)
+    table = nominal_stop_table(FAST, PARAMS)
+    simulator = Simulator(planner)
+    context = simulator.get_mutable_context()
+    ticks = stride_ticks(FAST, PARAMS)[::7]
+    context.SetTime(ticks[0])
+    planner.stop_port.FixValue(context, [0.0, np.nan])
+    simulator.Initialize()
+    for t in ticks:
+        simulator.AdvanceTo(t + DT / 2)
+        ahead = planner.ahead_plan(context)
+        stored = table[int(round(t / DT))]
+        assert ahead.plan is not None and ahead.plan is not stored
+        assert _same_bits(ahead.plan, plan_stop(FAST, t, PARAMS) if stored is None else stored)
+    looked_up = [t for t in ticks if table[int(round(t / DT))] is not None]
+    assert looked_up and len(looked_up) < len(ticks)
+    assert not set(np.round(looked_up, 6)) & set(np.round(solved, 6))

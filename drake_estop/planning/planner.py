@@ -50,7 +50,7 @@ from drake_estop.planning.replan import check_solve_bound, replan_stop
 from drake_estop.planning.solver import infeasible_reason
 
 __all__ = [  # the planner's interface: the stop's entry points and the plan types they take and return
-    "MAX_LATCH_SOLVES", "PHASES", "InfeasibleStop", "StopParameters", "StopPlan", "one_step_feasible",
+    "MAX_LATCH_SOLVES", "PHASES", "InfeasibleStop", "StopParameters", "StopPlan", "first_stop", "one_step_feasible",
     "plan_stop", "replan_stop", "snap_to_tick", "warm_up",
 ]
 
@@ -179,8 +179,17 @@ def one_step_feasible(pattern: NominalPattern, signal_time: float, params: StopP
     ValueError
         If ``signal_time`` or ``measured`` is not finite (as :func:`plan_stop`).
     """
-    plan = _search(pattern, signal_time, params, measured, first_only=True)
+    plan = first_stop(pattern, signal_time, params, measured=measured)
     return plan is not None and plan.case == "one-step"
+
+
+def first_stop(pattern: NominalPattern, signal_time: float, params: StopParameters | None = None, *,
+               measured=None) -> StopPlan | None:
+    """:func:`plan_stop`'s plan where its search ends at its first attempt (the signal tick's support
+    phase, III.A or III.B, or a standing walk), else None (the search would go on to the next phase,
+    III.C). The same arguments and errors as :func:`plan_stop`; where it returns a plan, :func:`plan_stop`
+    returns the same plan."""
+    return _search(pattern, signal_time, params, measured, first_only=True)
 
 
 def _search(pattern, signal_time, params, measured, first_only, max_solves=None):

@@ -127,8 +127,10 @@ class StopPlannerConfig:
         Where no stop exists from the measured state at the signal, plan the paper's stop from the
         reference and re-plan from the measured state (default True; False raises InfeasibleStop).
     plan_ahead : bool
-        Every tick before the latch plans the stop of a signal at that tick from the reference, so the
-        latch on the reference is a look-up (default True).
+        Every tick before the latch has the stop of a signal at that tick from the reference, so the
+        latch on the reference is a look-up (default True). A stop in the signal's own phase was planned
+        before the run (:func:`~drake_estop.systems.stop_numerics.nominal_stop_table`); the others
+        (III.C) are planned on the tick.
 
     Raises
     ------

@@ -55,7 +55,7 @@ from drake_estop.systems.reference import (
     pattern_layout,
     reference_vector,
 )
-from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table
+from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table, nominal_stop, nominal_stop_table
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
 
@@ -171,6 +171,7 @@ class StopPlannerSystem(ReferenceSystem):
         # optional: the soles that landed again off the plan's footholds (foothold_monitor.FootholdMonitor)
         self.relanded_port = self.DeclareAbstractInputPort("relanded", AbstractValue.Make(Relanded()))
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
+        self._nominal_stops = nominal_stop_table(pattern, params)
         self._one_step_table = nominal_one_step_table(pattern, params)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
         # the stop's mode after the last update and the landings left (decision.stop_mode)
@@ -358,7 +359,12 @@ class StopPlannerSystem(ReferenceSystem):
 
     def _plan_ahead_of_latch(self, t) -> AheadPlan:
         """The stop of a signal at this tick ``t``, planned from the reference (``plan_ahead``): the latch
-        sees a signal one tick after it (the trigger's latch is its state, published a tick later)."""
+        sees a signal one tick after it (the trigger's latch is its state, published a tick later). Where
+        the stop lies in the signal's own phase it was planned before the run (:func:`nominal_stop_table`)
+        and is looked up; else (III.C) it is planned on the tick."""
+        ahead = nominal_stop(self._nominal_stops, t, self._params.servo_period)
+        if ahead is not None:
+            return AheadPlan(t, ahead)
         try:
             return AheadPlan(t, plan_stop(self._pattern, t, self._params))
         except (InfeasibleStop, ValueError):

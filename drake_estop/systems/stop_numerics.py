@@ -1,7 +1,8 @@
 """Numeric rules of the stop planner system, apart from its Drake plumbing.
 
-* :func:`nominal_one_step_table`: the nominal walk's one-step feasibility at
-  every servo tick, computed before the run.
+* :func:`nominal_stop_table` and :func:`nominal_one_step_table`: the stop of a
+  signal at every servo tick of the nominal walk (the signal's own support
+  phase) and its one-step feasibility, computed before the run.
 * :func:`dcm_distance` / :func:`dcm_deviation`: how far a measured DCM
   ``x + v / omega`` lies from a reference's; :class:`PatternCom`, the walk's
   COG looked up on its servo ticks.
@@ -13,13 +14,15 @@
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 
 import numpy as np
 
 from drake_estop.planning.gait import SIDES, NominalPattern
-from drake_estop.planning.planner import StopParameters, one_step_feasible
+from drake_estop.planning.plan import snap_to_tick
+from drake_estop.planning.planner import StopParameters, first_stop
 
 #: Stages of a sole in the stop (:func:`next_sole_stage`): where the plan has it in the air; standing
 #: (loaded ``foothold_ticks`` ticks where the plan has it down); lifted off the floor (unloaded) while the
@@ -27,31 +30,58 @@ from drake_estop.planning.planner import StopParameters, one_step_feasible
 SOLE_AWAY, SOLE_STANDING, SOLE_LIFTED, SOLE_RELANDED = 0.0, 1.0, 2.0, 3.0
 
 
-def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> np.ndarray:
-    """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
-    the end of the walk (bool array): the nominal walk's answer, computed before the run.
+def nominal_stop_table(pattern: NominalPattern, params: StopParameters) -> tuple:
+    """The stop of a signal at every servo tick ``k`` from 0 to the end of the walk, planned from the
+    nominal walk in the signal's own support phase (III.A or III.B): ``plan_stop(pattern, k *
+    servo_period, params)`` where that phase has a stop, None where the search would go on to a later
+    phase (III.C). Computed before the run: without a measured state the stop depends on the tick alone.
 
-    Without a measured state the answer depends on the tick alone, so the
-    stop-planner system looks it up instead of solving on the tick. Cached per
-    (gait, stop parameters) in the process (a :class:`NominalPattern` is a
-    function of its parameters); about 1.3 s for the default 8.5 s walk.
+    Cached per (gait, stop parameters) in the process (a :class:`NominalPattern` is a function of its
+    parameters); about 1.3 s and 35 MB for the default 8.5 s walk. The plans are shared: copy one before
+    changing it (:func:`nominal_stop`).
     """
     if type(pattern) is NominalPattern:
-        return _cached_table(pattern.params, params)
-    return _table(pattern, params)
+        return _cached_stops(pattern.params, params)
+    return _stops(pattern, params)
 
 
-@functools.lru_cache(maxsize=8)
-def _cached_table(gait_params, params):
-    table = _table(NominalPattern(gait_params), params)
+def nominal_stop(table: tuple, t: float, servo_period: float):
+    """A copy of ``table``'s stop (:func:`nominal_stop_table`) for a signal at ``t`` [s] (snapped to the
+    next servo tick), or None where it has none (``t`` outside the walk, or a later phase's stop)."""
+    k = int(round(snap_to_tick(t, servo_period) / servo_period))
+    plan = table[k] if 0 <= k < len(table) else None
+    return None if plan is None else copy.copy(plan)
+
+
+def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> np.ndarray:
+    """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
+    the end of the walk (bool array): the nominal walk's answer, computed before the run with the stops
+    of :func:`nominal_stop_table` (the stop-planner system looks it up instead of solving on the tick)."""
+    if type(pattern) is NominalPattern:
+        return _cached_one_step(pattern.params, params)
+    return _one_step(_stops(pattern, params))
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_stops(gait_params, params):
+    return _stops(NominalPattern(gait_params), params)
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_one_step(gait_params, params):
+    table = _one_step(_cached_stops(gait_params, params))
     table.flags.writeable = False  # shared between systems
     return table
 
 
-def _table(pattern, params):
+def _stops(pattern, params):
     dt = params.servo_period
     ticks = math.ceil(pattern.end_time / dt - 1e-9) + 1  # past the end: "standing"
-    return np.array([one_step_feasible(pattern, k * dt, params) for k in range(ticks)], dtype=bool)
+    return tuple(first_stop(pattern, k * dt, params) for k in range(ticks))
+
+
+def _one_step(stops) -> np.ndarray:
+    return np.array([plan is not None and plan.case == "one-step" for plan in stops], dtype=bool)
 
 
 def dcm_distance(measured, pos, vel, omega: float) -> float:
