@@ -2,7 +2,7 @@
 
 Run from the repository root, with the machine otherwise idle:
 
-    python benchmarks/bench_online.py [--repeats 3] [--out FILE.md] [--parts-only]
+    python benchmarks/bench_online.py [--repeats 3] [--out FILE.md] [--parts-only] [--profile]
 
 Imports the installed ``drake_estop`` (``pip install -e .``). For each
 scenario (the paper's stops at 3.4 and 3.5 s; a 17 N s push to the right at
@@ -23,6 +23,9 @@ warm-up run, and prints:
   both feet, servos holding the walk's start pose, no controller), CPU per
   5 ms tick, measured before and after the scenarios. On this shared machine
   every figure above follows the hour; this one says which hour it was.
+* the profile of one run (:func:`profile_run`, cProfile over the paper's 3.4 s
+  stop): the functions with the most time of their own, Drake's C++ (the
+  plant, contact and the framework's dispatch) counted where Python calls it;
 * where the loop's time goes (:func:`loop_parts`, the paper's 3.4 s stop,
   walk, stop and rest): the controller's own work, the simulated robot alone
   walking the same motion (the run's servo commands replayed into the plant,
@@ -42,6 +45,9 @@ counts it), so quote medians and repeat.
 """
 
 import argparse
+import cProfile
+import os
+import pstats
 import statistics
 import time
 
@@ -152,6 +158,49 @@ def parts_report(parts: list) -> str:
     return "\n".join(lines)
 
 
+def profile_run(pattern, estop_time: float = 3.4) -> tuple:
+    """cProfile over one online run (the default ``simulate --physics`` diagram, built and run):
+    ``(rows, total)``, each row ``(function, calls, own seconds, cumulative seconds)`` and ``total`` the
+    profiled seconds. The profiler's own cost inflates Python against C++: read the shares, not the
+    times."""
+    profiler = cProfile.Profile()
+    profiler.runcall(run_online, estop_time=estop_time, pattern=pattern, stop_params=controller_stop_parameters())
+    stats = pstats.Stats(profiler)
+    rows = [(_function_name(key), calls, own, cumulative)
+            for key, (_, calls, own, cumulative, _) in stats.stats.items()]
+    return rows, stats.total_tt
+
+
+def _function_name(key) -> str:
+    """``module.py:function`` for a profiled function (``key``: pstats' ``(file, line, name)``), the
+    package's files relative to it; a built-in (Drake's C++, numpy) as its name alone."""
+    file, _, name = key
+    if file == "~":
+        return name.strip("<>").replace("built-in method ", "")
+    parts = file.replace(os.sep, "/").split("/")
+    tail = "/".join(parts[parts.index("drake_estop"):]) if "drake_estop" in parts else parts[-1]
+    return f"{tail}:{name}"
+
+
+def profile_report(rows, total: float, top: int = 12) -> str:
+    """The markdown table of :func:`profile_run`'s ``rows``: the ``top`` functions by their own time, each
+    with its share of the profiled ``total``, its calls and its cumulative time."""
+    lines = [f"The profile of one run (cProfile, the paper's 3.4 s stop built and run; {total:.1f} s profiled; "
+             "the profiler slows Python more than C++, so read the shares):", "",
+             "| function | own time | share | calls | with callees |", "| --- | --- | --- | --- | --- |"]
+    for name, calls, own, cumulative in sorted(rows, key=lambda row: -row[2])[:top]:
+        lines.append(f"| `{name}` | {own:.2f} s | {own / total:.0%} | {calls} | {cumulative:.2f} s |")
+    modules = {}
+    for name, _, own, _ in rows:
+        module = name.split(":")[0] if name.startswith("drake_estop/") else "outside the package"
+        modules[module] = modules.get(module, 0.0) + own
+    lines += ["", "Own time summed by module (the package's; everything else, Drake's C++ with its dispatch, "
+              "numpy and Python's own, together):", "", "| module | own time | share |", "| --- | --- | --- |"]
+    for module, own in sorted(modules.items(), key=lambda item: -item[1])[:top]:
+        lines.append(f"| `{module}` | {own:.2f} s | {own / total:.0%} |")
+    return "\n".join(lines)
+
+
 def run(estop_time, perturbations, pattern):
     """One online run: ``{rtf, cpu_rtf, tick (CPU summary), blocks (breakdown), success, replans}``."""
     result = run_online(estop_time=estop_time, perturbations=perturbations, pattern=pattern,
@@ -209,6 +258,7 @@ def main(argv=None):
     parser.add_argument("--parts-only", action="store_true",
                         help="only where the loop's time goes (loop_parts, --repeats runs): the quick A/B of a "
                              "speed change, about 25 s a run")
+    parser.add_argument("--profile", action="store_true", help="only the profile of one run (profile_run)")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
@@ -217,13 +267,15 @@ def main(argv=None):
     run(3.4, Perturbations(), pattern)  # warm-up: the IK plant, the planner's tables, first-call costs
     if args.parts_only:
         text = parts_report([loop_parts(pattern) for _ in range(args.repeats)])
+    elif args.profile:
+        text = profile_report(*profile_run(pattern))
     else:
         before = plant_alone()
         results = {name: [run(estop_time, perturbations, pattern) for _ in range(args.repeats)]
                    for name, (estop_time, perturbations) in SCENARIOS.items()}
         parts = [loop_parts(pattern) for _ in range(args.repeats)]
         text = report(results, args.repeats, time.perf_counter() - start, plant_ticks=(before, plant_alone()))
-        text += "\n\n" + parts_report(parts)
+        text += "\n\n" + parts_report(parts) + "\n\n" + profile_report(*profile_run(pattern))
     print(text)
     if args.out:
         with open(args.out, "w") as out:

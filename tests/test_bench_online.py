@@ -89,3 +89,24 @@ def test_parts_only_runs_just_the_loop_split(bench, monkeypatch, capsys, tmp_pat
     text = capsys.readouterr().out
     assert text.startswith("Where the loop's time goes") and "| the loop | 5.00 ms | 100% |" in text
     assert out.read_text() == text
+
+
+def test_profile_report_lists_the_most_own_time_first_and_sums_it_by_module(bench):
+    rows = [("drake_estop/systems/ik.py:_update", 100, 0.5, 1.0), ("pydrake.systems.analysis.AdvanceTo", 1, 3.0, 9.0),
+            ("drake_estop/systems/ik.py:solve", 100, 0.25, 0.4), ("drake_estop/planning/lipm.py:horner", 900, 0.4, 0.4),
+            ("numpy.array", 5000, 0.1, 0.1)]
+    text = bench.profile_report(rows, total=5.0, top=3)
+    table = [line for line in text.splitlines() if line.startswith("| `")]
+    assert table[:3] == ["| `pydrake.systems.analysis.AdvanceTo` | 3.00 s | 60% | 1 | 9.00 s |",
+                         "| `drake_estop/systems/ik.py:_update` | 0.50 s | 10% | 100 | 1.00 s |",
+                         "| `drake_estop/planning/lipm.py:horner` | 0.40 s | 8% | 900 | 0.40 s |"]
+    # by module: ik.py's two functions together, Drake and numpy as "outside the package"
+    assert table[3:] == ["| `outside the package` | 3.10 s | 62% |", "| `drake_estop/systems/ik.py` | 0.75 s | 15% |",
+                         "| `drake_estop/planning/lipm.py` | 0.40 s | 8% |"]
+
+
+def test_profiled_functions_are_named_by_their_place_in_the_package(bench):
+    assert bench._function_name(("/x/site-packages/drake_estop/systems/ik.py", 12, "solve")) == \
+        "drake_estop/systems/ik.py:solve"
+    assert bench._function_name(("~", 0, "<built-in method numpy.array>")) == "numpy.array"
+    assert bench._function_name(("/usr/lib/python3.11/copy.py", 128, "deepcopy")) == "copy.py:deepcopy"
