@@ -325,3 +325,21 @@ def test_the_plan_made_ahead_is_looked_up_not_solved_on_the_tick(monkeypatch):
     looked_up = [t for t in ticks if table[int(round(t / DT))] is not None]
     assert looked_up and len(looked_up) < len(ticks)
     assert not set(np.round(looked_up, 6)) & set(np.round(solved, 6))
+
+
+def test_a_corrected_walk_gets_its_own_stops_not_those_of_its_gait_parameters():
+    """A whole-body corrected walk has the plain walk's gait parameters and another COG: its stops are its
+    own, not the table cached for those parameters."""
+    from drake_estop.planning.com_correction import ComCorrection
+
+    times = np.linspace(0.0, FAST.end_time, 50)
+    offset = np.column_stack([0.01 * np.sin(times), np.zeros_like(times)])
+    correction = ComCorrection(times, offset, np.zeros_like(offset), np.zeros_like(offset))
+    corrected = NominalPattern(FAST.params, com_correction=correction)
+    plain = nominal_stop_table(FAST, PARAMS)
+    own = nominal_stop_table(corrected, PARAMS)
+    k = int(round(3.4 / DT))
+    assert plain is nominal_stop_table(NominalPattern(FAST.params), PARAMS)  # cached by parameters
+    assert own is not plain and own[k] is not None
+    assert _same_bits(own[k], plan_stop(corrected, 3.4, PARAMS))
+    assert not _same_bits(own[k], plain[k])

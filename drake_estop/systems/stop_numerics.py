@@ -36,11 +36,11 @@ def nominal_stop_table(pattern: NominalPattern, params: StopParameters) -> tuple
     servo_period, params)`` where that phase has a stop, None where the search would go on to a later
     phase (III.C). Computed before the run: without a measured state the stop depends on the tick alone.
 
-    Cached per (gait, stop parameters) in the process (a :class:`NominalPattern` is a function of its
-    parameters); about 1.3 s and 35 MB for the default 8.5 s walk. The plans are shared: copy one before
-    changing it (:func:`nominal_stop`).
+    Cached per (gait, stop parameters) in the process for a :class:`NominalPattern` without a COG
+    correction (then a function of its parameters alone); about 1.3 s and 35 MB for the default 8.5 s
+    walk. The plans are shared: copy one before changing it (:func:`nominal_stop`).
     """
-    if type(pattern) is NominalPattern:
+    if _cacheable(pattern):
         return _cached_stops(pattern.params, params)
     return _stops(pattern, params)
 
@@ -57,9 +57,15 @@ def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> n
     """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
     the end of the walk (bool array): the nominal walk's answer, computed before the run with the stops
     of :func:`nominal_stop_table` (the stop-planner system looks it up instead of solving on the tick)."""
-    if type(pattern) is NominalPattern:
+    if _cacheable(pattern):
         return _cached_one_step(pattern.params, params)
     return _one_step(_stops(pattern, params))
+
+
+def _cacheable(pattern) -> bool:
+    """Whether ``pattern``'s walk is a function of its gait parameters alone: a plain
+    :class:`NominalPattern` (a whole-body corrected walk has the same parameters and another COG)."""
+    return type(pattern) is NominalPattern and pattern.com_correction is None
 
 
 @functools.lru_cache(maxsize=4)
