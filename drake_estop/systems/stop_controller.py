@@ -30,7 +30,6 @@ from drake_estop.planning.planner import (
     StopParameters,
     one_step_feasible,
     plan_stop,
-    snap_to_tick,
     warm_up,
 )
 from drake_estop.planning.replan import REPLAN_TRIES, ReplanPending, replan_stop
@@ -55,7 +54,7 @@ from drake_estop.systems.reference import (
     pattern_layout,
     reference_vector,
 )
-from drake_estop.systems.stop_numerics import PatternCom, nominal_one_step_table, nominal_stop, nominal_stop_table
+from drake_estop.systems.stop_numerics import PatternCom, nominal_stop, nominal_stop_table, one_step_column, tick_entry
 from drake_estop.systems.trigger import EStopTrigger
 from drake_estop.timing import timed
 
@@ -114,7 +113,8 @@ class StopPlannerSystem(ReferenceSystem):
     ``one_step_feasible`` (1): before the latch, 1.0 if a stop signal at this tick would stop within one
     step (the plan's ``case`` would be "one-step"), 0.0 if not ("next-step", the marginal case III.C, or
     "standing" / "already-stopping"), for the inputs the latch would plan from at that tick: the nominal
-    walk's answer, looked up in :func:`nominal_one_step_table` (computed at construction), or, when the
+    walk's answer, looked up in
+    :func:`~drake_estop.systems.stop_numerics.nominal_one_step_table` (computed at construction), or, when the
     measured DCM has left the reference by more than ``replan_threshold``,
     :func:`drake_estop.planning.planner.one_step_feasible` solved on the tick. From the latch on it holds
     whether the latched stop is one-step. It is discrete state set by the update, so the value published
@@ -172,7 +172,7 @@ class StopPlannerSystem(ReferenceSystem):
         self.relanded_port = self.DeclareAbstractInputPort("relanded", AbstractValue.Make(Relanded()))
         # whether a signal at the last tick would stop in one step (after the latch: the latched plan's case)
         self._nominal_stops = nominal_stop_table(pattern, params)
-        self._one_step_table = nominal_one_step_table(pattern, params)
+        self._one_step_table = one_step_column(self._nominal_stops)
         self._feasible_state = self.DeclareDiscreteState([float(self._one_step_table[0])])
         # the stop's mode after the last update and the landings left (decision.stop_mode)
         self._mode_state = self.DeclareDiscreteState([float(StopMode.WALKING), 0.0])
@@ -373,9 +373,9 @@ class StopPlannerSystem(ReferenceSystem):
     def _one_step_feasible(self, t, measured):
         """``one_step_feasible(pattern, t, params, measured=measured)``: looked up for the nominal walk."""
         if measured is None:
-            k = int(round(snap_to_tick(t, self._params.servo_period) / self._params.servo_period))
-            if 0 <= k < len(self._one_step_table):
-                return bool(self._one_step_table[k])
+            feasible = tick_entry(self._one_step_table, t, self._params.servo_period)
+            if feasible is not None:
+                return bool(feasible)
         return one_step_feasible(self._pattern, t, self._params, measured=measured)
 
     def one_step_feasible(self, context) -> bool:

@@ -45,11 +45,17 @@ def nominal_stop_table(pattern: NominalPattern, params: StopParameters) -> tuple
     return _stops(pattern, params)
 
 
+def tick_entry(table, t: float, servo_period: float):
+    """``table``'s entry (a per-tick table from tick 0) for the servo tick at or after ``t`` [s], None
+    outside it."""
+    k = int(round(snap_to_tick(t, servo_period) / servo_period))
+    return table[k] if 0 <= k < len(table) else None
+
+
 def nominal_stop(table: tuple, t: float, servo_period: float):
     """A copy of ``table``'s stop (:func:`nominal_stop_table`) for a signal at ``t`` [s] (snapped to the
     next servo tick), or None where it has none (``t`` outside the walk, or a later phase's stop)."""
-    k = int(round(snap_to_tick(t, servo_period) / servo_period))
-    plan = table[k] if 0 <= k < len(table) else None
+    plan = tick_entry(table, t, servo_period)
     return None if plan is None else copy.copy(plan)
 
 
@@ -57,9 +63,7 @@ def nominal_one_step_table(pattern: NominalPattern, params: StopParameters) -> n
     """``one_step_feasible(pattern, k * servo_period, params)`` for every servo tick ``k`` from 0 to
     the end of the walk (bool array): the nominal walk's answer, computed before the run with the stops
     of :func:`nominal_stop_table` (the stop-planner system looks it up instead of solving on the tick)."""
-    if _cacheable(pattern):
-        return _cached_one_step(pattern.params, params)
-    return _one_step(_stops(pattern, params))
+    return one_step_column(nominal_stop_table(pattern, params))
 
 
 def _cacheable(pattern) -> bool:
@@ -73,20 +77,14 @@ def _cached_stops(gait_params, params):
     return _stops(NominalPattern(gait_params), params)
 
 
-@functools.lru_cache(maxsize=4)
-def _cached_one_step(gait_params, params):
-    table = _one_step(_cached_stops(gait_params, params))
-    table.flags.writeable = False  # shared between systems
-    return table
-
-
 def _stops(pattern, params):
     dt = params.servo_period
     ticks = math.ceil(pattern.end_time / dt - 1e-9) + 1  # past the end: "standing"
     return tuple(first_stop(pattern, k * dt, params) for k in range(ticks))
 
 
-def _one_step(stops) -> np.ndarray:
+def one_step_column(stops) -> np.ndarray:
+    """Whether each stop of a :func:`nominal_stop_table` is one-step (bool array; False where it has none)."""
     return np.array([plan is not None and plan.case == "one-step" for plan in stops], dtype=bool)
 
 
