@@ -20,8 +20,9 @@ from drake_estop.physics.perturbations import (
     apply_model_errors,
     ground_friction,
     perturbations_from_args,
+    perturbed_ground,
 )
-from drake_estop.physics.plant import PhysicsParameters, actuated_indices, add_physics_plant
+from drake_estop.physics.plant import FloorDrop, PhysicsParameters, actuated_indices, add_physics_plant
 
 
 def _parse(*argv):
@@ -215,3 +216,83 @@ def test_friction_reaches_the_ground_geometry():
         "material", "coulomb_friction")
     combined = CalcContactFrictionFromSurfaceProperties(ground, CoulombFriction(SOLE_MU_STATIC, SOLE_MU_DYNAMIC))
     assert combined.dynamic_friction() == pytest.approx(0.5)
+
+
+# --------------------------------------------------------------------------
+# The floor's drop.
+
+
+def test_floor_drop_option_and_its_errors():
+    drop = _parse("--floor-drop", "0.7", "1.1", "-0.2", "0.0", "0.01").floor_drop
+    assert drop == FloorDrop(0.7, 1.1, -0.2, 0.0, 0.01)
+    assert drop.contains((0.9, -0.1)) and not drop.contains((0.9, 0.1))
+    assert _parse().floor_drop is None
+    assert Perturbations(floor_drop=(0.7, 1.1, -0.2, 0.0, 0.01)).floor_drop == drop  # a sequence is converted
+    assert Perturbations(floor_drop=drop).summary()["floor_drop"] == [0.7, 1.1, -0.2, 0.0, 0.01]
+    for values in ((0.7, 1.1, -0.2, 0.0, 0.0), (0.7, 1.1, -0.2, 0.0, -0.01), (0.7, 1.1, -0.2, 0.0, 0.2),
+                   (1.1, 0.7, -0.2, 0.0, 0.01), (0.7, 1.1, 0.0, 0.0, 0.01), (0.7, np.nan, -0.2, 0.0, 0.01)):
+        with pytest.raises(ValueError, match="--floor-drop"):
+            FloorDrop(*values)
+
+
+def test_perturbed_ground_carries_friction_and_drop():
+    params = PhysicsParameters()
+    assert perturbed_ground(Perturbations(), params) is params
+    drop = FloorDrop(0.7, 1.1, -0.2, 0.0, 0.01)
+    ground = perturbed_ground(Perturbations(friction=0.5, floor_drop=drop), params)
+    assert ground.floor_drop == drop
+    assert ground.mu_dynamic == ground_friction(Perturbations(friction=0.5), params).mu_dynamic
+    with pytest.raises(ValueError, match="floor_drop"):
+        PhysicsParameters(floor_drop=(0.7, 1.1, -0.2, 0.0, 0.01))
+
+
+def _sole_clearances(drop):
+    """The soles' positions, each sole's contact geometries' signed distances to the nearest ground [m]
+    (``{body: [distance]}``), the robot at its zero posture with its lower sole on z = 0, and the world's
+    ground geometries."""
+    from pydrake.math import RigidTransform
+
+    from drake_estop.physics.plant import _base_height_at_zero, ground_geometries, sole_frames
+    from drake_estop.robots.parameters import as_robot
+    builder = DiagramBuilder()
+    plant, scene_graph, _, _ = add_physics_plant(builder, PhysicsParameters(floor_drop=drop))
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    description = as_robot(None)
+    base = plant.GetBodyByName(description.floating_base)
+    plant.SetFreeBodyPose(plant_context, base, RigidTransform([0.0, 0.0, _base_height_at_zero(description)]))
+    soles = [frame.CalcPoseInWorld(plant_context).translation() for frame in sole_frames(plant)]
+    query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
+    inspector = query.inspector()
+    ground = set(ground_geometries(plant))
+    nearest = {}
+    for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=0.05):
+        ids = {pair.id_A, pair.id_B}
+        if len(ids & ground) != 1:
+            continue
+        geometry = next(iter(ids - ground))
+        nearest[geometry] = min(nearest.get(geometry, np.inf), pair.distance)
+    by_body = {}
+    for geometry, distance in nearest.items():
+        by_body.setdefault(plant.GetBodyFromFrameId(inspector.GetFrameId(geometry)).name(), []).append(distance)
+    return soles, {body: sorted(values) for body, values in by_body.items()}, ground
+
+
+def test_floor_drop_lowers_the_floor_under_its_rectangle_only():
+    """A sole over the drop is ``depth`` farther from the ground than one beside it, and the soles' contact
+    geometry is filtered against every ground geometry alike (the corner spheres only)."""
+    flat_soles, flat, flat_ground = _sole_clearances(None)
+    assert len(flat_ground) == 1
+    right = flat_soles[1]
+    # the right sole's corners over the drop (its inner edge 5 mm from the middle), the left's beside it
+    drop = FloorDrop(right[0] - 0.2, right[0] + 0.2, right[1] - 0.1, 0.0, 0.01)
+    soles, dropped, ground = _sole_clearances(drop)
+    assert len(ground) == 5
+    assert not drop.contains(soles[0][:2]) and drop.contains(soles[1][:2])
+    assert sorted(flat) == sorted(dropped) == ["l_sole", "r_sole"]  # nothing else near the floor
+    assert len(flat["r_sole"]) == 4 and np.allclose(flat["r_sole"], flat["l_sole"], atol=1e-12)  # corner spheres
+    assert np.allclose(dropped["l_sole"], flat["l_sole"], atol=1e-12)
+    # the outer corners over the lowered half-space, the inner ones 5 mm from the drop's edge (nearer to it)
+    gaps = np.array(dropped["r_sole"]) - np.array(flat["r_sole"])
+    assert gaps.max() == pytest.approx(0.01, abs=1e-9) and np.all(gaps > 0.005)

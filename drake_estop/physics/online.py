@@ -49,7 +49,7 @@ from drake_estop.physics.perturbations import (
     add_pelvis_push,
     apply_model_errors,
     finite_number,
-    ground_friction,
+    perturbed_ground,
 )
 from drake_estop.physics.plant import (
     CopEstimator,
@@ -256,7 +256,7 @@ def build_online_diagram(pattern: NominalPattern, stop_params: StopParameters, e
     robot = as_robot(robot)
     controller = _checked_controller(controller)
     perturbations = perturbations or Perturbations()
-    physics = ground_friction(perturbations, physics or PhysicsParameters()).for_robot(robot)
+    physics = perturbed_ground(perturbations, physics or PhysicsParameters()).for_robot(robot)
     dt = stop_params.servo_period
     timer = TickTimer(dt)
     builder = DiagramBuilder()

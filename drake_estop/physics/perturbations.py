@@ -14,14 +14,15 @@ the sensors (:mod:`drake_estop.physics.sensors`: noise and latency).
   into the plant's *Context* (``RigidBody.SetSpatialInertiaInBodyFrame``);
   the plant's default (nominal) parameters are untouched, so a controller
   that uses ``plant.CreateDefaultContext()`` keeps the nominal model.
-* :func:`ground_friction`: the ground's friction coefficients for ``--friction``.
+* :func:`ground_friction`: the ground's friction coefficients for ``--friction``;
+  :func:`perturbed_ground`: those and the floor's drop (``--floor-drop``).
 * :class:`PelvisPush` / :func:`add_pelvis_push`: the pushes, as a force on
   the pelvis COM through the plant's ``applied_spatial_force`` input port.
 
 Wiring (the lead's diagram)::
 
     perturbations = perturbations_from_args(args)          # ValueError -> exit 2
-    physics = ground_friction(perturbations, physics)      # before add_physics_plant
+    physics = perturbed_ground(perturbations, physics)     # before add_physics_plant
     plant, scene_graph, instance, ground_id = add_physics_plant(builder, physics)
     push = add_pelvis_push(builder, plant, perturbations.pushes)
     ...
@@ -33,6 +34,7 @@ Wiring (the lead's diagram)::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from dataclasses import dataclass, replace
 
@@ -43,6 +45,7 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.multibody.tree import BodyIndex, SpatialInertia
 from pydrake.systems.framework import LeafSystem
 
+from drake_estop.physics.plant import FloorDrop
 from drake_estop.robots.parameters import as_robot
 from drake_estop.robots.plant import SOLE_FRICTION
 
@@ -130,6 +133,8 @@ class Perturbations:
         (``--sensor-noise``).
     seed : int
         The noise seed, >= 0 (``--seed``).
+    floor_drop : FloorDrop or None
+        A rectangle of the floor lower than the plan's ``z = 0`` (``--floor-drop``; None: a flat floor).
     """
 
     pushes: tuple = ()
@@ -140,10 +145,13 @@ class Perturbations:
     latency_ticks: int = 0
     sensor_noise: bool = False
     seed: int = 0
+    floor_drop: FloorDrop | None = None
 
     def __post_init__(self):
         pushes = tuple(p if isinstance(p, Push) else Push(*p) for p in self.pushes)
         object.__setattr__(self, "pushes", pushes)
+        if self.floor_drop is not None and not isinstance(self.floor_drop, FloorDrop):
+            object.__setattr__(self, "floor_drop", FloorDrop(*self.floor_drop))
         for option, name in (("--mass-scale", "mass_scale"), ("--torso-mass-scale", "torso_mass_scale")):
             value = getattr(self, name)
             if not (finite_number(value) and float(value) > 0):
@@ -167,7 +175,8 @@ class Perturbations:
         return {"pushes": [[p.time, p.force_x, p.force_y, p.duration] for p in self.pushes],
                 "mass_scale": self.mass_scale, "torso_mass_scale": self.torso_mass_scale,
                 "torso_com_offset": self.torso_com_offset, "friction": self.friction,
-                "latency_ticks": self.latency_ticks, "sensor_noise": self.sensor_noise, "seed": self.seed}
+                "latency_ticks": self.latency_ticks, "sensor_noise": self.sensor_noise, "seed": self.seed,
+                "floor_drop": None if self.floor_drop is None else list(dataclasses.astuple(self.floor_drop))}
 
     @property
     def model_error(self) -> bool:
@@ -201,6 +210,10 @@ def add_perturbation_arguments(parser: argparse.ArgumentParser,
     group.add_argument("--sensor-noise", action="store_true", default=d.sensor_noise,
                        help="white noise: encoders 1e-3 rad, gyro 0.01 rad/s, accelerometer 0.05 m/s^2")
     group.add_argument("--seed", type=int, default=d.seed, metavar="N", help="seed for the sensor noise")
+    group.add_argument("--floor-drop", nargs=5, type=float,
+                       default=None if d.floor_drop is None else list(dataclasses.astuple(d.floor_drop)),
+                       metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX", "DEPTH"),
+                       help="the floor DEPTH [m] lower over that rectangle (world frame [m])")
     return parser
 
 
@@ -210,7 +223,8 @@ def perturbations_from_args(args) -> Perturbations:
         pushes=tuple(Push(*values) for values in (args.push or [])),
         mass_scale=args.mass_scale, torso_mass_scale=args.torso_mass_scale,
         torso_com_offset=args.torso_com_offset, friction=args.friction, latency_ticks=args.latency,
-        sensor_noise=bool(args.sensor_noise), seed=args.seed)
+        sensor_noise=bool(args.sensor_noise), seed=args.seed,
+        floor_drop=None if args.floor_drop is None else FloorDrop(*args.floor_drop))
 
 
 # --------------------------------------------------------------------------
@@ -281,6 +295,15 @@ def ground_friction(perturbations: Perturbations, physics_params):
         return physics_params
     g = ground_coefficient(float(perturbations.friction))
     return replace(physics_params, mu_static=g, mu_dynamic=g)
+
+
+def perturbed_ground(perturbations: Perturbations, physics_params):
+    """``physics_params`` with the ground the perturbations ask for: the friction (:func:`ground_friction`)
+    and the floor's drop (``floor_drop``). Unchanged (the same object) without either."""
+    physics_params = ground_friction(perturbations, physics_params)
+    if perturbations.floor_drop is None:
+        return physics_params
+    return replace(physics_params, floor_drop=perturbations.floor_drop)
 
 
 # --------------------------------------------------------------------------

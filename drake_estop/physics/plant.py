@@ -32,6 +32,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import (
     AddContactMaterial,
     AddRigidHydroelasticProperties,
+    Box,
     CollisionFilterDeclaration,
     GeometrySet,
     HalfSpace,
@@ -67,6 +68,42 @@ SOLE_CONTACT_INSET = CORNER_RADIUS
 #: The default humanoid's pelvis-origin heights above the floor that count as upright [m]; another robot's
 #: are these scaled by its floating base's height at the zero configuration (:func:`pelvis_height_bounds`).
 DEFAULT_PELVIS_HEIGHT_BOUNDS = (0.45, 0.80)
+
+
+@dataclass(frozen=True)
+class FloorDrop:
+    """A rectangle of the floor lower than the rest: a hole the controller does not know of.
+
+    The planner puts every sole on ``z = 0``; a foot that lands inside ``[x_min, x_max] x [y_min, y_max]``
+    [m] (world frame) meets the floor ``depth`` [m] lower. ``--floor-drop X_MIN X_MAX Y_MIN Y_MAX DEPTH``.
+    ``ValueError`` (naming the option) for an empty rectangle or a depth outside (0, :data:`MAX_FLOOR_DROP`].
+    """
+
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+    depth: float
+
+    def __post_init__(self):
+        values = [self.x_min, self.x_max, self.y_min, self.y_max, self.depth]
+        if not all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+                   and math.isfinite(v) for v in values):
+            raise ValueError(f"--floor-drop needs five finite numbers, got {values!r}")
+        if not (self.x_min < self.x_max and self.y_min < self.y_max):
+            raise ValueError(f"--floor-drop: the rectangle needs X_MIN < X_MAX and Y_MIN < Y_MAX, got {values[:4]!r}")
+        if not 0 < self.depth <= MAX_FLOOR_DROP:
+            raise ValueError(f"--floor-drop: DEPTH must be in (0, {MAX_FLOOR_DROP}] m, got {self.depth!r}")
+
+    def contains(self, xy) -> bool:
+        """Whether the point ``xy`` [m] lies over the lowered floor."""
+        return bool(self.x_min <= xy[0] <= self.x_max and self.y_min <= xy[1] <= self.y_max)
+
+
+#: The deepest floor drop accepted [m] (a step down, not a stair).
+MAX_FLOOR_DROP = 0.05
+#: How far [m] the floor's boxes around a drop reach: beyond any walk.
+FLOOR_EXTENT = 100.0
 
 
 @dataclass(frozen=True)
@@ -114,6 +151,8 @@ class PhysicsParameters:
         Share of the weight above which a foot is in contact (dimensionless).
     filter_iterations : int
         Dynamics-filter passes on the COG reference.
+    floor_drop : FloorDrop or None
+        A rectangle of the floor lower than the rest (:func:`add_ground`); None (default): the flat floor.
     """
 
     time_step: float = 1e-3  # [s] discrete plant step
@@ -133,6 +172,7 @@ class PhysicsParameters:
     cop_tolerance: float = 0.0  # [m] CoP may leave the planned polygon by this much
     contact_force_fraction: float = 0.02  # a foot is "in contact" above this share of the weight
     filter_iterations: int = 2  # dynamics-filter passes on the COG reference (0: raw LIPM COG)
+    floor_drop: FloorDrop | None = None  # a rectangle of the floor lower than z = 0 (None: a flat floor)
 
     def __post_init__(self):
         if not (self.time_step > 0 and math.isfinite(self.time_step)):
@@ -141,6 +181,8 @@ class PhysicsParameters:
             raise ValueError(f"contact must be 'point' or 'hydroelastic', got {self.contact!r}")
         if not 0 < self.mu_dynamic <= self.mu_static:
             raise ValueError("need 0 < mu_dynamic <= mu_static")
+        if self.floor_drop is not None and not isinstance(self.floor_drop, FloorDrop):
+            raise ValueError(f"floor_drop must be a FloorDrop or None, got {self.floor_drop!r}")
 
     def gain(self, joint_name: str, robot=None) -> float:
         """kp [N m/rad] of ``joint_name``: from ``gains``, else from ``robot``'s description (default: the
@@ -339,12 +381,33 @@ class CopEstimator(LeafSystem):
 
 
 def add_ground(plant, params: PhysicsParameters):
-    """Register the ground half-space (z = 0) with friction (and rigid hydroelastic)."""
+    """Register the ground with friction (and rigid hydroelastic): the half-space ``z = 0``, or with
+    ``params.floor_drop`` the half-space at ``z = -depth`` and four boxes whose tops at ``z = 0`` leave
+    the drop's rectangle open (every ground geometry is the world body's: :func:`ground_geometries`).
+    Returns the half-space's geometry id."""
     props = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(params.mu_static, params.mu_dynamic), properties=props)
     if params.contact == "hydroelastic":
         AddRigidHydroelasticProperties(props)
-    return plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), HalfSpace(), "ground", props)
+    world = plant.world_body()
+    drop = params.floor_drop
+    if drop is None:
+        return plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "ground", props)
+    ground = plant.RegisterCollisionGeometry(world, RigidTransform([0.0, 0.0, -drop.depth]), HalfSpace(),
+                                             "ground", props)
+    far, thick = FLOOR_EXTENT, drop.depth + 0.05  # each box reaches below the lowered floor
+    around = {"behind": ((-far, drop.x_min), (-far, far)), "ahead": ((drop.x_max, far), (-far, far)),
+              "right": ((drop.x_min, drop.x_max), (-far, drop.y_min)),
+              "left": ((drop.x_min, drop.x_max), (drop.y_max, far))}
+    for name, ((x0, x1), (y0, y1)) in around.items():
+        plant.RegisterCollisionGeometry(world, RigidTransform([(x0 + x1) / 2, (y0 + y1) / 2, -thick / 2]),
+                                        Box(x1 - x0, y1 - y0, thick), f"ground_{name}", props)
+    return ground
+
+
+def ground_geometries(plant) -> list:
+    """The ground's collision geometries: every one of the world body's (:func:`add_ground`)."""
+    return list(plant.GetCollisionGeometriesForBody(plant.world_body()))
 
 
 def set_servo_gains(plant, params: PhysicsParameters, instance=None, robot=None):
@@ -362,22 +425,24 @@ def set_servo_gains(plant, params: PhysicsParameters, instance=None, robot=None)
 
 
 def filter_sole_contact(plant, scene_graph, ground_id, params: PhysicsParameters):
-    """Keep one contact representation of each sole against the ground.
+    """Keep one contact representation of each sole against the ground (every ground geometry:
+    :func:`ground_geometries`; ``ground_id`` is one of them).
 
     Point contact: the corner spheres only (box vs plane would give one
     point pair jumping between the box's corners). Hydroelastic: the
     compliant box only.
     """
     inspector = scene_graph.model_inspector()
+    ground = set(ground_geometries(plant)) | {ground_id}
     boxes, spheres = [], []
     for gid in inspector.GetAllGeometryIds(Role.kProximity):
-        if gid == ground_id:
+        if gid in ground:
             continue
         (boxes if inspector.GetName(gid).endswith("sole_box") else spheres).append(gid)
     drop = boxes if params.contact == "point" else spheres
     if drop:
         scene_graph.collision_filter_manager().Apply(
-            CollisionFilterDeclaration().ExcludeBetween(GeometrySet(drop), GeometrySet([ground_id])))
+            CollisionFilterDeclaration().ExcludeBetween(GeometrySet(drop), GeometrySet(list(ground))))
 
 
 def actuated_indices(plant):
