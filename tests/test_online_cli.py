@@ -24,6 +24,7 @@ from drake_estop.systems.decision import StopPlannerConfig
     (["--push", "3.4", "10", "0", "0"], "--push"),
     (["--push", "3.4", "nan", "0", "0.1"], "--push"),
     (["--seed", "-3"], "--seed"),
+    (["--floor-drop", "0.7", "1.1", "-0.2", "0.0", "0.1"], "--floor-drop"),
 ])
 def test_bad_perturbations_exit_2_naming_the_option(args, option, capsys):
     assert main(["simulate", "--physics", *args]) == 2
@@ -81,7 +82,7 @@ CHANGED = {"true_state": True, "whole_body_walk": True, "braked_landing": False,
                "measured_footholds": False, "foothold_ticks": 3, "foothold_replan": True, "foothold_tolerance": 0.01,
                "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "crossover_step": True,
                "max_steps": 2, "max_replan_solves": None, "max_latch_solves": 3, "reference_fallback": False,
-               "plan_ahead": False}.items()}}
+               "plan_ahead": False, "late_landing": True, "max_late_landing": 0.1}.items()}}
 
 
 def _controller_text(name, value) -> str:

@@ -134,8 +134,9 @@ class HipStrategyConfig:
 
 @dataclass(frozen=True)
 class TouchdownConfig:
-    """Touchdown by contact (:class:`drake_estop.physics.touchdown.TouchdownByContact`): a landing sole keeps
-    coming down past the reference until its force sensor first measures weight.
+    """Touchdown by contact (:class:`drake_estop.physics.touchdown.TouchdownByContact`): a landing sole that
+    reaches the plan's floor and finds none keeps coming down past the reference until its force sensor first
+    measures weight, and stays there.
 
     Attributes
     ----------
@@ -146,9 +147,11 @@ class TouchdownConfig:
     contact_force : float
         The normal force that means the sole carries weight [N]; default 50.
     return_time : float
-        The depth's return from the touchdown on, and while the reference lifts the foot [s]; default 0.3.
+        The depth's return while the reference lifts the foot [s]; default 0.3.
     grace_time : float
         How long a sole put down may carry no weight before it is lowered [s]; default 0.02.
+    below_floor : float
+        How far below the plan's floor the estimated sole must be before it is lowered [m]; default 0.001.
     """
 
     descent_speed: float = 0.1
@@ -156,6 +159,7 @@ class TouchdownConfig:
     contact_force: float = 50.0
     return_time: float = 0.3
     grace_time: float = 0.02
+    below_floor: float = 0.001
 
 
 #: The reflexes' fields of :class:`ControllerOptions` and their configs.

@@ -94,6 +94,7 @@ class StateEstimator(LeafSystem):
         - com_vel
         - stance
         - feet
+        - sole_heights
 
     Inputs are :class:`RobotSensors`' outputs of the same names (units
     there); ``true_state`` (nq + nv, the plant state) is read only with
@@ -110,6 +111,9 @@ class StateEstimator(LeafSystem):
         loaded, ``[n_left, n_right]`` (0: unloaded, capped at
         ``foot_window``). Footholds for the planner: where a foot actually
         landed.
+      - ``sole_heights`` (2): the same soles' estimated heights above the
+        floor the stance sole is anchored on, ``[z_left, z_right]`` [m]
+        (negative: below it, where the floor is lower than the plan's).
 
     Timing. The filter state is updated by a periodic discrete event at
     every servo tick. The outputs are computed (one cached evaluation) from
@@ -269,6 +273,9 @@ class StateEstimator(LeafSystem):
             "stance", 1, lambda c, o: o.SetAtIndex(0, self._estimate.Eval(c)[_STANCE]),
             prerequisites_of_calc=ticket)
         self.feet_port = self.DeclareVectorOutputPort("feet", 6, self._calc_feet, prerequisites_of_calc=ticket)
+        self.sole_heights_port = self.DeclareVectorOutputPort(
+            "sole_heights", 2, lambda c, o: o.SetFromVector([self._estimate.Eval(c)[foot][2] for foot in _FOOT]),
+            prerequisites_of_calc=ticket)
 
     # ---------------------------------------------------------------- state
 

@@ -119,7 +119,7 @@ def apply_reflexes(builder, reflexes: Reflexes, *, robot, planner, estimator, ik
                                             **reflexes.foot_force.settings())
         feet = foot_force
     if reflexes.touchdown is not None:
-        touchdown = add_touchdown_by_contact(builder, feet=feet or planner, sensors=estimator.sensors,
+        touchdown = add_touchdown_by_contact(builder, feet=feet or planner, estimator=estimator,
                                              servo_period=servo_period, timer=timer,
                                              **dataclasses.asdict(reflexes.touchdown))
         feet = touchdown

@@ -314,6 +314,9 @@ class StopPlan:
     capture_landing : bool
         A re-plan's landing made sooner, at the widest step, for a lateral DCM that would pass it before
         the touchdown (:func:`drake_estop.planning.replan.replan_stop`).
+    late_since : float or None
+        A stop re-timed because its landing sole carried no weight by the touchdown
+        (:func:`drake_estop.planning.late_landing.late_landing_stop`): the first touchdown it missed [s].
     min_zmp_margin : float
         Smallest ZMP distance inside the support polygon [m].
     compute_time : float
@@ -363,6 +366,9 @@ class StopPlan:
     capture_landing: bool = False  # a re-plan's landing hurried by a sideways push (replan.replan_stop)
     crossover: bool = False  # a re-plan's landing across the support foot (crossover.crossover_stop)
     braked_swing: bool = False  # a re-plan whose landing the braking limit (max_swing_acceleration) bounds
+    # a stop re-timed for a landing sole that carried no weight by the touchdown (late_landing.late_landing_stop):
+    # the first touchdown it missed [s]; None: landing on its own time
+    late_since: float | None = None
     # (key, polynomials) of the landing swing (_swing_polynomials); not copied by dataclasses.replace
     _swing_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -374,10 +380,14 @@ class StopPlan:
 
     @property
     def stop_landing(self) -> dict | None:
-        """The stop's own landing ``{"time", "foot", "kind"}`` (kind: :attr:`step_kind`); None without one."""
+        """The stop's own landing ``{"time", "foot", "kind"}`` (kind: :attr:`step_kind`), and ``"late_since"``
+        (the touchdown it missed [s]) for a re-timed landing; None without one."""
         if self.landing_foot is None:
             return None
-        return {"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}
+        landing = {"time": float(self.landing_time), "foot": self.landing_foot, "kind": self.step_kind}
+        if self.late_since is not None:
+            landing["late_since"] = float(self.late_since)
+        return landing
 
     @property
     def landings(self) -> list:

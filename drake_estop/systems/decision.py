@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_estop.planning.gait import SIDES
+from drake_estop.planning.late_landing import LATE_LANDING_GRACE
 from drake_estop.planning.planner import MAX_LATCH_SOLVES
 from drake_estop.planning.replan import (
     MAX_REPLAN_SOLVES,
@@ -37,6 +38,9 @@ from drake_estop.validation import check_positive
 #: feet (``foothold_tolerance``). The estimate is good to 3 mm (a 17 N s push: both soles within 3 mm); the
 #: robustness benchmark's planned-polygon CoP failures stood on feet 5-20 mm off, the CoP in the measured soles.
 FOOTHOLD_TOLERANCE = 0.005
+#: With ``late_landing``, how long after the touchdown it missed a landing may still be re-timed [s]: the
+#: touchdown reflex's deepest descent (15 mm) at its 0.1 m/s, with room.
+MAX_LATE_LANDING = 0.2
 
 
 class StopMode(enum.IntEnum):
@@ -131,6 +135,14 @@ class StopPlannerConfig:
         latch on the reference is a look-up (default True). A stop in the signal's own phase was planned
         before the run (:func:`~drake_estop.systems.stop_numerics.nominal_stop_table`); the others
         (III.C) are planned on the tick.
+    late_landing : bool
+        A landing sole that has carried no weight by the touchdown re-times the stop: the ZMP stays on the
+        stance sole and the foot lands a moment later, again while it stays unloaded
+        (:func:`~drake_estop.planning.late_landing.late_landing_stop`; default False). Meant with the
+        touchdown reflex (``ControllerOptions.touchdown``), which lowers the foot until it carries weight.
+    max_late_landing : float
+        How long after the touchdown it missed a landing may still be re-timed [s] (default
+        :data:`MAX_LATE_LANDING`).
 
     Raises
     ------
@@ -157,10 +169,12 @@ class StopPlannerConfig:
     max_latch_solves: int | None = MAX_LATCH_SOLVES
     reference_fallback: bool = True
     plan_ahead: bool = True
+    late_landing: bool = False
+    max_late_landing: float = MAX_LATE_LANDING
 
     def __post_init__(self):
         for name in ("replan_threshold", "blend_time", "replan_interval", "landed_replan_threshold",
-                     "foothold_tolerance"):
+                     "foothold_tolerance", "max_late_landing"):
             check_positive(name, getattr(self, name))
         ticks = self.foothold_ticks
         if (isinstance(ticks, bool) or not isinstance(ticks, (int, float)) or not math.isfinite(ticks)
@@ -224,6 +238,7 @@ class ActionKind(enum.Enum):
     LATCH = "latch"  #: plan the stop
     NEXT_STEP = "next step"  #: take the step planned after a capture landing, re-planned from the measurement
     REPLAN = "replan"  #: re-plan the stop from the measured state
+    RETIME = "retime"  #: land later: the landing sole has carried no weight by the touchdown
     HOLD = "hold"  #: keep the plan and a re-plan's tries left for the next tick
     WAIT = "wait"  #: keep the plan; a re-plan's tries left are dropped
 
@@ -287,6 +302,10 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     (any stop)                  a capture landing's touchdown, a step planned     NEXT_STEP
                                 after it
     (any stop)                  no measured state                                HOLD
+    (any stop)                  the landing sole unloaded ``LATE_LANDING_GRACE``  RETIME
+                                past the touchdown (at once past a re-timed
+                                one), within ``max_late_landing`` of the first
+                                (``late_landing``)
     (any stop)                  within ``replan_interval`` of the last try, no   WAIT
                                 tries left, no sole re-landed on this tick
     (any stop)                  a sole re-landed off its foothold                REPLAN on it
@@ -311,6 +330,8 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
         return Action(ActionKind.NEXT_STEP, "the capture landing touched down: its next step")
     if observation.measured is None:
         return Action(ActionKind.HOLD, "no measured state")
+    if config.late_landing and landing_late(observation, plan, config.max_late_landing):
+        return Action(ActionKind.RETIME, "the landing sole carries no weight past the touchdown")
     landed = plan.landing_foot is None or t >= plan.landing_time - shortest_replanned_landing(plan)
     # a sole re-landed off its foothold after the landing re-plans at once (no interval on its
     # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
@@ -340,6 +361,22 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     # a re-plan for the feet alone (the DCM within its threshold) takes no recovery step
     return Action(ActionKind.REPLAN, reason, feet=feet, recovery_step=config.recovery_step and deviated and room,
                   first_try=pending[1] if pending else 0, resumed=pending is not None)
+
+
+def landing_late(observation: Observation, plan, max_late: float) -> bool:
+    """Whether ``plan``'s landing sole is late at the observation's tick: the plan has started and has a
+    landing, the estimated soles say that sole carries no weight, and the tick lies
+    :data:`~drake_estop.planning.late_landing.LATE_LANDING_GRACE` or more past the touchdown (the force
+    sensing's delay at an ordinary landing; from a re-timed touchdown on, at once), and at most ``max_late``
+    [s] past the first touchdown the landing missed."""
+    feet, t = observation.feet, observation.time
+    if plan.landing_foot is None or feet is None or t < plan.start_time - 1e-9:
+        return False
+    if feet[4 + SIDES.index(plan.landing_foot)] > 0:  # loaded ticks
+        return False
+    first = plan.landing_time if plan.late_since is None else plan.late_since
+    grace = LATE_LANDING_GRACE if plan.late_since is None else 0.0
+    return plan.landing_time + grace - 1e-9 <= t <= first + max_late + 1e-9
 
 
 def _before_the_plan(observation: Observation, config: StopPlannerConfig) -> Action:

@@ -153,9 +153,18 @@ class PlanSequence:
 
 
 def _made(plans) -> list:
-    """The plans whose landing is made: once no later re-plan replaced it before its touchdown."""
+    """The plans whose landing is made: once no later re-plan replaced it before its touchdown, nor re-timed it
+    after (a landing sole late for it: :func:`~drake_estop.planning.late_landing.late_landing_stop`)."""
     return [p for p, nxt in zip(plans, tuple(plans[1:]) + (None,))
-            if p.landing_foot is not None and (nxt is None or nxt.start_time >= p.landing_time - 1e-9)]
+            if p.landing_foot is not None and (nxt is None or (nxt.start_time >= p.landing_time - 1e-9
+                                                               and not _retimes(nxt, p)))]
+
+
+def _retimes(new, old) -> bool:
+    """Whether the plan ``new`` re-times the landing of ``old``: the same foot, late since a touchdown no
+    later than ``old``'s."""
+    return (new.late_since is not None and new.landing_foot == old.landing_foot
+            and old.landing_time >= new.late_since - 1e-9)
 
 
 def landings_made(history, t: float) -> int:

@@ -25,6 +25,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus
 
 from drake_estop.planning.gait import SIDES, NominalPattern
+from drake_estop.planning.late_landing import late_landing_stop
 from drake_estop.planning.planner import (
     InfeasibleStop,
     StopParameters,
@@ -281,6 +282,8 @@ class StopPlannerSystem(ReferenceSystem):
             self._take_next_step(context, state, handle, observation.measured)
         elif kind is ActionKind.REPLAN:
             self._replan(context, state, handle, action, observation.measured)
+        elif kind is ActionKind.RETIME:
+            self._retime(context, state, handle, observation.measured)
         elif kind is ActionKind.WAIT:
             self._drop_pending(state, handle)
 
@@ -354,6 +357,27 @@ class StopPlannerSystem(ReferenceSystem):
             history=handle.history + ((new,) if new is not None else ()),
             last_try=handle.last_try if pending else t,  # a resumed sequence keeps its first tick
             pending=left)
+        state.get_mutable_abstract_state(self._plan_state).set_value(updated)
+        return EventStatus.Succeeded()
+
+    def _retime(self, context, state, handle, measured):
+        """The stop re-timed for a landing sole that carries no weight past the touchdown
+        (:func:`~drake_estop.planning.late_landing.late_landing_stop`), blended into from the command; where
+        no re-timed stop exists the plan goes on and the failure is counted."""
+        t = context.get_time()
+        start = time.perf_counter()
+        try:
+            new = late_landing_stop(handle.plan, t, *measured)
+        except InfeasibleStop:
+            new = None
+        wall = time.perf_counter() - start
+        if new is None:
+            updated = handle.replaced(replan_failures=handle.replan_failures + 1, wall_time=wall,
+                                      max_wall_time=max(handle.max_wall_time, wall), pending=None)
+        else:
+            updated = handle.replaced(
+                plan=new, wall_time=wall, replans=handle.replans + 1, max_wall_time=max(handle.max_wall_time, wall),
+                blend=self._blend_into(context, new), history=handle.history + (new,), last_try=t, pending=None)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
