@@ -17,8 +17,9 @@ the push-recovery table, each run an independent `run_online` simulation (ROBUST
   online controller changed in turn (:data:`ABLATION`: foot compliance, swing tilt, measured footholds,
   braked landing, re-landed footholds, recovery step, capture landing, reference fallback and the feet's
   force control off; the re-plan's solves a tick unbounded; the foothold re-plan, the whole-body walk, the
-  hip strategy, the crossover step and the touchdown by contact on; one step at most) and with the plant at
-  a 2 ms step: 792 runs, about 7 s of CPU each (about 48 min on 2 workers). Each row: the matrix's passes,
+  hip strategy, the crossover step, the touchdown by contact, the late landing's re-timing, and both on;
+  one step at most) and with the plant at a 2 ms step: 880 runs, about 7 s of CPU each (about 50 min on 2
+  workers). Each row: the matrix's passes,
   its falls and the cells that fail.
   ``--cells`` / ``--phases`` / ``--changes`` run a part of it; a part with every cell and phase
   (``--changes KEY``) replaces its rows in the committed table and keeps the others.
@@ -85,6 +86,8 @@ ABLATION = (
     {"controller": {"planner.max_steps": 1}},
     {"controller": {"planner.crossover_step": True}},
     {"controller": {"touchdown": {}}},
+    {"controller": {"planner.late_landing": True}},
+    {"controller": {"touchdown": {}, "planner.late_landing": True}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.

@@ -222,8 +222,9 @@ class ControllerOptions:
         the ankle is saturated. Default off: a 30 N s forward push in double support stops with it in one
         recovery step (without: two), but on the first 120 runs of the campaign it lost 2 and gained 1.
     touchdown : TouchdownConfig or None
-        A landing sole keeps coming down until it first carries weight, so a foot that a rolled or sunk
-        body leaves hovering lands (default off: see ``benchmarks/ROBUSTNESS.md``'s ablation).
+        A landing sole that reaches the plan's floor and finds none keeps coming down until it first carries
+        weight, and stays there, so a floor lower than planned does not leave the foot hovering (default off
+        until the campaign has measured it on: ``docs/online_controller.md``).
 
     Raises
     ------
