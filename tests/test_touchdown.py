@@ -17,28 +17,28 @@ def test_a_landing_sole_that_carries_no_weight_past_the_grace_time_comes_down_to
     depth, landed, down_time, depths = 0.0, False, 0.0, []
     for _ in range(44):
         depth, landed, down_time = next_depth(depth, landed, down_time, planned_down=True, loaded=False,
-                                              at_floor=True, **SETTINGS)
+                                              floor_missing=True, **SETTINGS)
         depths.append(depth)
     assert not landed and down_time == pytest.approx(0.22)
     assert depths[3] == 0.0 and depths[4] == pytest.approx(0.0005)  # 20 ms of grace, then 0.1 m/s
     assert depths[13] == pytest.approx(0.005) and max(depths) == depths[-1] == 0.015  # capped
-    depth, landed, _ = next_depth(0.004, False, 0.1, planned_down=True, loaded=True, at_floor=True, **SETTINGS)
+    depth, landed, _ = next_depth(0.004, False, 0.1, planned_down=True, loaded=True, floor_missing=True, **SETTINGS)
     assert landed and depth == 0.004  # the touchdown: the floor is there, the depth is held
 
 
 def test_a_sole_held_above_the_floor_is_not_lowered():
     """Unloaded past its grace but estimated above the plan's floor: the body's tilt holds it up, not a
     lower floor."""
-    depth, landed, down_time = next_depth(0.0, False, 0.1, planned_down=True, loaded=False, at_floor=False,
+    depth, landed, down_time = next_depth(0.0, False, 0.1, planned_down=True, loaded=False, floor_missing=False,
                                           **SETTINGS)
     assert depth == 0.0 and not landed and down_time == pytest.approx(0.105)
 
 
 def test_a_landed_sole_that_unloads_is_not_pushed_down_and_a_lifted_one_starts_again():
-    depth, landed, _ = next_depth(0.004, True, 0.5, planned_down=True, loaded=False, at_floor=True,
+    depth, landed, _ = next_depth(0.004, True, 0.5, planned_down=True, loaded=False, floor_missing=True,
                                   **SETTINGS)  # rocking
     assert landed and depth == 0.004
-    depth, landed, down_time = next_depth(0.004, True, 0.5, planned_down=False, loaded=True, at_floor=True,
+    depth, landed, down_time = next_depth(0.004, True, 0.5, planned_down=False, loaded=True, floor_missing=True,
                                           **SETTINGS)
     assert depth == pytest.approx(0.004 * 0.95) and not landed and down_time == 0.0  # the swing
 

@@ -32,20 +32,20 @@ from drake_estop.timing import timed
 from drake_estop.validation import check_positive
 
 
-def next_depth(depth: float, landed: bool, down_time: float, *, planned_down: bool, loaded: bool, at_floor: bool,
+def next_depth(depth: float, landed: bool, down_time: float, *, planned_down: bool, loaded: bool, floor_missing: bool,
                dt: float, descent_speed: float, max_depth: float, return_time: float, grace_time: float) -> tuple:
     """One servo tick of a sole's touchdown: ``(depth, landed, down_time)``, its target's depth below the
     reference [m], whether it has touched down since the reference put it on the floor, and how long the
     reference has had it there [s]. Put down, not ``loaded`` for longer than ``grace_time`` [s] (the sensor's
-    delay at an ordinary landing) and ``at_floor`` (the estimate has it at the plan's floor), it goes down at
-    ``descent_speed`` [m/s] to ``max_depth`` [m]; from its touchdown on the depth is held; while the reference
-    lifts it the depth goes back towards zero over ``return_time`` [s]."""
+    delay at an ordinary landing) and with its ``floor_missing`` (the estimate has it below the plan's floor),
+    it goes down at ``descent_speed`` [m/s] to ``max_depth`` [m]; from its touchdown on the depth is held;
+    while the reference lifts it the depth goes back towards zero over ``return_time`` [s]."""
     if not planned_down:
         return depth * max(0.0, 1.0 - dt / return_time), False, 0.0
     down_time += dt
     if landed or loaded:
         return depth, True, down_time
-    if down_time <= grace_time + 1e-9 or not at_floor:
+    if down_time <= grace_time + 1e-9 or not floor_missing:
         return depth, False, down_time
     return min(depth + descent_speed * dt, max_depth), False, down_time
 
@@ -134,7 +134,7 @@ class TouchdownByContact(LeafSystem):
         new = np.array([next_depth(float(depth[k]), bool(landed[k]), float(down_time[k]),
                                    planned_down=self.feet_in_ports[k].Eval(context)[2] <= SWING_HEIGHT,
                                    loaded=forces[k] >= self._contact_force,
-                                   at_floor=heights[k] <= -self._below_floor, dt=self._dt, **self._settings)
+                                   floor_missing=heights[k] <= -self._below_floor, dt=self._dt, **self._settings)
                         for k in range(len(FEET))], dtype=float)
         discrete_state.set_value(self._depth, new[:, 0])
         discrete_state.set_value(self._landed, new[:, 1])

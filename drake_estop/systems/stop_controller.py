@@ -350,13 +350,9 @@ class StopPlannerSystem(ReferenceSystem):
         wall = time.perf_counter() - start
         if new is None and failures == handle.replan_failures and left is None:
             return self._drop_pending(state, handle)  # nothing left to re-plan (the foot has landed)
-        updated = handle.replaced(
-            plan=new or plan, wall_time=wall, replans=handle.replans + (new is not None), replan_failures=failures,
-            max_wall_time=max(handle.max_wall_time, wall),
-            blend=self._blend_into(context, new) if new is not None else handle.blend,
-            history=handle.history + ((new,) if new is not None else ()),
-            last_try=handle.last_try if pending else t,  # a resumed sequence keeps its first tick
-            pending=left)
+        # a resumed sequence keeps its first tick as its last try
+        updated = self._after_solve(context, handle, new, wall, failures=failures,
+                                    last_try=handle.last_try if pending else t, pending=left)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
 
@@ -371,15 +367,22 @@ class StopPlannerSystem(ReferenceSystem):
         except InfeasibleStop:
             new = None
         wall = time.perf_counter() - start
-        if new is None:
-            updated = handle.replaced(replan_failures=handle.replan_failures + 1, wall_time=wall,
-                                      max_wall_time=max(handle.max_wall_time, wall), pending=None)
-        else:
-            updated = handle.replaced(
-                plan=new, wall_time=wall, replans=handle.replans + 1, max_wall_time=max(handle.max_wall_time, wall),
-                blend=self._blend_into(context, new), history=handle.history + (new,), last_try=t, pending=None)
+        updated = self._after_solve(context, handle, new, wall,
+                                    failures=handle.replan_failures + (new is None),
+                                    last_try=handle.last_try if new is None else t, pending=None)
         state.get_mutable_abstract_state(self._plan_state).set_value(updated)
         return EventStatus.Succeeded()
+
+    def _after_solve(self, context, handle, new, wall, *, failures, last_try, pending):
+        """``handle`` after a re-plan or re-timing solve that took ``wall`` [s]: ``new`` (None: none found, the
+        plan goes on) in force, blended into from the command and added to the history, the failures counted
+        as ``failures``, and ``last_try`` and ``pending`` as given."""
+        found = new is not None
+        return handle.replaced(
+            plan=new if found else handle.plan, wall_time=wall, replans=handle.replans + found,
+            replan_failures=failures, max_wall_time=max(handle.max_wall_time, wall),
+            blend=self._blend_into(context, new) if found else handle.blend,
+            history=handle.history + ((new,) if found else ()), last_try=last_try, pending=pending)
 
     def _plan_ahead_of_latch(self, t) -> AheadPlan:
         """The stop of a signal at this tick ``t``, planned from the reference (``plan_ahead``): the latch
