@@ -188,3 +188,44 @@ def test_largest_push_speed_inward_is_the_crossovers():
     assert with_crossover == pytest.approx(0.56, abs=0.06)
     assert without == pytest.approx(0.33, abs=0.05)
     assert largest_push_speed(state, [0.0, -1.0], limits=limits, **kwargs) > with_crossover  # outward: wider
+
+
+def test_double_support_depth_is_qhull_s():
+    """The double-support depth (the DCM's signed distance to the hull of both soles' CoP boxes, made without
+    qhull every tick) equals scipy's ConvexHull to rounding, inside and out, at any heading."""
+    from scipy.spatial import ConvexHull
+
+    from drake_estop.planning.capturability import _hull_depth
+
+    def qhull_depth(point, corners):
+        hull = ConvexHull(corners)
+        distances = hull.equations[:, :2] @ point + hull.equations[:, 2]
+        if np.all(distances <= 0.0):
+            return float(-np.max(distances))
+        vertices = corners[hull.vertices]
+        edges = np.roll(vertices, -1, axis=0) - vertices
+        s = np.clip(np.einsum("ij,ij->i", point - vertices, edges) / np.einsum("ij,ij->i", edges, edges), 0, 1)
+        return -float(np.min(np.linalg.norm(vertices + s[:, None] * edges - point, axis=1)))
+
+    rng = np.random.default_rng(7)
+    local = np.array([[x, y] for x in (-0.1, 0.13) for y in (-0.05, 0.06)])
+    inside = outside = 0
+    for _ in range(2000):
+        heading = rng.uniform(-math.pi, math.pi)
+        rotation = np.array([[math.cos(heading), -math.sin(heading)], [math.sin(heading), math.cos(heading)]])
+        first = rng.uniform(-0.3, 0.3, 2)
+        corners = np.concatenate([first + local @ rotation.T, first + rng.uniform(-0.3, 0.3, 2) + local @ rotation.T])
+        point = rng.uniform(-0.6, 0.6, 2)
+        expected = qhull_depth(point, corners)
+        assert _hull_depth(point, corners) == pytest.approx(expected, abs=1e-12)
+        inside, outside = inside + (expected > 0), outside + (expected < 0)
+    assert inside > 50 and outside > 50
+
+
+def test_a_verdict_is_shared_not_copied():
+    """A verdict is immutable: Drake's clone of the monitor's state (a deep copy) shares it."""
+    import copy
+
+    verdict = capturability(np.array([0.3, 0.0]), omega=OMEGA, stance_ankle=[0.0, 0.1], stance_side="left",
+                            limits=default_limits(), first_step_time=0.3)
+    assert copy.deepcopy(verdict) is verdict

@@ -9,7 +9,9 @@ from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters, plan_stop
 from drake_estop.systems.decision import StopPlannerConfig
-from drake_estop.systems.reference import WalkingPatternSource
+from drake_estop.systems.plan_sequence import PlanHandle
+from drake_estop.systems.reference import WalkingPatternSource, blended_reference, reference_vector
+from drake_estop.systems import stop_controller
 from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
 from drake_estop.systems.stop_numerics import dcm_deviation
 from drake_estop.systems.trigger import EStopTrigger
@@ -247,6 +249,30 @@ def test_planner_outputs_continuous_across_latch(pattern, params, signal):
     assert np.all(jumps[9] <= bound) and np.all(jumps[10] <= bound), (jumps[8:12])
     phase = PHASES[int(planner.GetOutputPort("phase").Eval(context)[0])]
     assert phase == ("landing" if signal == 3.4 else "transition")
+
+
+def test_planner_reference_is_made_once_per_plan_and_tick(pattern, params, monkeypatch):
+    """The reference is a function of the plan handle and the time: made once a tick although the planner's
+    unrestricted update invalidates its cache, equal to a fresh evaluation, read-only, and made again when
+    the handle changes at the same time."""
+    planner, simulator, context = _planner_context(pattern, params, 3.395, [1.0, 3.4])
+    for t in (3.40, 3.405, 3.45, 3.6):
+        simulator.AdvanceTo(t)
+        handle = planner.plan_port.Eval(context)
+        fresh = blended_reference(reference_vector(t, pattern=pattern, plan=handle.plan), handle.blend, t)
+        reference = planner.reference(context)
+        assert np.array_equal(reference, fresh) and not reference.flags.writeable
+    made = []
+    monkeypatch.setattr(stop_controller, "reference_vector", lambda *a, **k: made.append(1) or reference_vector(*a, **k))
+    same = planner.plan_port.Eval(context)
+    context.SetAbstractState(0, same)  # the state written again, as the update commits it: the cache is stale
+    assert np.array_equal(planner.reference(context), reference) and made == []
+    other = plan_stop(pattern, 3.35, params)
+    context.SetAbstractState(0, PlanHandle(plan=other))  # another plan, the same time
+    assert planner.plan(context) is other
+    changed = planner.reference(context)
+    assert np.array_equal(changed, reference_vector(3.6, pattern=pattern, plan=other)) and made == [1]
+    assert not np.array_equal(changed[:3], reference[:3])
 
 
 def test_planner_reports_phase_sequence(pattern, params):

@@ -41,6 +41,7 @@ per-update work.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -395,8 +396,7 @@ class StateEstimator(LeafSystem):
                 else:
                     A, B, u = np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
             else:
-                A = np.array([[1.0, dt], [0.0, 1.0]])
-                B = np.array([0.5 * dt * dt, dt])
+                A, B = _kinematic_model(dt)
                 if axis == 2:
                     u = 0.0
                 elif self._model == "imu":
@@ -406,7 +406,7 @@ class StateEstimator(LeafSystem):
                     u = a_force[axis] + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
                 else:
                     u = a_force[axis]
-            Q = sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
+            Q = _process_noise(dt, sigma)
             m, P = kf_step(m, P, A, B, u, Q, com_meas[axis], self._r)
             mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3] = m, P
         return mean, cov, d_lp
@@ -476,6 +476,24 @@ class StateEstimator(LeafSystem):
         y[out:out + 3] = mean[0::2]
         y[out + 3:out + 6] = mean[1::2]
         return y
+
+
+@functools.lru_cache(maxsize=8)
+def _kinematic_model(dt: float) -> tuple:
+    """The COG filter's constant-acceleration model ``(A, B)`` over ``dt`` [s], read-only: made once per step
+    length (the servo period, every tick but the first) instead of every tick."""
+    return _read_only(np.array([[1.0, dt], [0.0, 1.0]])), _read_only(np.array([0.5 * dt * dt, dt]))
+
+
+@functools.lru_cache(maxsize=16)
+def _process_noise(dt: float, sigma: float) -> np.ndarray:
+    """The COG filter's process noise over ``dt`` [s] for an acceleration noise ``sigma`` [m/s^2], read-only."""
+    return _read_only(sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]))
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.setflags(write=False)
+    return array
 
 
 # --------------------------------------------------------------------------

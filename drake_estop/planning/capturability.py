@@ -74,6 +74,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drake_estop.planning.gait import Sole
+from drake_estop.planning.geometry import convex_hull
 
 #: Most steps the verdict looks ahead: a third step adds almost nothing laterally (the trailing foot
 #: cannot pass the leading one without another crossover), and the stop plans at most three landings.
@@ -207,6 +208,9 @@ class Capturability:
     margin_speed: float
     witness: tuple = ()
 
+    def __deepcopy__(self, memo):  # immutable through and through: Drake's state clones share it
+        return self
+
     @property
     def capturable(self) -> bool:
         return self.steps >= 0
@@ -330,18 +334,19 @@ def _witness(dcm_local, sequence: _Sequences, index: int, limits: SteppingLimits
 
 
 def _hull_depth(point, corners: np.ndarray) -> float:
-    """Signed distance [m] of ``point`` to the convex hull of ``corners`` (n, 2): positive inside."""
-    from scipy.spatial import ConvexHull
-
-    hull = ConvexHull(corners)
-    # equations: unit outward normals n and offsets c with n . x + c <= 0 inside
-    distances = hull.equations[:, :2] @ point + hull.equations[:, 2]
-    if np.all(distances <= 0.0):
-        return float(-np.max(distances))
-    vertices = corners[hull.vertices]
-    edges = np.roll(vertices, -1, axis=0) - vertices
-    s = np.clip(np.einsum("ij,ij->i", point - vertices, edges) / np.einsum("ij,ij->i", edges, edges), 0.0, 1.0)
-    return -float(np.min(np.linalg.norm(vertices + s[:, None] * edges - point, axis=1)))
+    """Signed distance [m] of ``point`` to the convex hull of ``corners`` (n, 2): positive inside (the
+    monitor asks every tick: a few corners in plain floats, no qhull set-up)."""
+    vertices = convex_hull(corners).tolist()  # counter-clockwise
+    px, py = float(point[0]), float(point[1])
+    inside, outside = math.inf, math.inf
+    for (ax, ay), (bx, by) in zip(vertices, vertices[1:] + vertices[:1]):
+        ex, ey = bx - ax, by - ay
+        length_sq = ex * ex + ey * ey
+        dx, dy = px - ax, py - ay
+        inside = min(inside, (dx * ey - dy * ex) / -math.sqrt(length_sq))  # to the edge's line, > 0 inside
+        s = min(max((dx * ex + dy * ey) / length_sq, 0.0), 1.0)
+        outside = min(outside, math.hypot(dx - s * ex, dy - s * ey))  # to the edge
+    return inside if inside >= 0.0 else -outside
 
 
 def _rotation(heading: float) -> np.ndarray:

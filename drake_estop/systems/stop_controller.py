@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import EventStatus
+from pydrake.systems.framework import EventStatus, ValueProducer
 
 from drake_estop.planning.gait import SIDES, NominalPattern
 from drake_estop.planning.late_landing import late_landing_stop
@@ -181,6 +181,13 @@ class StopPlannerSystem(ReferenceSystem):
         self._pattern_com = PatternCom(pattern, params.servo_period)
         self._declare_reference_outputs({self.time_ticket(), self.all_state_ticket()}, timer,
                                         pattern_layout(pattern, layout))
+        # the last reference made and what it was made from (a plan handle is immutable and replaced on any
+        # change): the unrestricted update invalidates the reference cache every tick although the handle
+        # seldom changes, and the tick reads the reference before and after that update
+        self._last_reference = self.DeclareCacheEntry(
+            "last reference", ValueProducer(allocate=lambda: AbstractValue.Make(_ReferenceMemo()),
+                                            calc=lambda context, value: None),
+            {self.nothing_ticket()})
         self.plan_port = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(PlanHandle()), self._calc_plan_output,
             prerequisites_of_calc={self.abstract_state_ticket(self._plan_state)})
@@ -450,8 +457,14 @@ class StopPlannerSystem(ReferenceSystem):
     def _calc_reference(self, context):
         handle = self._handle(context)
         t = context.get_time()
-        return blended_reference(reference_vector(t, pattern=self._pattern, plan=handle.plan, layout=self._layout),
-                                 handle.blend, t)
+        memo = self._last_reference.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+        if memo.handle is handle and memo.time == t:  # a function of the handle and the time alone
+            return memo.reference
+        reference = blended_reference(reference_vector(t, pattern=self._pattern, plan=handle.plan,
+                                                       layout=self._layout), handle.blend, t)
+        reference.setflags(write=False)  # shared by the memo: read, never written
+        memo.handle, memo.time, memo.reference = handle, t, reference
+        return reference
 
     def _blend_into(self, context, plan):
         """The blend from the command now in force into ``plan`` (None if it starts continuous)."""
@@ -467,6 +480,19 @@ class StopPlannerSystem(ReferenceSystem):
         if max(np.max(np.abs(dp)), np.max(np.abs(dv)), np.max(np.abs(dfeet))) < 1e-9:
             return None
         return (t, dp, dv, self._config.blend_time, dfeet)
+
+
+class _ReferenceMemo:
+    """The last reference vector of a :class:`StopPlannerSystem`'s context and the plan handle and time it
+    was made from (held in a cache entry: scratch, not state)."""
+
+    __slots__ = ("handle", "time", "reference")
+
+    def __init__(self):
+        self.handle, self.time, self.reference = None, None, None
+
+    def __deepcopy__(self, memo):  # a fresh context starts with an empty memo
+        return _ReferenceMemo()
 
 
 def add_stop_controller(builder, *, pattern, params, estop_time=None, meshcat=None,
