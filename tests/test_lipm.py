@@ -167,3 +167,21 @@ def test_poly_eval_past_the_degree_and_chain_bvp_defaults_to_rest():
     zero, one = lipm.pad([0.0]), lipm.pad([1.0])
     out = lipm.solve_chain_bvp([0.4, 0.4], [zero, zero], [[one, zero], [zero, one]], 0.0, 0.2, w, 0.05)
     assert lipm.chain_end_state([0.4, 0.4], out, 0.0, 0.2, w) == pytest.approx((0.05, 0.0), abs=1e-12)
+
+
+def test_evaluate_axes_gives_each_axis_s_own_bits():
+    """Axes that share breakpoints share one instant's segment, cosh, sinh and powers: the same bits as each
+    axis evaluated alone, at one instant and at many; an axis with other breakpoints gets its own."""
+    w = math.sqrt(9.81 / 0.8)
+    zmp = [[0.0, 0.1], [0.05, 0.0, 0.2], [0.1]]
+    x = lipm.LipmTrajectory.from_zmp(1.0, [0.3, 0.2, 0.4], zmp, 0.0, 0.3, w)
+    y = lipm.LipmTrajectory.from_zmp(1.0, [0.3, 0.2, 0.4], [[0.02], [-0.03, 0.1], [0.0]], 0.05, -0.1, w)
+    other = lipm.LipmTrajectory.from_zmp(1.05, [0.25, 0.3, 0.4], zmp, 0.0, 0.3, w)
+    assert x._shares_basis(y) and not x._shares_basis(other)
+    for t in [0.9, 1.0, 1.17, 1.3, 1.45, 1.5, 1.77, 2.5, np.array([1.23]), [1.61]]:
+        together = lipm.LipmTrajectory.evaluate_axes((x, y, other), t)
+        for traj, values in zip((x, y, other), together):
+            assert all(np.array_equal(a, b) for a, b in zip(values, traj.evaluate(t)))
+    times = np.linspace(0.9, 2.5, 33)
+    for traj, values in zip((x, y), lipm.LipmTrajectory.evaluate_axes((x, y), times)):
+        assert all(np.array_equal(a, b) for a, b in zip(values, traj.evaluate(times)))

@@ -398,7 +398,7 @@ class NominalPattern:
 
     def com(self, t):
         """COG x, y position, velocity, acceleration and ZMP at times ``t``: 4 arrays (n, 2)."""
-        out = [traj.evaluate(t) for traj in self.trajectories]
+        out = lipm.LipmTrajectory.evaluate_axes(self.trajectories, t)
         pos, vel, acc, zmp = (np.stack([out[0][i], out[1][i]], axis=-1) for i in range(4))
         if self.com_correction is not None:
             offset, rate, accel = self.com_correction.evaluate(t)

@@ -262,16 +262,27 @@ class LipmTrajectory:
         belongs to the later segment)."""
         return min(max(bisect.bisect_right(self._segments()[0], t) - 1, 0), len(self.zmp) - 1)
 
-    def _evaluate_one(self, t: float):
-        """:meth:`evaluate` at one instant, in plain floats with numpy's operation order (the same
-        bits as the array path, without its array overhead); 1-element arrays."""
-        breaks, cosh_coef, sinh_coef, cog_poly, zmp = self._segments()
+    def _basis_one(self, t: float) -> tuple:
+        """``(segment, cosh, sinh, powers of tau)`` at one instant ``t``: what :meth:`_evaluate_one` needs
+        besides the coefficients, the same for every trajectory with these breakpoints and ``w``."""
         k = self._segment_at(t)
-        tau = np.array([t - breaks[k]])
+        tau = np.array([t - self._segments()[0][k]])
         w = self.w
         # numpy's cosh, sinh and power (its SIMD loops round differently from libm's)
-        ch, sh = np.cosh(w * tau).item(), np.sinh(w * tau).item()
-        powers = (tau ** _EXPONENTS).tolist()
+        return k, np.cosh(w * tau).item(), np.sinh(w * tau).item(), (tau ** _EXPONENTS).tolist()
+
+    def _shares_basis(self, other) -> bool:
+        """Whether ``other`` has this trajectory's breakpoints and ``w`` (the x and y axes of a plan or a
+        walk do): then one :meth:`_basis_one` serves both."""
+        return other is self or (other.w == self.w and other._segments()[0] == self._segments()[0])
+
+    def _evaluate_one(self, t: float, basis=None):
+        """:meth:`evaluate` at one instant, in plain floats with numpy's operation order (the same
+        bits as the array path, without its array overhead); 1-element arrays. ``basis``: this
+        instant's :meth:`_basis_one`, if made already."""
+        _, cosh_coef, sinh_coef, cog_poly, zmp = self._segments()
+        k, ch, sh, powers = self._basis_one(t) if basis is None else basis
+        w = self.w
         poly = cog_poly[k]
         big_v, big_w = cosh_coef[k], sinh_coef[k]
         pos = big_v * ch + big_w * sh + _sum(c * p for c, p in zip(poly, powers))
@@ -280,6 +291,19 @@ class LipmTrajectory:
             poly[i] * (i * (i - 1)) * powers[i - 2] for i in range(2, N_COEFFS))
         zmp_value = _sum(c * p for c, p in zip(zmp[k], powers))
         return np.array([pos]), np.array([vel]), np.array([acc]), np.array([zmp_value])
+
+    @staticmethod
+    def evaluate_axes(trajectories, t):
+        """``[trajectory.evaluate(t) for trajectory in trajectories]``; at one instant the segment, cosh,
+        sinh and powers are made once for the axes that share breakpoints (the same bits, half the work
+        for a plan's or a walk's x and y, which every servo tick asks for)."""
+        if not (np.ndim(t) == 0 or np.size(t) == 1):
+            return [trajectory.evaluate(t) for trajectory in trajectories]
+        t = float(np.asarray(t, dtype=float).reshape(-1)[0])
+        first = trajectories[0]
+        basis = first._basis_one(t)
+        return [trajectory._evaluate_one(t, basis if first._shares_basis(trajectory) else None)
+                for trajectory in trajectories]
 
     def evaluate_at(self, t: float):
         """:meth:`evaluate` at one instant in plain floats (position, velocity,

@@ -435,8 +435,7 @@ class StopPlan:
             for o, n in zip(out, nominal):
                 o[:] = n
         if self.x is not None and np.any(~before):
-            for axis, traj in enumerate((self.x, self.y)):
-                values = traj.evaluate(times[~before])
+            for axis, values in enumerate(lipm.LipmTrajectory.evaluate_axes((self.x, self.y), times[~before])):
                 for o, v in zip(out, values):
                     o[~before, axis] = v
         return tuple(out)
