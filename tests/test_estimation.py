@@ -471,3 +471,20 @@ def test_the_feet_force_torque_readings_stay_out_of_the_controllers_tick_time(pl
     ticks = timer.per_tick(clock="cpu")
     assert len(ticks) == 1 + latency
     assert np.all(ticks < 0.01)  # not the 20 ms of the sensors
+
+
+def test_the_three_cog_filters_in_one_call_keep_each_axis_s_bits():
+    """``kf_step_axes`` (the estimator's three COG filters in one call) gives each axis the bits of its own
+    ``kf_step``, with and without a measurement."""
+    from drake_estop.physics.estimator_math import kf_step, kf_step_axes
+
+    rng = np.random.default_rng(5)
+    for i in range(500):
+        mean, cov, B, u = rng.normal(size=(3, 2)), rng.normal(size=(3, 3)), rng.normal(size=(3, 2)), rng.normal(size=3)
+        A, Q, z, r = rng.normal(size=(3, 2, 2)), rng.normal(size=(3, 2, 2)), rng.normal(size=3), rng.uniform()
+        if i % 3 == 0:
+            z[i % 2] = np.nan
+        m, c = kf_step_axes(mean, cov, A, B, u, Q, z, r)
+        for axis in range(3):
+            one = kf_step(mean[axis], cov[axis], A[axis], B[axis], u[axis], Q[axis], z[axis], r)
+            assert np.array_equal(one[0], m[axis]) and np.array_equal(one[1], c[axis])

@@ -50,7 +50,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import EventStatus, LeafSystem, ValueProducer
 from pydrake.systems.sensors import Accelerometer, Gyroscope
 
-from drake_estop.physics.estimator_math import cross, kf_step, quat_exp, quat_multiply, quat_to_matrix
+from drake_estop.physics.estimator_math import cross, kf_step_axes, quat_exp, quat_multiply, quat_to_matrix
 from drake_estop.physics.plant import sole_bodies, sole_frames
 from drake_estop.physics.sensors import (
     SIGNALS,
@@ -380,36 +380,36 @@ class StateEstimator(LeafSystem):
     def _cog_filters(self, context, x, dt, quat, acc, wrench, fz, total, com_meas):
         """The COG filters' step over ``dt`` [s] (one Kalman filter per axis, ``self._model``'s input), from
         ``x``'s estimate to the measured COG ``com_meas`` [m]: the new ``(mean, cov, d_lp)``."""
-        mean, cov = x[_MEAN].copy(), x[_COV].copy()
         a_world = quat_to_matrix(quat) @ acc - np.array([0.0, 0.0, self._g])
         a_force = self._g * wrench[3:5] / fz if fz > self._min_force else np.zeros(2)
         d_lp = x[_D_LP] + (dt / (self._push_tau + dt)) * (a_world[:2] - a_force - x[_D_LP])
-        for axis in range(3):
-            m, P = mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3]
-            sigma = self._sz if axis == 2 else self._sa
-            if axis < 2 and self._model == "lipm":
-                p = self.cop_port.Eval(context)[axis]
-                if total > self._min_force and math.isfinite(p):
-                    ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
-                    A = np.array([[ch, sh / self._omega], [self._omega * sh, ch]])
-                    B, u = np.array([1.0 - ch, -self._omega * sh]), p
-                else:
-                    A, B, u = np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
+        if self._model == "lipm":
+            axes = [self._lipm_axis(context, axis, dt, total) for axis in (0, 1)] + [(*_kinematic_model(dt), 0.0)]
+            A, B = np.stack([a for a, _, _ in axes]), np.stack([b for _, b, _ in axes])
+            u = np.array([u for _, _, u in axes])
+        else:
+            A, B = _kinematic_models(dt)
+            if self._model == "imu":
+                inputs = a_world[:2]
+            elif self._model == "hybrid":
+                inputs = [force + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
+                          for force, d in zip(a_force, d_lp)]
             else:
-                A, B = _kinematic_model(dt)
-                if axis == 2:
-                    u = 0.0
-                elif self._model == "imu":
-                    u = a_world[axis]
-                elif self._model == "hybrid":
-                    d = d_lp[axis]
-                    u = a_force[axis] + math.copysign(max(abs(d) - self._push_threshold, 0.0), d)
-                else:
-                    u = a_force[axis]
-            Q = _process_noise(dt, sigma)
-            m, P = kf_step(m, P, A, B, u, Q, com_meas[axis], self._r)
-            mean[2 * axis:2 * axis + 2], cov[3 * axis:3 * axis + 3] = m, P
-        return mean, cov, d_lp
+                inputs = a_force
+            u = np.array([inputs[0], inputs[1], 0.0])
+        # one Kalman filter per axis, all three in one call (each axis the bits of its own)
+        mean, cov = kf_step_axes(x[_MEAN].reshape(3, 2), x[_COV].reshape(3, 3), A, B, u,
+                                 _process_noises(dt, self._sa, self._sz), com_meas, self._r)
+        return mean.ravel(), cov.ravel(), d_lp
+
+    def _lipm_axis(self, context, axis, dt, total):
+        """The ``lipm`` model's ``(A, B, u)`` of horizontal ``axis`` over ``dt`` [s]: the LIPM about the measured
+        CoP where the feet bear weight, else a constant velocity."""
+        p = self.cop_port.Eval(context)[axis]
+        if total > self._min_force and math.isfinite(p):
+            ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
+            return np.array([[ch, sh / self._omega], [self._omega * sh, ch]]), np.array([1.0 - ch, -self._omega * sh]), p
+        return np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
 
     def _step(self, context, x, t):
         plant = self._plant
@@ -485,10 +485,19 @@ def _kinematic_model(dt: float) -> tuple:
     return _read_only(np.array([[1.0, dt], [0.0, 1.0]])), _read_only(np.array([0.5 * dt * dt, dt]))
 
 
+@functools.lru_cache(maxsize=8)
+def _kinematic_models(dt: float) -> tuple:
+    """:func:`_kinematic_model` of the three axes, stacked ``((3, 2, 2), (3, 2))``, read-only."""
+    A, B = _kinematic_model(dt)
+    return _read_only(np.stack([A] * 3)), _read_only(np.stack([B] * 3))
+
+
 @functools.lru_cache(maxsize=16)
-def _process_noise(dt: float, sigma: float) -> np.ndarray:
-    """The COG filter's process noise over ``dt`` [s] for an acceleration noise ``sigma`` [m/s^2], read-only."""
-    return _read_only(sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]))
+def _process_noises(dt: float, horizontal: float, vertical: float) -> np.ndarray:
+    """The COG filters' process noise over ``dt`` [s] for an acceleration noise [m/s^2] of ``horizontal`` on x
+    and y and ``vertical`` on z, stacked (3, 2, 2), read-only."""
+    return _read_only(np.stack([sigma ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
+                                for sigma in (horizontal, horizontal, vertical)]))
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:

@@ -59,3 +59,25 @@ def kf_step(mean, cov, A, B, u, Q, z, r):
         m = m + k * (z - m[0])
         P = P - np.outer(k, P[0, :])
     return m, np.array([P[0, 0], 0.5 * (P[0, 1] + P[1, 0]), P[1, 1]])
+
+
+def kf_step_axes(mean, cov, A, B, u, Q, z, r):
+    """:func:`kf_step` of several independent axes at once, each axis the bits of its own call: ``mean``
+    (n, 2), ``cov`` (n, 3) as (p00, p01, p11), ``A`` (n, 2, 2), ``B`` (n, 2), ``u`` (n), ``Q`` (n, 2, 2),
+    ``z`` (n) position measurements (NaN: none), ``r`` their variance. Returns the new ``(mean (n, 2), cov
+    (n, 3))``. (numpy's matmul of a stack runs its 2 x 2 product slice by slice, as one call does; a 2-D
+    ``A`` broadcast over the stack would round otherwise.)"""
+    m = np.matmul(A, mean[:, :, None])[:, :, 0] + B * u[:, None]
+    P = cov[:, [0, 1, 1, 2]].reshape(-1, 2, 2)
+    P = A @ P @ A.transpose(0, 2, 1) + Q
+    measured = np.isfinite(z)
+    if measured.any():
+        s = P[:, 0, 0] + r
+        k = P[:, :, 0] / s[:, None]
+        m_new = m + k * (z - m[:, 0])[:, None]
+        P_new = P - k[:, :, None] * P[:, None, 0, :]
+        if measured.all():
+            m, P = m_new, P_new
+        else:
+            m, P = np.where(measured[:, None], m_new, m), np.where(measured[:, None, None], P_new, P)
+    return m, np.stack([P[:, 0, 0], 0.5 * (P[:, 0, 1] + P[:, 1, 0]), P[:, 1, 1]], axis=1)
