@@ -1,5 +1,5 @@
 """A floor lower than the plan's: the stop's landing spot on a patch of floor DEPTH lower (``--floor-drop``), with
-the default controller, the touchdown by contact on, and that with the late landing's re-timing.
+the touchdown by contact off, the default controller (it on), and that with the late landing's re-timing.
 
     python benchmarks/floor_drop.py [--workers 2]        # run and write benchmarks/FLOOR_DROP.md
 
@@ -20,8 +20,8 @@ RESULT = Path(__file__).resolve().parent / "FLOOR_DROP.md"
 SIGNALS = (3.2, 3.4)  # [s] early and late in the third step's single support
 DEPTHS = (0.005, 0.01, 0.0125, 0.015, 0.02)  # [m]
 #: Column title -> the controller's changes (ControllerOptions.with_changes).
-CONTROLLERS = {"default": {}, "touchdown on": {"touchdown": {}},
-               "touchdown and late landing on": {"touchdown": {}, "planner.late_landing": True}}
+CONTROLLERS = {"touchdown off": {"touchdown": None}, "default": {},
+               "late landing on": {"planner.late_landing": True}}
 PATCH = (0.2, 0.09)  # [m] half-length and half-width of the lowered patch around the landing point
 LOADED = 50.0  # [N] a sole carrying weight
 
@@ -81,8 +81,8 @@ def report(rows: list, wall: float, workers: int) -> str:
              f"{2 * PATCH[0]:.2f} m x {2 * PATCH[1]:.2f} m patch around the planned landing point "
              "(`--floor-drop`). A cell: the verdict (stop: every criterion; upright: no fall, the criteria "
              "missed; fall), and when the landing sole first carried 50 N after the plan's touchdown. Columns: "
-             "the default controller, `touchdown: {}` (the touchdown by contact), and that with "
-             "`planner.late_landing: true` (a late landing re-times the stop).", ""]
+             "`touchdown: null` (the touchdown by contact off), the default controller (it on), and that "
+             "with `planner.late_landing: true` (a late landing re-times the stop).", ""]
     for signal in SIGNALS:
         lines += [f"## Signal at {signal:g} s", "", "| drop [mm] | " + " | ".join(CONTROLLERS) + " |",
                   "| --- |" + " --- |" * len(CONTROLLERS)]

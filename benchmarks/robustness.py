@@ -85,9 +85,8 @@ ABLATION = (
     {"controller": {"hip_strategy": {}}},
     {"controller": {"planner.max_steps": 1}},
     {"controller": {"planner.crossover_step": True}},
-    {"controller": {"touchdown": {}}},
+    {"controller": {"touchdown": None}},
     {"controller": {"planner.late_landing": True}},
-    {"controller": {"touchdown": {}, "planner.late_landing": True}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.

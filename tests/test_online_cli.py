@@ -75,7 +75,7 @@ def test_the_braked_landing_reaches_the_online_run_and_turns_off(monkeypatch):
 #: One value off its default for every field of the controller section but ``kind``, by dotted name.
 CHANGED = {"true_state": True, "whole_body_walk": True, "braked_landing": False,
            "swing_tilt": None, "foot_force": None, "foot_compliance": None, "hip_strategy": {},
-           "touchdown": {},
+           "touchdown": None,
            "swing_tilt.deadband": 0.02, "foot_compliance.edge_margin": 0.02, "foot_force.damping": 3000.0,
            **{f"planner.{name}": value for name, value in {
                "replan_threshold": 0.06, "landed_replan_threshold": 0.09, "replan_interval": 0.1, "blend_time": 0.3,

@@ -177,7 +177,7 @@ def test_print_scenario_shows_the_effective_scenario(capsys):
     section = text[text.index("\ncontroller:\n"):text.index("\nplant:\n")].split("\n")[2:]
     fields = [line.split(":")[0].strip() for line in section if line.startswith("  ") and not line.startswith("   ")]
     assert fields == ["kind", "true_state", "whole_body_walk", "braked_landing", "planner", "foot_force",
-                      "foot_compliance", "swing_tilt", "hip_strategy", "touchdown"]  # every field (None ones last)
+                      "foot_compliance", "touchdown", "swing_tilt", "hip_strategy"]  # every field (None ones last)
 
 
 @pytest.mark.parametrize("args,named", [

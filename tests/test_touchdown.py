@@ -107,7 +107,7 @@ def test_bad_settings_raise_naming_them(name, value):
         TouchdownByContact(**{name: value})
 
 
-def test_the_online_diagram_has_it_only_when_the_controller_turns_it_on():
+def test_the_online_diagram_has_it_unless_the_controller_turns_it_off():
     from drake_estop.physics.online import build_online_diagram, controller_stop_parameters
     from drake_estop.planning.gait import NominalPattern
 
@@ -122,14 +122,17 @@ def test_the_online_diagram_has_it_only_when_the_controller_turns_it_on():
                                   estimator.sole_heights_port.Eval(estimator.GetMyContextFromRoot(context)))
     np.testing.assert_array_equal(ik.GetInputPort("left_foot").Eval(ik.GetMyContextFromRoot(context)),
                                   system.feet_out_ports[0].Eval(system.GetMyContextFromRoot(context)))
-    off = build_online_diagram(NominalPattern(), controller_stop_parameters(), None)
+    assert build_online_diagram(NominalPattern(), controller_stop_parameters(), None).diagram.HasSubsystemNamed(
+        "touchdown_by_contact")  # on by default
+    off = build_online_diagram(NominalPattern(), controller_stop_parameters(), None,
+                               controller=ControllerOptions(touchdown=None))
     assert not off.diagram.HasSubsystemNamed("touchdown_by_contact") and "touchdown_depth" not in off.loggers
 
 
 @pytest.mark.slow
 def test_a_floor_10_mm_lower_under_the_landing_spot_still_stops():
-    """The paper's 3.4 s stop with the floor 10 mm lower under its landing spot (``--floor-drop``), the touchdown
-    by contact on: the landing sole finds the floor 0.1 s after the plan's touchdown and stays on it, and the
+    """The paper's 3.4 s stop with the floor 10 mm lower under its landing spot (``--floor-drop``), the default
+    controller (the touchdown by contact on): the landing sole finds the floor 0.1 s after the plan's touchdown and stays on it, and the
     stop meets every criterion. (Without it the foot hovers over the hole while the plan moves the ZMP onto
     it, and the robot falls: benchmarks/FLOOR_DROP.md.)"""
     from drake_estop.physics.online import run_online
@@ -141,8 +144,7 @@ def test_a_floor_10_mm_lower_under_the_landing_spot_still_stops():
     plan = plan_stop(NominalPattern(), 3.4, StopParameters())
     x, y = plan.landing_position
     drop = FloorDrop(x - 0.2, x + 0.2, y - 0.09, y + 0.09, 0.01)
-    result = run_online(estop_time=3.4, perturbations=Perturbations(floor_drop=drop),
-                        controller=ControllerOptions(touchdown=TouchdownConfig()))
+    result = run_online(estop_time=3.4, perturbations=Perturbations(floor_drop=drop))
     assert result.success, [name for name, ok in result.criteria.items() if not ok]
     side = plan.landing_foot
     loaded = result.times[(result.foot_forces[side] > 50.0) & (result.times > plan.landing_time - 0.05)]

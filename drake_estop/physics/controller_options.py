@@ -223,8 +223,8 @@ class ControllerOptions:
         recovery step (without: two), but on the first 120 runs of the campaign it lost 2 and gained 1.
     touchdown : TouchdownConfig or None
         A landing sole that reaches the plan's floor and finds none keeps coming down until it first carries
-        weight, and stays there, so a floor lower than planned does not leave the foot hovering (default off
-        until the campaign has measured it on: ``docs/online_controller.md``).
+        weight, and stays there, so a floor lower than planned does not leave the foot hovering (default on;
+        on the flat floor it changed no verdict: ``docs/online_controller.md``).
 
     Raises
     ------
@@ -242,7 +242,7 @@ class ControllerOptions:
     foot_force: FootForceConfig | None = field(default_factory=FootForceConfig)
     foot_compliance: FootEdgeComplianceConfig | None = field(default_factory=FootEdgeComplianceConfig)
     hip_strategy: HipStrategyConfig | None = None
-    touchdown: TouchdownConfig | None = None
+    touchdown: TouchdownConfig | None = field(default_factory=TouchdownConfig)
 
     def __post_init__(self):
         if self.kind not in CONTROLLER_KINDS:

@@ -59,7 +59,7 @@ class Reflexes:
     foot_force: FootForceConfig | None = None
     hip_strategy: HipStrategyConfig | None = None
     foot_compliance: FootEdgeComplianceConfig | None = FootEdgeComplianceConfig(edge_margin=EDGE_MARGIN)
-    touchdown: TouchdownConfig | None = None
+    touchdown: TouchdownConfig | None = TouchdownConfig()
 
     @classmethod
     def of(cls, controller: ControllerOptions, robot=None) -> Reflexes:
