@@ -8,10 +8,10 @@ from pydrake.systems.framework import DiagramBuilder
 from drake_estop.model import UPPER_BODY_JOINTS
 from drake_estop.planning.gait import ARM_JOINTS, NominalPattern
 from drake_estop.planning.planner import PHASES, StopParameters, plan_stop
+from drake_estop.systems import stop_controller
 from drake_estop.systems.decision import StopPlannerConfig
 from drake_estop.systems.plan_sequence import PlanHandle
 from drake_estop.systems.reference import WalkingPatternSource, blended_reference, reference_vector
-from drake_estop.systems import stop_controller
 from drake_estop.systems.stop_controller import StopPlannerSystem, add_stop_controller
 from drake_estop.systems.stop_numerics import dcm_deviation
 from drake_estop.systems.trigger import EStopTrigger
@@ -263,7 +263,8 @@ def test_planner_reference_is_made_once_per_plan_and_tick(pattern, params, monke
         reference = planner.reference(context)
         assert np.array_equal(reference, fresh) and not reference.flags.writeable
     made = []
-    monkeypatch.setattr(stop_controller, "reference_vector", lambda *a, **k: made.append(1) or reference_vector(*a, **k))
+    monkeypatch.setattr(stop_controller, "reference_vector",
+                        lambda *a, **k: made.append(1) or reference_vector(*a, **k))
     same = planner.plan_port.Eval(context)
     context.SetAbstractState(0, same)  # the state written again, as the update commits it: the cache is stale
     assert np.array_equal(planner.reference(context), reference) and made == []

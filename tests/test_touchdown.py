@@ -132,9 +132,9 @@ def test_the_online_diagram_has_it_unless_the_controller_turns_it_off():
 @pytest.mark.slow
 def test_a_floor_10_mm_lower_under_the_landing_spot_still_stops():
     """The paper's 3.4 s stop with the floor 10 mm lower under its landing spot (``--floor-drop``), the default
-    controller (the touchdown by contact on): the landing sole finds the floor 0.1 s after the plan's touchdown and stays on it, and the
-    stop meets every criterion. (Without it the foot hovers over the hole while the plan moves the ZMP onto
-    it, and the robot falls: benchmarks/FLOOR_DROP.md.)"""
+    controller (the touchdown by contact on): the landing sole finds the floor 0.1 s after the plan's
+    touchdown and stays on it, and the stop meets every criterion. (Without it the foot hovers over the hole
+    while the plan moves the ZMP onto it, and the robot falls: benchmarks/FLOOR_DROP.md.)"""
     from drake_estop.physics.online import run_online
     from drake_estop.physics.perturbations import Perturbations
     from drake_estop.physics.plant import FloorDrop

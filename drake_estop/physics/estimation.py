@@ -408,7 +408,8 @@ class StateEstimator(LeafSystem):
         p = self.cop_port.Eval(context)[axis]
         if total > self._min_force and math.isfinite(p):
             ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
-            return np.array([[ch, sh / self._omega], [self._omega * sh, ch]]), np.array([1.0 - ch, -self._omega * sh]), p
+            A = np.array([[ch, sh / self._omega], [self._omega * sh, ch]])
+            return A, np.array([1.0 - ch, -self._omega * sh]), p
         return np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
 
     def _step(self, context, x, t):
