@@ -410,7 +410,7 @@ class StateEstimator(LeafSystem):
             ch, sh = math.cosh(self._omega * dt), math.sinh(self._omega * dt)
             A = np.array([[ch, sh / self._omega], [self._omega * sh, ch]])
             return A, np.array([1.0 - ch, -self._omega * sh]), p
-        return np.array([[1.0, dt], [0.0, 1.0]]), np.zeros(2), 0.0
+        return _kinematic_model(dt)[0], np.zeros(2), 0.0  # constant velocity: the kinematic model, no input
 
     def _step(self, context, x, t):
         plant = self._plant

@@ -1,5 +1,6 @@
 """Small numerics of the state estimator, plain numpy (the per-tick cost matters): quaternions
-(w, x, y, z) and one step of a two-state Kalman filter.
+(w, x, y, z) and one step of a two-state Kalman filter: :func:`kf_step` for one axis, the definition that
+:func:`kf_step_axes`, the estimator's three COG axes in one call, keeps to the bit.
 
 Used by :class:`drake_estop.physics.estimation.StateEstimator` and
 :class:`drake_estop.physics.sensors.FootForceTorqueSensors`.
