@@ -80,6 +80,7 @@ ABLATION = (
     {"controller": {"planner.reference_fallback": False}},
     {"controller": {"planner.foothold_replan": True}},
     {"controller": {"foot_force": None}},
+    {"controller": {"foot_force.planned_support": True}},
     {"controller": {"planner.max_replan_solves": None}},
     {"controller": {"whole_body_walk": True}},
     {"controller": {"hip_strategy": {}}},

@@ -21,13 +21,16 @@ def test_the_desired_split_follows_the_zmp_between_the_ankles():
     assert desired_force_difference([LEFT, swinging], [0.15, 0.0], 300.0) == pytest.approx(300.0)
 
 
-def _run(forces, zmp, ticks=20, left=LEFT, **settings):
-    """The control after ``ticks`` servo ticks with the soles reading ``forces`` (left, right) [N] and the
-    left sole target ``left``; its feet outputs and height difference."""
+def _run(forces, zmp, ticks=20, left=LEFT, planned=None, **settings):
+    """The control after ``ticks`` servo ticks with the soles reading ``forces`` (left, right) [N], the
+    left sole target ``left`` and, given, the plan's sole targets ``planned`` (left, right); its feet
+    outputs and height difference."""
     control = FootForceDifferenceControl(**settings)
     context = control.CreateDefaultContext()
     control.feet_in_ports[0].FixValue(context, left)
     control.feet_in_ports[1].FixValue(context, RIGHT)
+    for port, foot in zip(control.planned_feet_ports, planned or ()):
+        port.FixValue(context, foot)
     control.zmp_port.FixValue(context, zmp)
     ft = np.zeros(12)
     ft[5], ft[11] = forces
@@ -65,6 +68,19 @@ def test_with_an_engage_time_the_control_waits_for_both_soles_to_stand_that_long
     assert _run((300.0, 0.0), [0.3, -0.1], ticks=60, left=swinging, damping=8000.0, engage_time=0.2)[1] == 0.0
 
 
+def test_the_plan_says_which_soles_stand_not_the_adjusted_targets():
+    """A landed left foot whose target the swing-tilt compensation still holds 3 mm up (its correction
+    decaying) stands in the plan: the control engages after the engage time and presses the underloaded
+    left foot down; read from the adjusted targets alone it would wait, and ask for the whole load on
+    the right foot. The plan's own feet pass through unchanged: only ``dz`` is added to the inputs."""
+    raised = [0.0, 0.1, 0.003, 1.0, 0.0, 0.0, 0.0]
+    feet, dz = _run((0.0, 300.0), [0.15, 0.0], ticks=60, left=raised, planned=(LEFT, RIGHT), damping=8000.0,
+                    engage_time=0.2)
+    assert dz < 0.0  # the right foot raised, the left pressed down
+    assert feet[0][2] == pytest.approx(0.003 + 0.5 * dz)
+    assert _run((0.0, 300.0), [0.15, 0.0], ticks=60, left=raised, damping=8000.0, engage_time=0.2)[1] == 0.0
+
+
 def test_the_settings_are_checked():
     with pytest.raises(ValueError, match="damping"):
         FootForceDifferenceControl(damping=0.0)
@@ -85,7 +101,8 @@ def test_the_settings_are_checked():
 def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
     """The default humanoid's description gives a damping: the online diagram puts the control between the
     swing-tilt compensation and the IK, logs its height difference, and ``foot_force=None``
-    leaves it out."""
+    leaves it out. With ``planned_support`` the plan's feet feed its ``planned_*_foot`` inputs; without,
+    they are left unconnected."""
     from drake_estop.physics.controller_options import ControllerOptions
     from drake_estop.physics.online import build_online_diagram, controller_stop_parameters
     from drake_estop.planning.gait import NominalPattern
@@ -99,8 +116,21 @@ def test_the_default_robot_runs_the_control_and_the_switch_turns_it_off():
     assert handles.foot_force is not None and handles.foot_force._damping == damping
     assert handles.foot_force._engage == engage
     assert "foot_height_difference" in handles.loggers
+    planned = handles.foot_force.planned_feet_ports
+    context = handles.foot_force.GetMyContextFromRoot(handles.diagram.CreateDefaultContext())
+    assert not any(port.HasValue(context) for port in planned)  # the adjusted targets say which soles stand
+    handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions().with_changes(
+        {"foot_force.planned_support": True}))
+    planned = handles.foot_force.planned_feet_ports
+    root = handles.diagram.CreateDefaultContext()
+    context = handles.foot_force.GetMyContextFromRoot(root)
+    assert all(port.HasValue(context) for port in planned)
+    np.testing.assert_array_equal(planned[0].Eval(context), handles.planner.GetOutputPort("left_foot").Eval(
+        handles.planner.GetMyContextFromRoot(root)))
     handles = build_online_diagram(pattern, params, 3.4, controller=ControllerOptions(foot_force=None))
     assert handles.foot_force is None and "foot_height_difference" not in handles.loggers
+    with pytest.raises(ValueError, match="planned_support"):
+        ControllerOptions().with_changes({"foot_force.planned_support": "yes"})
 
 
 #: A campaign run (seed 0, run 280) that rocked: 26.5 N s to the right at 2.956 s, a capture landing, then in

@@ -59,7 +59,8 @@ def test_a_setting_the_controller_gives_beats_the_robots_own():
 
 
 def test_the_foot_force_settings_leave_out_an_engage_time_the_robot_does_not_give():
-    assert FootForceConfig(damping=4000.0).settings() == {"damping": 4000.0, "return_time": 0.5, "max_offset": 0.02}
+    assert FootForceConfig(damping=4000.0).settings() == {"damping": 4000.0, "return_time": 0.5, "max_offset": 0.02,
+                                                         "planned_support": False}
     assert FootForceConfig(damping=4000.0, engage_time=0.2).settings()["engage_time"] == 0.2
 
 

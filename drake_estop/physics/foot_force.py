@@ -20,6 +20,13 @@ the stance foot while the other swings), so an underloaded foot is pressed down 
 In single support the stance foot carries everything, as asked, and ``dz`` decays. With an engage time the
 control acts only once both sole targets have stood that long (a robot whose walk needs no such control
 gets it in a stop's double support alone); before that ``dz`` decays as in single support.
+
+Which soles stand, and where the ZMP's split is taken, come from the targets the control adjusts, or, with
+``planned_support`` (:func:`add_foot_force_control`), from the plan's own sole targets
+(``planned_left_foot`` / ``planned_right_foot``). Read from the adjusted targets, after the swing-tilt
+compensation, a landed foot whose correction decays (``return_time``) stays a few millimetres up and looks
+airborne: measured on the default humanoid's campaign run 195, the control never engaged in the pushed stop's
+double support and halt, and the split it would have asked for put the whole load on the other foot.
 """
 
 from __future__ import annotations
@@ -57,6 +64,8 @@ class FootForceDifferenceControl(LeafSystem):
         - right_foot
         - zmp
         - foot_ft
+        - planned_left_foot
+        - planned_right_foot
         output_ports:
         - left_foot
         - right_foot
@@ -66,6 +75,9 @@ class FootForceDifferenceControl(LeafSystem):
       - ``left_foot``, ``right_foot`` in (7): sole targets ``[x, y, z, qw, qx, qy, qz]`` (z: above the floor).
       - ``zmp`` (2): the plan's ZMP [m].
       - ``foot_ft`` (12): the soles' force/torque sensors, left then right, each ``[n, f]`` in the sole frame.
+      - ``planned_left_foot``, ``planned_right_foot`` (7): the plan's sole targets, which say which soles
+        stand (z at most :data:`~drake_estop.systems.reference.SWING_HEIGHT`); left unconnected, the
+        ``left_foot`` / ``right_foot`` inputs say it.
       - ``left_foot``, ``right_foot`` out (7): the targets with ``+dz / 2`` and ``-dz / 2`` on z.
       - ``height_difference`` (1): ``dz`` [m].
 
@@ -91,6 +103,7 @@ class FootForceDifferenceControl(LeafSystem):
         self.feet_in_ports = [self.DeclareVectorInputPort(f"{side}_foot", 7) for side in FEET]
         self.zmp_port = self.DeclareVectorInputPort("zmp", 2)
         self.foot_ft_port = self.DeclareVectorInputPort("foot_ft", 12)
+        self.planned_feet_ports = [self.DeclareVectorInputPort(f"planned_{side}_foot", 7) for side in FEET]
         self._dz = self.DeclareDiscreteState(1)
         self.feet_out_ports = declare_feet_outputs(self, self.feet_in_ports, self._foot_calc)
         self.height_difference_port = self.DeclareStateOutputPort("height_difference", self._dz)
@@ -99,13 +112,19 @@ class FootForceDifferenceControl(LeafSystem):
     def force_error(self, context) -> float:
         """``(f_L - f_R) - (f_L^d - f_R^d)`` [N] from the sensors' normal forces (negative ones as 0)."""
         forces = np.maximum(self.foot_ft_port.Eval(context).reshape(2, 6)[:, 5], 0.0)
-        feet = [port.Eval(context) for port in self.feet_in_ports]
+        feet = self.planned_feet(context)
         desired = desired_force_difference(feet, self.zmp_port.Eval(context), float(forces.sum()))
         return float(forces[0] - forces[1]) - desired
 
+    def planned_feet(self, context) -> list:
+        """The plan's sole targets, left then right: the ``planned_*_foot`` inputs, else (unconnected) the
+        ``*_foot`` inputs."""
+        ports = self.planned_feet_ports if self.planned_feet_ports[0].HasValue(context) else self.feet_in_ports
+        return [port.Eval(context) for port in ports]
+
     def _update(self, context, discrete_state):
         dz = float(context.get_discrete_state(self._dz).value()[0])
-        down = all(port.Eval(context)[2] <= SWING_HEIGHT for port in self.feet_in_ports)
+        down = all(foot[2] <= SWING_HEIGHT for foot in self.planned_feet(context))
         both_down = float(context.get_discrete_state(self._both_down).value()[0]) + self._dt if down else 0.0
         discrete_state.set_value(self._both_down, [both_down])
         engaged = both_down >= self._engage - 1e-9
@@ -123,14 +142,18 @@ class FootForceDifferenceControl(LeafSystem):
         return calc
 
 
-def add_foot_force_control(builder, *, feet, zmp_source, sensors, servo_period, timer=None, **settings):
+def add_foot_force_control(builder, *, feet, zmp_source, sensors, servo_period, timer=None, planned_support=False,
+                           **settings):
     """A :class:`FootForceDifferenceControl` fed ``feet``' ``left_foot`` / ``right_foot`` outputs (the
     planner or a swing-foot compensation), ``zmp_source``'s ``zmp`` (the planner) and ``sensors``' feet
-    force/torque sensors. Returns the system: its feet outputs go to the IK."""
+    force/torque sensors; with ``planned_support`` also ``zmp_source``'s feet, which then say which soles
+    stand. Returns the system: its feet outputs go to the IK."""
     system = builder.AddNamedSystem("foot_force_difference_control", FootForceDifferenceControl(
         servo_period=servo_period, timer=timer, **settings))
     for k, side in enumerate(FEET):
         builder.Connect(feet.GetOutputPort(f"{side}_foot"), system.feet_in_ports[k])
+        if planned_support:
+            builder.Connect(zmp_source.GetOutputPort(f"{side}_foot"), system.planned_feet_ports[k])
     builder.Connect(zmp_source.GetOutputPort("zmp"), system.zmp_port)
     builder.Connect(sensors.foot_ft_port, system.foot_ft_port)
     return system
