@@ -98,14 +98,14 @@ def test_the_ablation_covers_every_controller_feature_and_the_2_ms_plant(bench):
     features = set(ControllerOptions.__dataclass_fields__) - {"kind", "true_state", "planner"} | {
         "planner.measured_footholds", "planner.relanded_footholds", "planner.recovery_step", "planner.capture_landing",
         "planner.reference_fallback", "planner.foothold_replan", "planner.max_replan_solves", "planner.max_steps",
-        "planner.crossover_step", "planner.late_landing",
+        "planner.crossover_step", "planner.late_landing", "planner.halt_footholds",
         "foot_force.planned_support"}  # the planner's and reflexes' features, not their thresholds and times
     assert {name for fields in controller for name in fields} == features
     assert len(controller) == len(features)  # one row per feature
     assert {"touchdown": None} in controller and {"planner.late_landing": True} in controller
     assert {"plant": {"time_step": 0.002}} in bench.ABLATION
     keys = [bench.change_key(change) for change in bench.ABLATION]
-    assert len(set(keys)) == len(keys) == 20 and keys[0] == "defaults"
+    assert len(set(keys)) == len(keys) == 21 and keys[0] == "defaults"
     assert bench.change_label({"controller": {"planner.max_replan_solves": None}}) == (
         "controller.planner.max_replan_solves: null")
     assert bench.change_settings({"plant": {"time_step": 0.002}})["time_step"] == 0.002

@@ -17,6 +17,7 @@ from drake_estop.systems.decision import (
     StopMode,
     StopPlannerConfig,
     decide,
+    halt_replans,
     stop_mode,
 )
 from drake_estop.systems.plan_sequence import PlanHandle
@@ -222,6 +223,36 @@ def test_a_sole_that_landed_again_replans_at_once(plan_3_4, plan_3_2):
     assert later.kind is ActionKind.WAIT  # not on its first tick: the interval holds it
     early = dataclasses.replace(observation, time=3.25, measured=_pushed(plan_3_2, 3.25, 0.0))
     assert decide(early, PlanHandle(plan_3_2), CONFIG).kind is ActionKind.WAIT
+
+
+def test_in_the_halt_only_a_sole_off_the_plan_replans_and_only_with_halt_footholds(plan_3_4):
+    """In the halt a loaded sole 1 cm off the plan's foot re-plans on the measured feet from the plan's own
+    COG (``from_plan``, no recovery step) with ``halt_footholds``, once a stop; a DCM 11 cm off and a sole
+    that landed again do not re-plan there (the body rocking). Without the option the halt keeps the
+    default's rows: the DCM re-plans (which finds nothing to re-plan) and the feet are not watched."""
+    t = plan_3_4.slowdown_end + 0.1
+    assert stop_mode(plan_3_4, t, True)[0] is StopMode.HALT
+    planned = plan_3_4.feet(t)
+    feet = np.array([*planned["left"][:2], *planned["right"][:2], 40.0, 40.0])
+    feet[1] -= 0.01  # the left sole 1 cm inside
+    on = CONFIG.replaced(halt_footholds=True)
+    observation = Observation(time=t, latched=True, signal_time=3.4, measured=_pushed(plan_3_4, t, 0.0), feet=feet)
+    action = decide(observation, PlanHandle(plan_3_4), on)
+    assert action.kind is ActionKind.REPLAN and action.from_plan and not action.recovery_step
+    np.testing.assert_array_equal(action.feet["left"], feet[:2])
+    assert decide(observation, PlanHandle(plan_3_4), CONFIG).kind is ActionKind.WAIT  # off: not watched
+    # the soles on the plan's: a DCM 11 cm off or a re-landed sole waits in the halt
+    on_plan = np.array([*planned["left"][:2], *planned["right"][:2], 40.0, 40.0])
+    pushed = dataclasses.replace(observation, measured=_pushed(plan_3_4, t, 0.4), feet=on_plan)
+    assert decide(pushed, PlanHandle(plan_3_4), on).kind is ActionKind.WAIT
+    assert decide(pushed, PlanHandle(plan_3_4), CONFIG).kind is ActionKind.REPLAN
+    relanded = dataclasses.replace(observation, feet=on_plan, relanded={"left": feet[:2]}, relanded_now=True)
+    assert decide(relanded, PlanHandle(plan_3_4), on).kind is ActionKind.WAIT
+    # once the halt has been re-planned, a second sole off the plan waits
+    halt_replanned = dataclasses.replace(plan_3_4, start_time=t - 0.05)
+    handle = PlanHandle(plan_3_4).replaced(history=(plan_3_4, halt_replanned))
+    assert halt_replans(handle.history) == 1
+    assert decide(observation, handle, on).kind is ActionKind.WAIT
 
 
 def test_a_capture_landing_takes_its_next_step_at_the_touchdown_and_no_measurement_holds(plan_3_4):

@@ -157,6 +157,64 @@ def test_feet_within_the_tolerance_keep_the_plan(pattern, params, shift, kwargs)
     assert planner.plan(context) is first
 
 
+# -- the halt on the measured feet (halt_footholds) -----------------------------------------------------
+
+
+def _in_the_halt(pattern, params, **kwargs):
+    """StopPlannerSystem alone: the stop latched at 3.4 s, advanced to the tick ``t`` 0.1 s into the halt with
+    the measured COG 2 cm behind the plan's (the DCM within the threshold) and the left sole measured 1 cm
+    inside the plan's foot, both loaded 40 ticks. Returns the planner, its context, the simulator, the first
+    plan, t and the measured feet."""
+    planner, context, simulator, first = latched_stop_planner(pattern, params, **kwargs)
+    t = round((first.slowdown_end + 0.1) / DT) * DT
+    simulator.AdvanceTo(t - DT / 2)
+    pos, vel, _ = state_at(first, t)
+    planner.measured_com_port.FixValue(context, [pos[0] - 0.02, pos[1], 0.8])
+    planner.measured_com_vel_port.FixValue(context, [*vel, 0.0])
+    feet = {side: first.final_feet[side][:2].copy() for side in ("left", "right")}
+    feet["left"] += [0.0, -0.01]
+    planner.measured_feet_port.FixValue(context, [*feet["left"], *feet["right"], 40.0, 40.0])
+    simulator.AdvanceTo(t + DT / 2)
+    return planner, context, simulator, first, t, feet
+
+
+def test_the_halt_is_replanned_once_on_the_measured_feet_from_the_plans_own_cog(pattern, params):
+    """With ``halt_footholds`` a sole measured off the plan's foot in the halt re-plans the stop where the
+    soles stand: from the plan's COG at the tick (continuous with the command, eq. 10-11; the measured COG
+    is not used), on the measured feet, its ZMP continuous (eq. 12-13) and inside their support polygon, the
+    COG at rest at the end; a second slide in that plan's halt does not re-plan again."""
+    planner, context, simulator, first, t, feet = _in_the_halt(pattern, params, halt_footholds=True)
+    assert planner.replans(context) == (1, 0)
+    new = planner.plan(context)
+    assert new.start_time == pytest.approx(t) and new.recovery_step is False
+    for side in feet:
+        np.testing.assert_allclose(new.final_feet[side][:2], feet[side], atol=1e-12)
+    for old_value, new_value in zip(first.com([t]), new.com([t])):  # position, velocity, acceleration, ZMP
+        np.testing.assert_allclose(new_value, old_value, atol=1e-9)
+    times = np.arange(t, new.halt_end + 0.5, DT)
+    pos, vel, _, zmp = new.com(times)
+    assert new.polygon(new.halt_end).margin(zmp).min() > 0.0
+    np.testing.assert_allclose(vel[-1], 0.0, atol=1e-9)
+    midpoint = 0.5 * (feet["left"] + feet["right"])
+    np.testing.assert_allclose(pos[-1], midpoint, atol=0.02)
+    # the robot follows the new plan into its halt, where the left sole slides another centimetre: the halt
+    # is not re-planned again
+    later = round((new.slowdown_end + 0.1) / DT) * DT
+    for tick in range(round(t / DT) + 1, round(later / DT) + 1):
+        _measure_on_the_plan(planner, context, new, tick * DT)
+        simulator.AdvanceTo(tick * DT + DT / 2)
+    assert planner.replans(context) == (1, 0)
+    planner.measured_feet_port.FixValue(context, [*(feet["left"] + [0.0, -0.01]), *feet["right"], 40.0, 40.0])
+    simulator.AdvanceTo(later + DT + DT / 2)
+    assert planner.replans(context) == (1, 0) and planner.plan(context) is new
+
+
+def test_without_halt_footholds_the_halt_keeps_the_plans_feet(pattern, params):
+    planner, context, _, first, _, _ = _in_the_halt(pattern, params)
+    assert planner.replans(context) == (0, 0)
+    assert planner.plan(context) is first
+
+
 # -- a sole that re-lands off its foothold (relanded_footholds) ----------------------------------------
 
 

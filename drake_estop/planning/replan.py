@@ -68,15 +68,15 @@ def check_solve_bound(value, name: str = "max_solves"):
     return value
 
 
-def replan_support(plan: StopPlan, t: float) -> str | None:
+def replan_support(plan: StopPlan, t: float, halt: bool = False) -> str | None:
     """What :func:`replan_stop` re-plans at ``t``: "single" (the landing can still move), "double" (after
-    the landing, before the halt), or None (nothing left to re-plan)."""
+    the landing, before the halt; with ``halt``, before the halt's end), or None (nothing left to re-plan)."""
     if plan.x is None or t < plan.start_time:
         return None
     if (plan.landing_foot is not None and t < plan.landing_time - shortest_replanned_landing(plan)
             and not plan.recovery_step):  # a recovery step lands as planned (a re-plan hurried it: 2.3 kN)
         return "single"
-    return "double" if plan.landing_time <= t < plan.slowdown_end else None
+    return "double" if plan.landing_time <= t < (plan.halt_end if halt else plan.slowdown_end) else None
 
 
 def shortest_replanned_landing(plan: StopPlan) -> float:
@@ -95,7 +95,7 @@ def _capture_only(plan: StopPlan, t: float) -> bool:
 
 def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, recovery_step: bool = False,
                 capture_landing: bool = True, first_try: int = 0, max_solves: int | None = None,
-                crossover: bool = False) -> StopPlan | None:
+                crossover: bool = False, halt: bool = False) -> StopPlan | None:
     """Re-plan a stop at tick ``t`` from the measured COG (e.g. after a push).
 
     The new plan starts at ``t`` from the current plan's ZMP (value, rate and acceleration: eq. 12-13) and feet, and
@@ -151,13 +151,18 @@ def replan_stop(plan: StopPlan, t: float, com_xy, com_vel_xy, *, feet=None, reco
     tick's measurement. A try the ankle strategy would repeat (its stance ZMP within 1 mm of the plan's) is skipped
     and costs no solve.
 
-    Returns None where nothing is left to re-plan (the halt, a plan that has not started yet, a standing plan).
+    **The halt** (``halt=True``; default off). The halt is re-planned as the rest of the double support: a
+    double-support stop from the measured COG on ``feet``, so that the COG comes to rest between the soles
+    where they stand rather than where the plan put them.
+
+    Returns None where nothing is left to re-plan (the halt unless ``halt``, a plan that has not started yet, a
+    standing plan).
     Raises :class:`InfeasibleStop` when no stop exists from that state (:class:`ReplanPending` when tries are left),
     ``ValueError`` for non-finite ``feet``, a ``first_try`` outside the support's tries or a ``max_solves`` below 1.
     """
     footholds = _footholds(feet)
     check_solve_bound(max_solves)
-    support = replan_support(plan, t)
+    support = replan_support(plan, t, halt)
     if support is None:
         return None
     tries = REPLAN_TRIES[support]

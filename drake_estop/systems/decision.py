@@ -41,6 +41,8 @@ FOOTHOLD_TOLERANCE = 0.005
 #: With ``late_landing``, how long after the touchdown it missed a landing may still be re-timed [s]: the
 #: touchdown reflex's deepest descent (15 mm) at its 0.1 m/s, with room.
 MAX_LATE_LANDING = 0.2
+#: With ``halt_footholds``, how many times a stop's halt may be re-planned on the measured feet.
+MAX_HALT_REPLANS = 1
 
 
 class StopMode(enum.IntEnum):
@@ -112,6 +114,11 @@ class StopPlannerConfig:
     relanded_footholds : bool
         A sole that lost contact after the landing and landed again off the plan's foothold re-plans the
         stop where it stands (default True).
+    halt_footholds : bool
+        The halt is re-planned once on the measured feet: a loaded sole off the plan's foot by
+        ``foothold_tolerance`` in the halt re-plans the double-support stop where the soles stand, where
+        without it the halt plays out on the plan's feet (default False). In the halt neither a sole that
+        lands again nor the DCM re-plans then.
     recovery_step : bool
         A re-plan after the landing that finds no double-support stop steps the rear foot forward, and a
         capture landing that stops nothing steps again (default True).
@@ -161,6 +168,7 @@ class StopPlannerConfig:
     foothold_replan: bool = False
     foothold_tolerance: float = FOOTHOLD_TOLERANCE
     relanded_footholds: bool = True
+    halt_footholds: bool = False
     recovery_step: bool = True
     capture_landing: bool = True
     crossover_step: bool = False
@@ -266,6 +274,9 @@ class Action:
         ``REPLAN``: the first of the support's tries (:data:`drake_estop.planning.replan.REPLAN_TRIES`).
     resumed : bool
         ``REPLAN``: the tries go on from an earlier tick (the re-plan keeps that tick as its last try).
+    from_plan : bool
+        ``REPLAN``: from the plan's own COG at the tick (the command goes on: only the feet change), not the
+        measured one.
     """
 
     kind: ActionKind
@@ -276,6 +287,7 @@ class Action:
     recovery_step: bool = False
     first_try: int = 0
     resumed: bool = False
+    from_plan: bool = False
 
 
 def planning_time(observation: Observation) -> float:
@@ -314,7 +326,8 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     SINGLE_SUPPORT_STOP,        the DCM past ``replan_threshold``                REPLAN (single
     STEPPING, LATCHED                                                            support tries)
     DOUBLE_SUPPORT_STOP, HALT   the DCM past ``landed_replan_threshold``, or a    REPLAN on the
-                                loaded sole off the plan's (``foothold_replan``)  measured feet
+                                loaded sole off the plan's (``foothold_replan``;  measured feet
+                                in the HALT ``halt_footholds``)
     ==========================  ===============================================  =============
 
     WALK and LATCH plan from the measured state where its DCM has left the walk's by more than
@@ -337,11 +350,13 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     # first tick: the sole's new place is a fact, not a deviation that a blend may still remove)
     relanded = observation.relanded if landed else None
     # a re-plan with tries left (ReplanPending) goes on at this tick, in the same support
-    support = replan_support(plan, t)
+    support = replan_support(plan, t, config.halt_footholds)
     pending = handle.pending if handle.pending and handle.pending[0] == support else None
     if not (relanded and observation.relanded_now) and pending is None and (
             t - handle.last_try < config.replan_interval - 1e-9):
         return Action(ActionKind.WAIT, "within the re-plan interval")  # let the last blend act first
+    if config.halt_footholds and plan.slowdown_end <= t < plan.halt_end:
+        return _in_the_halt(observation, handle, t, config)
     threshold = config.landed_replan_threshold if landed else config.replan_threshold
     deviated = dcm_deviation(plan, t, observation.measured) > threshold
     # the measured feet: for a re-plan after the landing, and (option) to see whether they left the plan's
@@ -352,7 +367,7 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
         feet, pending, reason = {**(feet or {}), **relanded}, None, "a sole landed again off its foothold"
     elif deviated:
         reason = f"the DCM left the plan by more than {threshold:g} m"
-    elif _feet_moved(observation.feet, plan, t, feet, config):
+    elif watch_feet and _feet_moved(observation.feet, plan, t, feet, config):
         reason = "a loaded sole left the plan's foothold"
     else:
         return Action(ActionKind.WAIT, "on the plan")
@@ -405,10 +420,28 @@ def _footholds(feet, landing, config: StopPlannerConfig):
     return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
 
+def _in_the_halt(observation: Observation, handle, t: float, config: StopPlannerConfig) -> Action:
+    """The halt with ``halt_footholds``: REPLAN on the measured feet where a loaded sole has left the plan's
+    foothold, at most :data:`MAX_HALT_REPLANS` times a stop; else WAIT. A sole that lands again and a DCM
+    that leaves the plan do not re-plan the halt: both are the body rocking, and a re-plan that chases the
+    soles then walks them together (measured: campaign run 290 fell)."""
+    feet = _footholds(observation.feet, last_landing(handle.history), config)
+    if not _feet_moved(observation.feet, handle.plan, t, feet, config):
+        return Action(ActionKind.WAIT, "in the halt, the soles on the plan's")
+    if halt_replans(handle.history) >= MAX_HALT_REPLANS:
+        return Action(ActionKind.WAIT, "the halt re-planned already")
+    return Action(ActionKind.REPLAN, "a loaded sole left the plan's foothold in the halt", feet=feet, from_plan=True)
+
+
+def halt_replans(history) -> int:
+    """How many plans of ``history`` (a stop's plans, in order) were made in the halt of the plan before."""
+    return sum(new.start_time >= old.slowdown_end - 1e-9 for old, new in zip(history, history[1:]))
+
+
 def _feet_moved(measured_feet, plan, t, feet, config: StopPlannerConfig) -> bool:
     """Whether a sole of ``feet`` (:func:`_footholds`) that is a foothold lies more than ``foothold_tolerance``
-    from where ``plan`` has it at ``t``; False without footholds or without ``foothold_replan``."""
-    if feet is None or not config.foothold_replan:
+    from where ``plan`` has it at ``t``; False without footholds."""
+    if feet is None or not (config.foothold_replan or config.halt_footholds):
         return False
     planned = plan.feet(t)
     return any(foothold_loaded(measured_feet, side, config.foothold_ticks)

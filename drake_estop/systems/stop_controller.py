@@ -343,11 +343,15 @@ class StopPlannerSystem(ReferenceSystem):
         re-plan whose tries ran out of the tick's solves (ReplanPending) goes on at the next tick."""
         t, plan = context.get_time(), handle.plan
         pending = handle.pending if action.resumed else None
+        if action.from_plan:  # the plan's own COG (eq. 10-11 with the command): only the feet change
+            axes = [trajectory.evaluate_at(t) for trajectory in (plan.x, plan.y)]
+            measured = (np.array([axes[0][0], axes[1][0]]), np.array([axes[0][1], axes[1][1]]))
         start = time.perf_counter()
         try:
             new = replan_stop(plan, t, *measured, feet=action.feet, recovery_step=action.recovery_step,
                               capture_landing=self._config.capture_landing, crossover=self._config.crossover_step,
-                              first_try=action.first_try, max_solves=self._config.max_replan_solves)
+                              first_try=action.first_try, max_solves=self._config.max_replan_solves,
+                              halt=self._config.halt_footholds)
         except ReplanPending as error:
             new, failures, left = None, handle.replan_failures, (error.support, error.next_try)
         except InfeasibleStop:
