@@ -248,11 +248,32 @@ def test_in_the_halt_only_a_sole_off_the_plan_replans_and_only_with_halt_foothol
     assert decide(pushed, PlanHandle(plan_3_4), CONFIG).kind is ActionKind.REPLAN
     relanded = dataclasses.replace(observation, feet=on_plan, relanded={"left": feet[:2]}, relanded_now=True)
     assert decide(relanded, PlanHandle(plan_3_4), on).kind is ActionKind.WAIT
+    # a sole off the plan with the DCM 11 cm off: the plan's COG is not the robot's, the halt waits
+    assert decide(dataclasses.replace(observation, measured=_pushed(plan_3_4, t, 0.4)), PlanHandle(plan_3_4),
+                  on).kind is ActionKind.WAIT
     # once the halt has been re-planned, a second sole off the plan waits
     halt_replanned = dataclasses.replace(plan_3_4, start_time=t - 0.05)
     handle = PlanHandle(plan_3_4).replaced(history=(plan_3_4, halt_replanned))
     assert halt_replans(handle.history) == 1
     assert decide(observation, handle, on).kind is ActionKind.WAIT
+
+
+def test_the_halt_of_a_stop_with_no_landing_stands_on_both_soles_once_both_are_loaded(pattern):
+    """A stop signalled in double support (3.5 s) has no landing: in its halt the measured soles are footholds
+    once both have been loaded ``foothold_ticks`` ticks, so one 1 cm off re-plans (``halt_footholds``); with
+    one sole unloaded (the body rocking onto the other) the halt waits."""
+    plan = plan_stop(pattern, 3.5, PARAMS)
+    t = plan.slowdown_end + 0.1
+    planned = plan.feet(t)
+    feet = np.array([*planned["left"][:2], *planned["right"][:2], 40.0, 40.0])
+    feet[2] += 0.01  # the right sole 1 cm ahead
+    observation = Observation(time=t, latched=True, signal_time=3.5, measured=_pushed(plan, t, 0.0), feet=feet)
+    on = CONFIG.replaced(halt_footholds=True)
+    action = decide(observation, PlanHandle(plan), on)
+    assert action.kind is ActionKind.REPLAN and action.from_plan
+    np.testing.assert_array_equal(action.feet["right"], feet[2:4])
+    feet[4] = 0.0  # the left sole unloaded
+    assert decide(dataclasses.replace(observation, feet=feet), PlanHandle(plan), on).kind is ActionKind.WAIT
 
 
 def test_a_capture_landing_takes_its_next_step_at_the_touchdown_and_no_measurement_holds(plan_3_4):

@@ -116,9 +116,10 @@ class StopPlannerConfig:
         stop where it stands (default True).
     halt_footholds : bool
         The halt is re-planned once on the measured feet: a loaded sole off the plan's foot by
-        ``foothold_tolerance`` in the halt re-plans the double-support stop where the soles stand, where
-        without it the halt plays out on the plan's feet (default False). In the halt neither a sole that
-        lands again nor the DCM re-plans then.
+        ``foothold_tolerance`` in the halt, with the DCM within ``landed_replan_threshold`` of the plan's,
+        re-plans the double-support stop where the soles stand, from the plan's own COG; without it the halt
+        plays out on the plan's feet (default False). A stop with no landing takes both soles once both are
+        loaded. In the halt neither a sole that lands again nor the DCM re-plans then.
     recovery_step : bool
         A re-plan after the landing that finds no double-support stop steps the rear foot forward, and a
         capture landing that stops nothing steps again (default True).
@@ -320,14 +321,17 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
                                 (``late_landing``)
     (any stop)                  within ``replan_interval`` of the last try, no   WAIT
                                 tries left, no sole re-landed on this tick
+    HALT (``halt_footholds``)   a loaded sole off the plan's, the DCM within      REPLAN on the
+                                ``landed_replan_threshold``, no halt re-planned   measured feet,
+                                yet; else (a re-landed sole, the DCM off)         from the plan
+                                                                                  (else WAIT)
     (any stop)                  a sole re-landed off its foothold                REPLAN on it
     (any stop)                  the DCM within its threshold, the soles on the   WAIT
                                 plan's (or no ``foothold_replan``)
     SINGLE_SUPPORT_STOP,        the DCM past ``replan_threshold``                REPLAN (single
     STEPPING, LATCHED                                                            support tries)
     DOUBLE_SUPPORT_STOP, HALT   the DCM past ``landed_replan_threshold``, or a    REPLAN on the
-                                loaded sole off the plan's (``foothold_replan``;  measured feet
-                                in the HALT ``halt_footholds``)
+                                loaded sole off the plan's (``foothold_replan``)  measured feet
     ==========================  ===============================================  =============
 
     WALK and LATCH plan from the measured state where its DCM has left the walk's by more than
@@ -421,16 +425,31 @@ def _footholds(feet, landing, config: StopPlannerConfig):
 
 
 def _in_the_halt(observation: Observation, handle, t: float, config: StopPlannerConfig) -> Action:
-    """The halt with ``halt_footholds``: REPLAN on the measured feet where a loaded sole has left the plan's
-    foothold, at most :data:`MAX_HALT_REPLANS` times a stop; else WAIT. A sole that lands again and a DCM
-    that leaves the plan do not re-plan the halt: both are the body rocking, and a re-plan that chases the
-    soles then walks them together (measured: campaign run 290 fell)."""
-    feet = _footholds(observation.feet, last_landing(handle.history), config)
+    """The halt with ``halt_footholds``: REPLAN on the measured feet, from the plan's own COG, where a loaded
+    sole has left the plan's foothold and the DCM is within ``landed_replan_threshold`` of the plan's, at most
+    :data:`MAX_HALT_REPLANS` times a stop; else WAIT. A sole that lands again and a DCM that leaves the plan
+    do not re-plan the halt: both are the body rocking, and re-plans that chased the soles walked them
+    together until the robot fell (campaign runs 290 and 47); with the DCM off the plan, the plan's COG is
+    not the robot's."""
+    if dcm_deviation(handle.plan, t, observation.measured) > config.landed_replan_threshold:
+        return Action(ActionKind.WAIT, "in the halt, the DCM off the plan: its COG is not the robot's")
+    feet = _standing_footholds(observation.feet, last_landing(handle.history), config)
     if not _feet_moved(observation.feet, handle.plan, t, feet, config):
         return Action(ActionKind.WAIT, "in the halt, the soles on the plan's")
     if halt_replans(handle.history) >= MAX_HALT_REPLANS:
         return Action(ActionKind.WAIT, "the halt re-planned already")
     return Action(ActionKind.REPLAN, "a loaded sole left the plan's foothold in the halt", feet=feet, from_plan=True)
+
+
+def _standing_footholds(feet, landing, config: StopPlannerConfig):
+    """:func:`_footholds`; for a stop with no landing (signalled in double support), both soles' estimated
+    positions once each has been loaded ``foothold_ticks`` ticks."""
+    if landing is not None:
+        return _footholds(feet, landing, config)
+    if not config.measured_footholds or feet is None or not np.all(np.isfinite(feet)) or not all(
+            foothold_loaded(feet, side, config.foothold_ticks) for side in SIDES):
+        return None
+    return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
 
 def halt_replans(history) -> int:
