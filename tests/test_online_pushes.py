@@ -350,3 +350,31 @@ def test_a_forward_push_no_single_landing_stops_takes_a_second_step():
     fell = run_online(estop_time=2.95, perturbations=push,
                       controller=ControllerOptions(planner=StopPlannerConfig(recovery_step=False)))
     assert not fell.criteria["no_fall"]
+
+
+#: Campaign run 19 (seed 0): 28.6 N s backward and to the left 0.1 s after a signal early in single support,
+#: on a robot 4 % light, friction 0.6, one tick of latency, sensor noise.
+CAMPAIGN_RUN_19 = ("--estop-time 3.13 --step-length 0.2692 --step-time 0.835 --step-width 0.2004 "
+                   "--push 3.226 -189.61 76.07 0.151 --mass-scale 0.9563 --torso-mass-scale 0.9975 "
+                   "--torso-com-offset -0.00411 --friction 0.6015 --latency 1 --seed 7733539186331363713 "
+                   "--sensor-noise").split()
+
+
+@pytest.mark.slow
+def test_the_halt_stands_on_the_measured_feet_where_a_sole_left_the_plans(tmp_path):
+    """Campaign run 19: the landed right sole stands 1.1 cm off the plan's foot. Played on the plan's feet
+    (``halt_footholds`` off) the halt's CoP leaves that plan's sole by 5.5 mm (its toe-outer corner) though
+    it stays inside the sole where it stands; with the halt re-planned once on the measured feet, from the
+    plan's own COG, the stop meets every criterion."""
+    import json
+
+    from drake_estop.cli import main
+
+    summary = tmp_path / "summary.json"
+    text = "{controller: {planner: {halt_footholds: true}}}"
+    assert main(["simulate", "--physics", *CAMPAIGN_RUN_19, "--scenario-text", text, "--summary", str(summary)]) == 0
+    result = json.loads(summary.read_text())
+    assert result["success"], [name for name, ok in result["criteria"].items() if not ok]
+    assert result["physics"]["cop_exit"] is None
+    modes = [change["mode"] for change in result["modes"]]
+    assert modes.count("halt") == 2  # the halt, re-planned once: a double-support stop and its own halt
