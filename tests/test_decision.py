@@ -235,17 +235,17 @@ def test_in_the_halt_only_a_sole_off_the_plan_replans_and_only_with_halt_foothol
     planned = plan_3_4.feet(t)
     feet = np.array([*planned["left"][:2], *planned["right"][:2], 40.0, 40.0])
     feet[1] -= 0.01  # the left sole 1 cm inside
-    on = CONFIG.replaced(halt_footholds=True)
+    on, off = CONFIG.replaced(halt_footholds=True), CONFIG.replaced(halt_footholds=False)
     observation = Observation(time=t, latched=True, signal_time=3.4, measured=_pushed(plan_3_4, t, 0.0), feet=feet)
     action = decide(observation, PlanHandle(plan_3_4), on)
     assert action.kind is ActionKind.REPLAN and action.from_plan and not action.recovery_step
     np.testing.assert_array_equal(action.feet["left"], feet[:2])
-    assert decide(observation, PlanHandle(plan_3_4), CONFIG).kind is ActionKind.WAIT  # off: not watched
+    assert decide(observation, PlanHandle(plan_3_4), off).kind is ActionKind.WAIT  # off: not watched
     # the soles on the plan's: a DCM 11 cm off or a re-landed sole waits in the halt
     on_plan = np.array([*planned["left"][:2], *planned["right"][:2], 40.0, 40.0])
     pushed = dataclasses.replace(observation, measured=_pushed(plan_3_4, t, 0.4), feet=on_plan)
     assert decide(pushed, PlanHandle(plan_3_4), on).kind is ActionKind.WAIT
-    assert decide(pushed, PlanHandle(plan_3_4), CONFIG).kind is ActionKind.REPLAN
+    assert decide(pushed, PlanHandle(plan_3_4), off).kind is ActionKind.REPLAN
     relanded = dataclasses.replace(observation, feet=on_plan, relanded={"left": feet[:2]}, relanded_now=True)
     assert decide(relanded, PlanHandle(plan_3_4), on).kind is ActionKind.WAIT
     # a sole off the plan with the DCM 11 cm off: the plan's COG is not the robot's, the halt waits

@@ -210,7 +210,7 @@ def test_the_halt_is_replanned_once_on_the_measured_feet_from_the_plans_own_cog(
 
 
 def test_without_halt_footholds_the_halt_keeps_the_plans_feet(pattern, params):
-    planner, context, _, first, _, _ = _in_the_halt(pattern, params)
+    planner, context, _, first, _, _ = _in_the_halt(pattern, params, halt_footholds=False)
     assert planner.replans(context) == (0, 0)
     assert planner.plan(context) is first
 
