@@ -88,7 +88,7 @@ ABLATION = (
     {"controller": {"planner.crossover_step": True}},
     {"controller": {"touchdown": None}},
     {"controller": {"planner.late_landing": True}},
-    {"controller": {"planner.halt_footholds": False}},
+    {"controller": {"planner.halt_footholds": True}},
     {"plant": {"time_step": 0.002}},
 )
 #: The lines around the ablation's section of the report: each kind of run keeps the other's part.

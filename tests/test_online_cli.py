@@ -82,7 +82,7 @@ CHANGED = {"true_state": True, "whole_body_walk": True, "braked_landing": False,
                "measured_footholds": False, "foothold_ticks": 3, "foothold_replan": True, "foothold_tolerance": 0.01,
                "relanded_footholds": False, "recovery_step": False, "capture_landing": False, "crossover_step": True,
                "max_steps": 2, "max_replan_solves": None, "max_latch_solves": 3, "reference_fallback": False,
-               "plan_ahead": False, "late_landing": True, "max_late_landing": 0.1, "halt_footholds": False}.items()}}
+               "plan_ahead": False, "late_landing": True, "max_late_landing": 0.1, "halt_footholds": True}.items()}}
 
 
 def _controller_text(name, value) -> str:

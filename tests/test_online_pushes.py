@@ -365,13 +365,14 @@ def test_the_halt_stands_on_the_measured_feet_where_a_sole_left_the_plans(tmp_pa
     """Campaign run 19: the landed right sole stands 1.1 cm off the plan's foot. Played on the plan's feet
     (``halt_footholds`` off) the halt's CoP leaves that plan's sole by 5.5 mm (its toe-outer corner) though
     it stays inside the sole where it stands; with the halt re-planned once on the measured feet, from the
-    plan's own COG (the default), the stop meets every criterion."""
+    plan's own COG, the stop meets every criterion."""
     import json
 
     from drake_estop.cli import main
 
     summary = tmp_path / "summary.json"
-    assert main(["simulate", "--physics", *CAMPAIGN_RUN_19, "--summary", str(summary)]) == 0
+    text = "{controller: {planner: {halt_footholds: true}}}"
+    assert main(["simulate", "--physics", *CAMPAIGN_RUN_19, "--scenario-text", text, "--summary", str(summary)]) == 0
     result = json.loads(summary.read_text())
     assert result["success"], [name for name, ok in result["criteria"].items() if not ok]
     assert result["physics"]["cop_exit"] is None

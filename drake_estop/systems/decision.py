@@ -118,10 +118,8 @@ class StopPlannerConfig:
         The halt is re-planned once on the measured feet: a loaded sole off the plan's foot by
         ``foothold_tolerance`` in the halt, with the DCM within ``landed_replan_threshold`` of the plan's,
         re-plans the double-support stop where the soles stand, from the plan's own COG; without it the halt
-        plays out on the plan's feet (default True: every one of the seed-0 campaign's 44 halt CoP exits had
-        a sole 5 mm or more off the plan's, and its CoP inside the sole where it stood). A stop with no
-        landing takes both soles once both are loaded. In the halt neither a sole that lands again nor the
-        DCM re-plans then.
+        plays out on the plan's feet (default False). A stop with no landing takes both soles once both are
+        loaded. In the halt neither a sole that lands again nor the DCM re-plans then.
     recovery_step : bool
         A re-plan after the landing that finds no double-support stop steps the rear foot forward, and a
         capture landing that stops nothing steps again (default True).
@@ -171,7 +169,7 @@ class StopPlannerConfig:
     foothold_replan: bool = False
     foothold_tolerance: float = FOOTHOLD_TOLERANCE
     relanded_footholds: bool = True
-    halt_footholds: bool = True
+    halt_footholds: bool = False
     recovery_step: bool = True
     capture_landing: bool = True
     crossover_step: bool = False
@@ -324,8 +322,9 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     (any stop)                  within ``replan_interval`` of the last try, no   WAIT
                                 tries left, no sole re-landed on this tick
     HALT (``halt_footholds``)   a loaded sole off the plan's, the DCM within      REPLAN on the
-                                ``landed_replan_threshold``, no halt re-plan yet  measured feet, from
-                                (else WAIT: a re-landed sole, the DCM off)        the plan's COG
+                                ``landed_replan_threshold``, no halt re-planned   measured feet,
+                                yet; else (a re-landed sole, the DCM off)         from the plan
+                                                                                  (else WAIT)
     (any stop)                  a sole re-landed off its foothold                REPLAN on it
     (any stop)                  the DCM within its threshold, the soles on the   WAIT
                                 plan's (or no ``foothold_replan``)
