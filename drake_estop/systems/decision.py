@@ -322,9 +322,8 @@ def decide(observation: Observation, handle, config: StopPlannerConfig) -> Actio
     (any stop)                  within ``replan_interval`` of the last try, no   WAIT
                                 tries left, no sole re-landed on this tick
     HALT (``halt_footholds``)   a loaded sole off the plan's, the DCM within      REPLAN on the
-                                ``landed_replan_threshold``, no halt re-planned   measured feet,
-                                yet; else (a re-landed sole, the DCM off)         from the plan
-                                                                                  (else WAIT)
+                                ``landed_replan_threshold``, no halt re-plan yet  measured feet, from
+                                (else WAIT: a re-landed sole, the DCM off)        the plan's COG
     (any stop)                  a sole re-landed off its foothold                REPLAN on it
     (any stop)                  the DCM within its threshold, the soles on the   WAIT
                                 plan's (or no ``foothold_replan``)
