@@ -418,7 +418,13 @@ def _footholds(feet, landing, config: StopPlannerConfig):
     the walk's feet until a recovery step lands)."""
     if not config.measured_footholds or landing is None or feet is None:
         return None
-    if not np.all(np.isfinite(feet)) or not foothold_loaded(feet, landing.landing_foot, config.foothold_ticks):
+    return _loaded_footholds(feet, (landing.landing_foot,), config)
+
+
+def _loaded_footholds(feet, sides, config: StopPlannerConfig):
+    """``{side: xy}`` of both soles of ``feet`` once each of ``sides`` has been loaded ``foothold_ticks``
+    ticks; None with a non-finite estimate."""
+    if not np.all(np.isfinite(feet)) or not all(foothold_loaded(feet, side, config.foothold_ticks) for side in sides):
         return None
     return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
 
@@ -445,10 +451,9 @@ def _standing_footholds(feet, landing, config: StopPlannerConfig):
     positions once each has been loaded ``foothold_ticks`` ticks."""
     if landing is not None:
         return _footholds(feet, landing, config)
-    if not config.measured_footholds or feet is None or not np.all(np.isfinite(feet)) or not all(
-            foothold_loaded(feet, side, config.foothold_ticks) for side in SIDES):
+    if not config.measured_footholds or feet is None:
         return None
-    return {side: feet[2 * k:2 * k + 2].copy() for k, side in enumerate(SIDES)}
+    return _loaded_footholds(feet, SIDES, config)
 
 
 def halt_replans(history) -> int:
@@ -459,7 +464,7 @@ def halt_replans(history) -> int:
 def _feet_moved(measured_feet, plan, t, feet, config: StopPlannerConfig) -> bool:
     """Whether a sole of ``feet`` (:func:`_footholds`) that is a foothold lies more than ``foothold_tolerance``
     from where ``plan`` has it at ``t``; False without footholds."""
-    if feet is None or not (config.foothold_replan or config.halt_footholds):
+    if feet is None:
         return False
     planned = plan.feet(t)
     return any(foothold_loaded(measured_feet, side, config.foothold_ticks)

@@ -344,8 +344,8 @@ class StopPlannerSystem(ReferenceSystem):
         t, plan = context.get_time(), handle.plan
         pending = handle.pending if action.resumed else None
         if action.from_plan:  # the plan's own COG (eq. 10-11 with the command): only the feet change
-            axes = [trajectory.evaluate_at(t) for trajectory in (plan.x, plan.y)]
-            measured = (np.array([axes[0][0], axes[1][0]]), np.array([axes[0][1], axes[1][1]]))
+            position, velocity, _, _ = plan.com([t])
+            measured = (position[0], velocity[0])
         start = time.perf_counter()
         try:
             new = replan_stop(plan, t, *measured, feet=action.feet, recovery_step=action.recovery_step,
